@@ -1,0 +1,1 @@
+//! The Trevi coordinator. Placeholder until the farm lands.

@@ -1,0 +1,204 @@
+//! Scene bundles: a scene file plus the files it references.
+//!
+//! The bundle is what the farm ships to workers. It is addressed by the SHA-256
+//! of its canonical encoding, so a worker can cache it and a coordinator can
+//! check that what arrived is what was meant. Paths inside a bundle are
+//! relative, use `/`, and never climb out of the scene's directory.
+
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::io;
+use std::path::{Component, Path, PathBuf};
+
+/// Anything that can hand out the bytes of a bundle-relative file.
+pub trait FileSource: Sync {
+    /// `rel` is a normalised bundle-relative path (see [`normalize_rel_path`]).
+    fn read(&self, rel: &str) -> io::Result<Vec<u8>>;
+}
+
+/// Files read from a directory on disk.
+pub struct DirSource {
+    pub root: PathBuf,
+}
+
+impl FileSource for DirSource {
+    fn read(&self, rel: &str) -> io::Result<Vec<u8>> {
+        std::fs::read(self.root.join(rel))
+    }
+}
+
+/// Normalises a `file="..."` reference into a bundle-relative path, or says
+/// why it is not allowed (absolute, or climbing out of the scene directory).
+pub fn normalize_rel_path(reference: &str) -> Result<String, String> {
+    if reference.is_empty() {
+        return Err("empty file reference".into());
+    }
+    let path = Path::new(reference);
+    if path.is_absolute() || reference.starts_with('/') || reference.starts_with('\\') {
+        return Err(format!(
+            "file \"{reference}\" is absolute; references must be relative to the scene's directory"
+        ));
+    }
+    let mut parts: Vec<String> = Vec::new();
+    for c in path.components() {
+        match c {
+            Component::Normal(s) => parts.push(s.to_string_lossy().into_owned()),
+            Component::CurDir => {}
+            Component::ParentDir => {
+                if parts.pop().is_none() {
+                    return Err(format!(
+                        "file \"{reference}\" climbs out of the scene's directory"
+                    ));
+                }
+            }
+            Component::RootDir | Component::Prefix(_) => {
+                return Err(format!(
+                    "file \"{reference}\" is absolute; references must be relative to the scene's directory"
+                ))
+            }
+        }
+    }
+    if parts.is_empty() {
+        return Err(format!("file \"{reference}\" names no file"));
+    }
+    Ok(parts.join("/"))
+}
+
+/// A scene bundle held in memory: the scene file's name and every file, keyed
+/// by bundle-relative path.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Bundle {
+    pub scene: String,
+    pub files: BTreeMap<String, Vec<u8>>,
+}
+
+impl FileSource for Bundle {
+    fn read(&self, rel: &str) -> io::Result<Vec<u8>> {
+        self.files.get(rel).cloned().ok_or_else(|| {
+            io::Error::new(
+                io::ErrorKind::NotFound,
+                format!("{rel} is not part of the scene bundle"),
+            )
+        })
+    }
+}
+
+const MAGIC: &[u8; 8] = b"TREVIBN1";
+
+impl Bundle {
+    /// Canonical encoding: magic, then for the scene and each file in path
+    /// order `len(path) path len(data) data` with little-endian u64 lengths.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        out.extend_from_slice(MAGIC);
+        put(&mut out, self.scene.as_bytes());
+        out.extend_from_slice(&(self.files.len() as u64).to_le_bytes());
+        for (path, data) in &self.files {
+            put(&mut out, path.as_bytes());
+            put(&mut out, data);
+        }
+        out
+    }
+
+    /// Decodes [`Bundle::encode`]'s output, checking every path and length.
+    pub fn decode(bytes: &[u8]) -> Result<Bundle, String> {
+        let mut r = Reader { bytes, pos: 0 };
+        if r.take(8)? != MAGIC {
+            return Err("not a Trevi scene bundle (bad magic)".into());
+        }
+        let scene = r.string()?;
+        let count = r.u64()?;
+        let mut files = BTreeMap::new();
+        for _ in 0..count {
+            let path = r.string()?;
+            let norm = normalize_rel_path(&path)?;
+            if norm != path {
+                return Err(format!("bundle path \"{path}\" is not normalised"));
+            }
+            let len = r.u64()? as usize;
+            let data = r.take(len)?.to_vec();
+            if files.insert(path.clone(), data).is_some() {
+                return Err(format!("bundle holds \"{path}\" twice"));
+            }
+        }
+        if r.pos != bytes.len() {
+            return Err("trailing bytes after the bundle".into());
+        }
+        if !files.contains_key(&scene) {
+            return Err(format!("bundle lacks its scene file \"{scene}\""));
+        }
+        Ok(Bundle { scene, files })
+    }
+
+    /// Hex SHA-256 of the canonical encoding: the bundle's address.
+    pub fn hash(&self) -> String {
+        sha256_hex(&self.encode())
+    }
+}
+
+/// Hex SHA-256 of some bytes.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex::encode(Sha256::digest(bytes))
+}
+
+fn put(out: &mut Vec<u8>, data: &[u8]) {
+    out.extend_from_slice(&(data.len() as u64).to_le_bytes());
+    out.extend_from_slice(data);
+}
+
+struct Reader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
+        let end = self
+            .pos
+            .checked_add(n)
+            .filter(|&e| e <= self.bytes.len())
+            .ok_or("truncated scene bundle")?;
+        let s = &self.bytes[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+    fn u64(&mut self) -> Result<u64, String> {
+        let b = self.take(8)?;
+        Ok(u64::from_le_bytes(b.try_into().unwrap()))
+    }
+    fn string(&mut self) -> Result<String, String> {
+        let n = self.u64()? as usize;
+        String::from_utf8(self.take(n)?.to_vec()).map_err(|_| "bundle path is not UTF-8".into())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paths_outside_the_scene_directory_are_refused() {
+        assert_eq!(normalize_rel_path("a/./b/../c.obj").unwrap(), "a/c.obj");
+        assert!(normalize_rel_path("../x.obj").is_err());
+        assert!(normalize_rel_path("a/../../x.obj").is_err());
+        assert!(normalize_rel_path("/etc/passwd").is_err());
+        assert!(normalize_rel_path("").is_err());
+    }
+
+    #[test]
+    fn encoding_round_trips_and_hash_tracks_content() {
+        let mut files = BTreeMap::new();
+        files.insert("s.xml".to_string(), b"<scene/>".to_vec());
+        files.insert("m/a.obj".to_string(), b"v 0 0 0".to_vec());
+        let b = Bundle {
+            scene: "s.xml".into(),
+            files,
+        };
+        let enc = b.encode();
+        assert_eq!(Bundle::decode(&enc).unwrap(), b);
+        let mut c = b.clone();
+        c.files.insert("m/a.obj".into(), b"v 0 0 1".to_vec());
+        assert_ne!(b.hash(), c.hash());
+        assert!(Bundle::decode(&enc[..enc.len() - 1]).is_err());
+    }
+}

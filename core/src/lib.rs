@@ -1,0 +1,33 @@
+//! `trevi-core`: the Trevi tracer.
+//!
+//! A scene bundle goes in, linear float pixels of any tile of any camera's
+//! frame come out. There is no network code here: the worker and the
+//! coordinator wrap this crate.
+//!
+//! The modules follow the data flow:
+//!
+//! ```text
+//! scene file ─► scene::aisxml (parse, resolve, validate) ─► scene::SceneDesc
+//!   (meshes from mesh::obj / mesh::ply)
+//! SceneDesc ─► world::Scene (build: bvh over meshes, bvh over instances)
+//! camera::Camera (primary rays) ─► integrator (Whitted + Monte-Carlo effects,
+//!   lights, sampling) ─► tile::render_tile (linear RGB of a rectangle)
+//!   ─► output::FrameWriter (PNG / EXR, band by band, atomic rename)
+//! ```
+//!
+//! Determinism: a pixel's value depends only on the scene and its coordinates
+//! (see `sampling`), so any tiling, thread count or machine gives the same
+//! bytes.
+
+pub mod bundle;
+pub mod error;
+pub mod mesh;
+pub mod output;
+pub mod scene;
+pub mod tile;
+
+pub use bundle::{Bundle, DirSource, FileSource};
+pub use error::{Location, OutputError, SceneError};
+pub use output::FrameWriter;
+pub use scene::SceneDesc;
+pub use tile::Rect;

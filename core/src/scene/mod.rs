@@ -1,0 +1,198 @@
+//! The scene description: what an AISXML file says, resolved and validated.
+//!
+//! Data flows `scene file → parse (aisxml.rs) → SceneDesc → build (build.rs) → Scene`.
+//! A [`SceneDesc`] is plain data with every reference resolved (meshes loaded,
+//! surfaces assigned to triangles, defaults filled in); [`crate::Scene`] adds
+//! the acceleration structure and precomputed camera frames.
+
+pub mod aisxml;
+
+use crate::mesh::Mesh;
+use glam::{DMat4, Vec3};
+
+/// `<settings>`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    pub background: Vec3,
+    pub ambient: Vec3,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            background: Vec3::ZERO,
+            ambient: Vec3::ZERO,
+        }
+    }
+}
+
+/// Which sides of a surface rays can hit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sided {
+    Two,
+    /// Only the side the triangle's winding faces (counter-clockwise seen from
+    /// the front; the geometric normal `(b−a)×(c−a)` points to the front).
+    Front,
+}
+
+/// `<surface>`: the Phong material plus reflection and refraction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    pub diffuse: Vec3,
+    pub ambient: Vec3,
+    pub specular: Vec3,
+    pub shininess: f32,
+    pub reflectivity: f32,
+    pub opacity: f32,
+    pub ior: f32,
+    pub smooth: bool,
+    pub sided: Sided,
+}
+
+impl Default for Surface {
+    /// The spec's defaults (`ambient` defaults to the diffuse color).
+    fn default() -> Self {
+        let d = Vec3::splat(0.8);
+        Surface {
+            diffuse: d,
+            ambient: d,
+            specular: Vec3::ZERO,
+            shininess: 32.0,
+            reflectivity: 0.0,
+            opacity: 1.0,
+            ior: 1.5,
+            smooth: true,
+            sided: Sided::Two,
+        }
+    }
+}
+
+/// `<model>`: an instance of a mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Model {
+    pub id: String,
+    /// Index into [`SceneDesc::meshes`].
+    pub mesh: usize,
+    /// Object to world, composed in document order (first child applied first).
+    pub transform: DMat4,
+    /// The surfaces of this model; `surfaces[0]` is the default one.
+    pub surfaces: Vec<Surface>,
+    /// Per triangle, an index into `surfaces`. Empty when the model has only
+    /// its default surface (every triangle uses `surfaces[0]`).
+    pub triangle_surface: Vec<u16>,
+}
+
+/// `<sphere>`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sphere {
+    pub id: String,
+    pub center: Vec3,
+    pub radius: f32,
+    pub surface: Surface,
+}
+
+/// `<plane>`: infinite and two-sided.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plane {
+    pub id: String,
+    pub point: Vec3,
+    /// Normalised.
+    pub normal: Vec3,
+    pub surface: Surface,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LightKind {
+    Point,
+    /// `direction` normalised; cosines of the `inner` and `outer` half-angles.
+    Spot {
+        direction: Vec3,
+        cos_inner: f32,
+        cos_outer: f32,
+    },
+}
+
+/// `<light>`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Light {
+    pub kind: LightKind,
+    pub position: Vec3,
+    pub color: Vec3,
+    pub intensity: f32,
+    pub radius: f32,
+    /// `c l q` of E = color·intensity / (c + l·d + q·d²).
+    pub attenuation: Vec3,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lens {
+    Square,
+    Disk,
+}
+
+/// `ao-distance`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AoDistance {
+    /// Half the diagonal of the scene's bounding box.
+    Auto,
+    Fixed(f32),
+}
+
+/// Adaptive sampling (a Trevi extension of `<render>`, see docs/aisxml-extensions.md).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Adaptive {
+    /// Target standard error of a pixel's mean, in linear units.
+    pub threshold: f32,
+    pub min_samples: u32,
+    pub max_samples: u32,
+}
+
+/// `<render>`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    pub supersample: u32,
+    pub jitter: bool,
+    pub max_depth: u32,
+    pub shadow_samples: u32,
+    pub ao_samples: u32,
+    pub ao_distance: AoDistance,
+    pub diffuse_samples: u32,
+    pub diffuse_depth: u32,
+    pub seed: u64,
+    /// Bundle-relative output path (`<camera id>.png` by default).
+    pub output: String,
+    pub adaptive: Option<Adaptive>,
+}
+
+/// `<camera>` with its `<render>`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraDesc {
+    pub id: String,
+    pub position: Vec3,
+    /// Normalised view direction d.
+    pub direction: Vec3,
+    pub up: Vec3,
+    /// Horizontal field of view in degrees.
+    pub fov: f32,
+    pub aperture: f32,
+    /// Distance of the focal plane; always set (defaults resolved by the parser).
+    pub focus: f32,
+    pub lens: Lens,
+    pub render: RenderSettings,
+}
+
+/// A whole scene, resolved and validated.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SceneDesc {
+    pub settings: Settings,
+    pub meshes: Vec<Mesh>,
+    pub models: Vec<Model>,
+    pub spheres: Vec<Sphere>,
+    pub planes: Vec<Plane>,
+    pub lights: Vec<Light>,
+    pub cameras: Vec<CameraDesc>,
+    /// Bundle-relative paths of every file the scene references, sorted.
+    pub files: Vec<String>,
+}

@@ -1,0 +1,1 @@
+//! The Trevi gRPC contract (`trevi.v1`). Placeholder until the farm lands.

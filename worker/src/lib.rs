@@ -1,0 +1,1 @@
+//! The Trevi worker. Placeholder until the farm lands.
