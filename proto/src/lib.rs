@@ -1,1 +1,136 @@
-//! The Trevi gRPC contract (`trevi.v1`). Placeholder until the farm lands.
+//! The Trevi gRPC contract (`trevi.v1`).
+//!
+//! The protos live in `proto/trevi/v1/`; `build.rs` compiles them with protox
+//! (no `protoc` needed) into the [`pb`] module. Conversions between the prost
+//! messages and `trevi-core`'s domain types live here, so `trevi-core` never
+//! sees prost, and so does the pixel wire format ([`pixels_to_bytes`],
+//! [`pixels_from_bytes`]).
+
+use trevi_core::Rect;
+
+/// Generated prost messages and tonic clients and servers.
+pub mod pb {
+    #![allow(clippy::all, missing_docs)]
+    tonic::include_proto!("trevi.v1");
+
+    /// The encoded `FileDescriptorSet`, for gRPC server reflection.
+    pub const FILE_DESCRIPTOR_SET: &[u8] =
+        include_bytes!(concat!(env!("OUT_DIR"), "/trevi_descriptor.bin"));
+}
+
+/// Size of the chunks bundles, tiles and images travel in.
+pub const CHUNK_SIZE: usize = 1 << 20;
+
+/// Largest gRPC message either side accepts (a chunk plus framing).
+pub const MAX_MESSAGE_SIZE: usize = 4 << 20;
+
+/// A message from the wire that does not make sense.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum WireError {
+    #[error("missing field {0}")]
+    Missing(&'static str),
+    #[error("pixel data of {0} bytes is not a whole number of RGB f32 triples")]
+    RaggedPixels(usize),
+}
+
+impl From<Rect> for pb::Rect {
+    fn from(r: Rect) -> Self {
+        pb::Rect {
+            x: r.x,
+            y: r.y,
+            w: r.w,
+            h: r.h,
+        }
+    }
+}
+
+impl From<pb::Rect> for Rect {
+    fn from(r: pb::Rect) -> Self {
+        Rect::new(r.x, r.y, r.w, r.h)
+    }
+}
+
+/// The rectangle of an optional message field.
+pub fn rect_from(r: Option<pb::Rect>) -> Result<Rect, WireError> {
+    r.map(Rect::from).ok_or(WireError::Missing("rect"))
+}
+
+/// Linear RGB pixels as little-endian f32 triples.
+pub fn pixels_to_bytes(pixels: &[[f32; 3]]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(pixels.len() * 12);
+    for p in pixels {
+        for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// The inverse of [`pixels_to_bytes`].
+pub fn pixels_from_bytes(bytes: &[u8]) -> Result<Vec<[f32; 3]>, WireError> {
+    if bytes.len() % 12 != 0 {
+        return Err(WireError::RaggedPixels(bytes.len()));
+    }
+    Ok(bytes
+        .chunks_exact(12)
+        .map(|c| {
+            let f = |i: usize| f32::from_le_bytes(c[i..i + 4].try_into().unwrap());
+            [f(0), f(4), f(8)]
+        })
+        .collect())
+}
+
+impl pb::JobState {
+    /// Whether the job will not change any more.
+    pub fn is_final(self) -> bool {
+        matches!(
+            self,
+            pb::JobState::Done | pb::JobState::Failed | pb::JobState::Cancelled
+        )
+    }
+
+    /// Lower-case name for people.
+    pub fn label(self) -> &'static str {
+        match self {
+            pb::JobState::Unspecified => "unknown",
+            pb::JobState::Queued => "queued",
+            pb::JobState::Running => "running",
+            pb::JobState::Done => "done",
+            pb::JobState::Failed => "failed",
+            pb::JobState::Cancelled => "cancelled",
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pixels_round_trip_bit_exactly() {
+        let px = vec![[0.0, -1.5, f32::MAX], [f32::NAN, 1e-30, 3.25]];
+        let back = pixels_from_bytes(&pixels_to_bytes(&px)).unwrap();
+        for (a, b) in px.iter().zip(&back) {
+            for i in 0..3 {
+                assert_eq!(a[i].to_bits(), b[i].to_bits());
+            }
+        }
+        assert_eq!(
+            pixels_from_bytes(&[0u8; 13]),
+            Err(WireError::RaggedPixels(13))
+        );
+    }
+
+    #[test]
+    fn rects_round_trip() {
+        let r = Rect::new(1, 2, 3, 4);
+        assert_eq!(Rect::from(pb::Rect::from(r)), r);
+        assert_eq!(rect_from(None), Err(WireError::Missing("rect")));
+    }
+
+    #[test]
+    fn descriptor_set_is_embedded() {
+        let text = String::from_utf8_lossy(pb::FILE_DESCRIPTOR_SET);
+        assert!(text.contains("trevi.v1") && text.contains("SubmitTile"));
+    }
+}
