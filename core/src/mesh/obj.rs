@@ -1,8 +1,804 @@
-//! PLACEHOLDER (being implemented).
+//! Wavefront OBJ loader.
+//!
+//! What is read: `v x y z [w]` (also the common `v x y z r g b` vertex-colour
+//! extension; `w` and colours are ignored), `vn x y z` and `f` with corners
+//! `v`, `v/vt`, `v//vn`, `v/vt/vn` (an empty `vt` or `vn` field counts as
+//! absent), positive and negative (relative) indices. Polygons are
+//! fan-triangulated: `v0 v1 v2 v3 …` becomes `(v0,v1,v2), (v0,v2,v3), …`, and
+//! triangles are numbered in file order.
+//!
+//! Everything else (`vt` values, `vp`, `o`, `g`, `s`, `usemtl`, `mtllib`,
+//! `l`, `p`, unknown statements, comments from `#` to the end of the physical
+//! line, blank lines) is ignored. `vt` statements are counted so that a
+//! texture index out of range is still reported. Lines may end in `\r\n`, and
+//! a backslash at the very end of a line continues the statement on the next.
+//!
+//! Indices must refer to elements defined earlier in the file (that is what
+//! negative indices are relative to as well).
+//!
+//! Normals: when every face corner names a `vn`, every vertex gets a normal;
+//! a position used with different normals is split, the extra copies appended
+//! after the original positions so that vertex `i` of the file stays vertex
+//! `i`. When any corner lacks a `vn`, or a used `vn` has zero length, the mesh
+//! has no normals (the caller computes smooth ones).
+
+use std::collections::HashMap;
+
+use glam::Vec3;
+
 use super::Mesh;
-use crate::error::SceneError;
+use crate::error::{Location, SceneError};
+
+/// "No normal" marker in a face corner.
+const NONE: u32 = u32::MAX;
 
 /// Parses a OBJ file's bytes. `file` is the bundle-relative name used in errors.
-pub fn parse(_file: &str, _bytes: &[u8]) -> Result<Mesh, SceneError> {
-    unimplemented!()
+pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {
+    Parser {
+        file,
+        bytes,
+        positions: Vec::new(),
+        normals: Vec::new(),
+        texcoords: 0,
+        triangles: Vec::new(),
+        tri_normals: Vec::new(),
+        all_normals: true,
+    }
+    .run()
+}
+
+/// Blanks separating tokens inside a statement.
+fn is_blank(c: u8) -> bool {
+    matches!(c, b' ' | b'\t' | b'\r' | 0x0b | 0x0c)
+}
+
+/// A token for an error message: lossy, and cut short if it is very long.
+pub(crate) fn show(tok: &[u8]) -> String {
+    const MAX: usize = 40;
+    if tok.len() > MAX {
+        format!("{}…", String::from_utf8_lossy(&tok[..MAX]))
+    } else {
+        String::from_utf8_lossy(tok).into_owned()
+    }
+}
+
+/// Splits the file into statements and statements into tokens, without
+/// allocating. A statement ends at a newline that is not escaped by a
+/// trailing backslash, or at a comment.
+struct Lexer<'a> {
+    b: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Lexer<'a> {
+    /// If the backslash at `at` ends its line, the number of bytes of the
+    /// continuation (backslash plus line ending).
+    fn continuation_len(&self, at: usize) -> Option<usize> {
+        match (self.b.get(at + 1), self.b.get(at + 2)) {
+            (None, _) => Some(1),
+            (Some(b'\n'), _) => Some(2),
+            (Some(b'\r'), Some(b'\n')) => Some(3),
+            (Some(b'\r'), None) => Some(2),
+            _ => None,
+        }
+    }
+
+    /// The next token of the current statement with its byte offset, or
+    /// `None` at the end of the statement (the newline is not consumed).
+    fn token(&mut self) -> Option<(usize, &'a [u8])> {
+        loop {
+            let c = *self.b.get(self.pos)?;
+            match c {
+                b'\n' => return None,
+                b'#' => {
+                    self.pos = self.b[self.pos..]
+                        .iter()
+                        .position(|&c| c == b'\n')
+                        .map_or(self.b.len(), |i| self.pos + i);
+                    return None;
+                }
+                b'\\' => match self.continuation_len(self.pos) {
+                    Some(n) => self.pos += n,
+                    None => break,
+                },
+                c if is_blank(c) => self.pos += 1,
+                _ => break,
+            }
+        }
+        let start = self.pos;
+        while let Some(&c) = self.b.get(self.pos) {
+            if c == b'\n'
+                || c == b'#'
+                || is_blank(c)
+                || (c == b'\\' && self.continuation_len(self.pos).is_some())
+            {
+                break;
+            }
+            self.pos += 1;
+        }
+        Some((start, &self.b[start..self.pos]))
+    }
+
+    /// Skips what is left of the current statement and its newline.
+    fn finish_statement(&mut self) {
+        while self.token().is_some() {}
+        if self.pos < self.b.len() {
+            self.pos += 1;
+        }
+    }
+}
+
+struct Parser<'a> {
+    file: &'a str,
+    bytes: &'a [u8],
+    positions: Vec<Vec3>,
+    /// Raw `vn` values, as written.
+    normals: Vec<Vec3>,
+    /// Number of `vt` statements so far.
+    texcoords: usize,
+    triangles: Vec<[u32; 3]>,
+    /// `vn` index of each triangle corner, kept while `all_normals` holds.
+    tri_normals: Vec<[u32; 3]>,
+    all_normals: bool,
+}
+
+/// One face corner: position index and `vn` index (or [`NONE`]).
+#[derive(Clone, Copy)]
+struct Corner {
+    v: u32,
+    n: u32,
+}
+
+impl Parser<'_> {
+    fn err(&self, at: usize, msg: impl Into<String>) -> SceneError {
+        SceneError::new(Location::at_offset(self.file, self.bytes, at), msg)
+    }
+
+    fn run(mut self) -> Result<Mesh, SceneError> {
+        let mut lx = Lexer {
+            b: self.bytes,
+            pos: 0,
+        };
+        while lx.pos < self.bytes.len() {
+            if let Some((at, keyword)) = lx.token() {
+                match keyword {
+                    b"v" => self.vertex(&mut lx, at)?,
+                    b"vn" => self.normal(&mut lx, at)?,
+                    b"vt" => self.texcoords += 1,
+                    b"f" => self.face(&mut lx, at)?,
+                    _ => {}
+                }
+            }
+            lx.finish_statement();
+        }
+        self.finish()
+    }
+
+    fn number(&self, at: usize, tok: &[u8]) -> Result<f32, SceneError> {
+        let x = std::str::from_utf8(tok)
+            .ok()
+            .and_then(|s| s.parse::<f32>().ok())
+            .ok_or_else(|| self.err(at, format!("malformed number \"{}\"", show(tok))))?;
+        if !x.is_finite() {
+            return Err(self.err(
+                at,
+                format!(
+                    "non-finite number \"{}\" (out of range or nan/inf)",
+                    show(tok)
+                ),
+            ));
+        }
+        Ok(x)
+    }
+
+    /// Reads the numbers of a `v` or `vn` statement into `out`; returns how
+    /// many there were. More than `out.len()` is an error at the first extra.
+    fn numbers(
+        &self,
+        lx: &mut Lexer<'_>,
+        keyword: &str,
+        expected: &str,
+        out: &mut [f32],
+    ) -> Result<usize, SceneError> {
+        let mut n = 0;
+        while let Some((at, tok)) = lx.token() {
+            if n == out.len() {
+                return Err(self.err(
+                    at,
+                    format!("too many numbers after \"{keyword}\": expected {expected}"),
+                ));
+            }
+            out[n] = self.number(at, tok)?;
+            n += 1;
+        }
+        Ok(n)
+    }
+
+    fn vertex(&mut self, lx: &mut Lexer<'_>, at: usize) -> Result<(), SceneError> {
+        const EXPECTED: &str = "x y z [w] (or x y z r g b)";
+        let mut xs = [0f32; 6];
+        let n = self.numbers(lx, "v", EXPECTED, &mut xs)?;
+        if !matches!(n, 3 | 4 | 6) {
+            return Err(self.err(
+                at,
+                format!("expected {EXPECTED} after \"v\", found {n} numbers"),
+            ));
+        }
+        if self.positions.len() >= NONE as usize {
+            return Err(self.err(at, "too many vertices"));
+        }
+        self.positions.push(Vec3::new(xs[0], xs[1], xs[2]));
+        Ok(())
+    }
+
+    fn normal(&mut self, lx: &mut Lexer<'_>, at: usize) -> Result<(), SceneError> {
+        let mut xs = [0f32; 3];
+        let n = self.numbers(lx, "vn", "x y z", &mut xs)?;
+        if n != 3 {
+            return Err(self.err(
+                at,
+                format!("expected x y z after \"vn\", found {n} numbers"),
+            ));
+        }
+        if self.normals.len() >= NONE as usize {
+            return Err(self.err(at, "too many normals"));
+        }
+        self.normals.push(Vec3::from_array(xs));
+        Ok(())
+    }
+
+    /// Resolves a 1-based or negative (relative) index against the `count`
+    /// elements defined so far into a 0-based one.
+    fn index(&self, at: usize, tok: &[u8], count: usize, what: &str) -> Result<u32, SceneError> {
+        let raw = std::str::from_utf8(tok)
+            .ok()
+            .and_then(|s| s.parse::<i64>().ok())
+            .ok_or_else(|| self.err(at, format!("malformed {what} index \"{}\"", show(tok))))?;
+        if raw == 0 {
+            return Err(self.err(
+                at,
+                format!("{what} index 0 is invalid (OBJ indices start at 1)"),
+            ));
+        }
+        let count = count as i64;
+        let i = if raw > 0 { raw - 1 } else { count + raw };
+        if !(0..count).contains(&i) {
+            return Err(self.err(
+                at,
+                format!("{what} index {raw} out of range ({count} defined so far)"),
+            ));
+        }
+        Ok(i as u32)
+    }
+
+    /// Parses one face corner `v[/[vt][/[vn]]]` starting at byte `at`.
+    fn corner(&self, at: usize, tok: &[u8]) -> Result<Corner, SceneError> {
+        let mut fields: [(usize, &[u8]); 3] = [(at, &[]); 3];
+        let mut rest = tok;
+        let mut off = at;
+        let mut n = 0;
+        loop {
+            if n == 3 {
+                return Err(self.err(
+                    off - 1,
+                    format!(
+                        "malformed face vertex \"{}\": expected v, v/vt, v//vn or v/vt/vn",
+                        show(tok)
+                    ),
+                ));
+            }
+            let end = rest.iter().position(|&c| c == b'/').unwrap_or(rest.len());
+            fields[n] = (off, &rest[..end]);
+            n += 1;
+            if end == rest.len() {
+                break;
+            }
+            rest = &rest[end + 1..];
+            off += end + 1;
+        }
+        let (v_at, v) = fields[0];
+        if v.is_empty() {
+            return Err(self.err(
+                v_at,
+                format!("face vertex \"{}\" has no position index", show(tok)),
+            ));
+        }
+        let v = self.index(v_at, v, self.positions.len(), "vertex")?;
+        let (t_at, t) = fields[1];
+        if !t.is_empty() {
+            self.index(t_at, t, self.texcoords, "texture coordinate")?;
+        }
+        let (n_at, nf) = fields[2];
+        let n = if nf.is_empty() {
+            NONE
+        } else {
+            self.index(n_at, nf, self.normals.len(), "normal")?
+        };
+        Ok(Corner { v, n })
+    }
+
+    fn face(&mut self, lx: &mut Lexer<'_>, at: usize) -> Result<(), SceneError> {
+        let mut first = Corner { v: 0, n: NONE };
+        let mut prev = first;
+        let mut count = 0usize;
+        while let Some((c_at, tok)) = lx.token() {
+            let c = self.corner(c_at, tok)?;
+            match count {
+                0 => first = c,
+                1 => {}
+                _ => self.push_triangle([first, prev, c]),
+            }
+            prev = c;
+            count += 1;
+        }
+        if count < 3 {
+            return Err(self.err(
+                at,
+                format!("a face needs at least 3 vertices, found {count}"),
+            ));
+        }
+        Ok(())
+    }
+
+    fn push_triangle(&mut self, t: [Corner; 3]) {
+        self.triangles.push(t.map(|c| c.v));
+        if self.all_normals {
+            if t.iter().all(|c| c.n != NONE) {
+                self.tri_normals.push(t.map(|c| c.n));
+            } else {
+                self.all_normals = false;
+                self.tri_normals = Vec::new();
+            }
+        }
+    }
+
+    fn finish(self) -> Result<Mesh, SceneError> {
+        if self.triangles.is_empty() {
+            return Err(self.err(self.bytes.len(), "mesh has no triangles"));
+        }
+        let (file, bytes) = (self.file, self.bytes);
+        let mut mesh = Mesh {
+            positions: self.positions,
+            normals: Vec::new(),
+            triangles: self.triangles,
+        };
+        if !self.all_normals {
+            return Ok(mesh);
+        }
+        let unit: Vec<Option<Vec3>> = self.normals.iter().map(|&n| unit_normal(n)).collect();
+        let mut corner_normals = Vec::with_capacity(self.tri_normals.len());
+        for t in &self.tri_normals {
+            match t.map(|i| unit[i as usize]) {
+                [Some(a), Some(b), Some(c)] => corner_normals.push([a, b, c]),
+                // A zero-length normal: no normals for the whole mesh.
+                _ => return Ok(mesh),
+            }
+        }
+        if let Err(at) = split_by_normal(&mut mesh, &corner_normals) {
+            return Err(SceneError::new(
+                Location::at_offset(file, bytes, at),
+                "too many vertices after splitting by normal",
+            ));
+        }
+        Ok(mesh)
+    }
+}
+
+/// `n` normalised, or `None` if it has no direction. `-0.0` becomes `0.0`
+/// so that equal normals compare equal bit for bit.
+pub(crate) fn unit_normal(n: Vec3) -> Option<Vec3> {
+    let d = n.as_dvec3();
+    let len = d.length();
+    if len > 0.0 && len.is_finite() {
+        Some((d / len).as_vec3() + Vec3::ZERO)
+    } else {
+        None
+    }
+}
+
+/// Gives `mesh` one normal per vertex from the per-corner normals, splitting a
+/// position used with different normals. Original positions keep their
+/// indices (with the first normal they are used with; unused ones get `+y`);
+/// the copies are appended. `Err(0)` if the vertex count would overflow u32.
+fn split_by_normal(mesh: &mut Mesh, corner_normals: &[[Vec3; 3]]) -> Result<(), usize> {
+    let original = mesh.positions.len();
+    let mut assigned: Vec<Option<Vec3>> = vec![None; original];
+    let mut extra_normals: Vec<Vec3> = Vec::new();
+    let mut copies: HashMap<(u32, [u32; 3]), u32> = HashMap::new();
+    for (t, ns) in mesh.triangles.iter_mut().zip(corner_normals) {
+        for (v, &n) in t.iter_mut().zip(ns) {
+            let slot = &mut assigned[*v as usize];
+            match slot {
+                None => *slot = Some(n),
+                Some(m) if m.to_array().map(f32::to_bits) == n.to_array().map(f32::to_bits) => {}
+                Some(_) => {
+                    let key = (*v, n.to_array().map(f32::to_bits));
+                    *v = match copies.get(&key) {
+                        Some(&i) => i,
+                        None => {
+                            let i = mesh.positions.len();
+                            if i >= NONE as usize {
+                                return Err(0);
+                            }
+                            mesh.positions.push(mesh.positions[*v as usize]);
+                            extra_normals.push(n);
+                            copies.insert(key, i as u32);
+                            i as u32
+                        }
+                    };
+                }
+            }
+        }
+    }
+    mesh.normals = assigned
+        .into_iter()
+        .map(|n| n.unwrap_or(Vec3::Y))
+        .chain(extra_normals)
+        .collect();
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn ok(src: &str) -> Mesh {
+        match parse("m.obj", src.as_bytes()) {
+            Ok(m) => m,
+            Err(e) => panic!("unexpected error: {e}"),
+        }
+    }
+
+    /// Parses `src`, expecting an error at `line:column` whose message contains `msg`.
+    fn fails(src: &str, line: u32, column: u32, msg: &str) {
+        match parse("m.obj", src.as_bytes()) {
+            Ok(_) => panic!("expected an error for {src:?}"),
+            Err(e) => {
+                assert_eq!(
+                    (e.location.file.as_str(), e.location.line, e.location.column),
+                    ("m.obj", line, column),
+                    "wrong location for {src:?}: {e}"
+                );
+                assert!(
+                    e.message.contains(msg),
+                    "message {:?} lacks {msg:?}",
+                    e.message
+                );
+            }
+        }
+    }
+
+    /// Checks the invariants every loaded mesh must satisfy.
+    fn check_invariants(m: &Mesh) {
+        assert!(!m.triangles.is_empty());
+        assert!(m.normals.is_empty() || m.normals.len() == m.positions.len());
+        for t in &m.triangles {
+            for &i in t {
+                assert!((i as usize) < m.positions.len());
+            }
+        }
+        for p in m.positions.iter().chain(&m.normals) {
+            assert!(p.is_finite());
+        }
+    }
+
+    const CUBE: &str = "\
+# unit cube
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0 0 1
+v 1 0 1
+v 1 1 1
+v 0 1 1
+f 1 4 3 2
+f 5 6 7 8
+f 1 2 6 5
+f 2 3 7 6
+f 3 4 8 7
+f 4 1 5 8
+";
+
+    #[test]
+    fn unit_cube_quads_fan_into_twelve_triangles_in_order() {
+        let m = ok(CUBE);
+        assert_eq!(m.positions.len(), 8);
+        assert_eq!(m.positions[6], Vec3::new(1.0, 1.0, 1.0));
+        assert!(m.normals.is_empty());
+        assert_eq!(
+            m.triangles,
+            vec![
+                [0, 3, 2],
+                [0, 2, 1],
+                [4, 5, 6],
+                [4, 6, 7],
+                [0, 1, 5],
+                [0, 5, 4],
+                [1, 2, 6],
+                [1, 6, 5],
+                [2, 3, 7],
+                [2, 7, 6],
+                [3, 0, 4],
+                [3, 4, 7],
+            ]
+        );
+    }
+
+    #[test]
+    fn pentagon_fans_from_its_first_vertex() {
+        let m = ok("v 0 0 0\nv 1 0 0\nv 2 1 0\nv 1 2 0\nv 0 1 0\nf 1 2 3 4 5\n");
+        assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 3, 4]]);
+    }
+
+    #[test]
+    fn negative_indices_are_relative_to_what_is_defined_so_far() {
+        let m = ok("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 1 1 0\nf -3 -1 -2\nf 1 -1 3\n");
+        assert_eq!(m.triangles, vec![[0, 1, 2], [1, 3, 2], [0, 3, 2]]);
+    }
+
+    #[test]
+    fn ignored_statements_comments_crlf_and_continuations() {
+        let src = "mtllib a.mtl\r\no thing\r\ng group one\r\n\r\n   # comment\r\n\
+                   v 0 0 0 1\r\nv 1 0 0 # trailing comment\r\nv 0 1 0\r\n\
+                   v 1 1 0 0.5 0.5 0.5\r\nvt 0 0\r\nvt 1 0\r\nvt 0 1\r\nvp 0.5\r\n\
+                   s off\r\nusemtl red\r\nl 1 2\r\np 1\r\ncstype bezier\r\nfrobnicate 1 2 3\r\n\
+                   f 1/1 2/2 \\\r\n  3/3\r\nf 2 4 \\\n3\n";
+        let m = ok(src);
+        assert_eq!(m.positions.len(), 4);
+        assert_eq!(m.positions[3], Vec3::new(1.0, 1.0, 0.0));
+        assert_eq!(m.triangles, vec![[0, 1, 2], [1, 3, 2]]);
+        assert!(m.normals.is_empty());
+        // A continuation at the very end of the file, and no final newline.
+        let m = ok("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 \\");
+        assert_eq!(m.triangles, vec![[0, 1, 2]]);
+    }
+
+    #[test]
+    fn per_face_normals_split_vertices_and_keep_original_order() {
+        // Two triangles of a folded square sharing the edge 1-3 (0-based 0-2),
+        // each with its own face normal; plus an unused vertex 5.
+        let src = "\
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 1
+v 9 9 9
+vn 0 0 2
+vn 0 -1 1
+vn 0 0 1
+f 1//1 2//1 3//1
+f 1//2 3//2 4//2
+f 1//3 2//3 3//3
+";
+        let m = ok(src);
+        // The first five positions are the file's, in order; vertices 0 and 2
+        // are used with a second normal, so they get copies 5 and 6. The third
+        // face's normal equals the first's after normalisation: no new split.
+        assert_eq!(m.positions.len(), 7);
+        assert_eq!(m.positions[4], Vec3::new(9.0, 9.0, 9.0));
+        assert_eq!(m.positions[5], m.positions[0]);
+        assert_eq!(m.positions[6], m.positions[2]);
+        assert_eq!(m.triangles, vec![[0, 1, 2], [5, 6, 3], [0, 1, 2]]);
+        let n2 = Vec3::new(0.0, -1.0, 1.0).normalize();
+        assert_eq!(m.normals.len(), 7);
+        assert_eq!(m.normals[0], Vec3::Z);
+        assert_eq!(m.normals[1], Vec3::Z);
+        assert_eq!(m.normals[2], Vec3::Z);
+        assert!((m.normals[3] - n2).length() < 1e-6);
+        assert_eq!(m.normals[4], Vec3::Y, "unused vertex gets the stand-in");
+        assert!((m.normals[5] - n2).length() < 1e-6);
+        assert!((m.normals[6] - n2).length() < 1e-6);
+    }
+
+    #[test]
+    fn full_corner_form_with_normals_and_no_split() {
+        let m = ok("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nvn 0 0 -1\n\
+                    f 1/1/1 2/1/1 3/1/1\nf 1/1/1 3/1/1 2/1/1\n");
+        assert_eq!(m.positions.len(), 3);
+        assert_eq!(m.normals, vec![Vec3::Z; 3]);
+        assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 1]]);
+    }
+
+    #[test]
+    fn missing_or_zero_normals_drop_normals_for_the_whole_mesh() {
+        let m = ok("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\nf 1//1 2 3//1\n");
+        assert!(m.normals.is_empty());
+        assert_eq!(m.positions.len(), 3);
+        let m = ok("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvn 0 0 0\nf 1//1 2//2 3//1\n");
+        assert!(m.normals.is_empty());
+        // An unused zero normal does no harm.
+        let m = ok("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvn 0 0 0\nf 1//1 2//1 3//1\n");
+        assert_eq!(m.normals, vec![Vec3::Z; 3]);
+    }
+
+    #[test]
+    fn errors_name_the_offending_token() {
+        fails("v 0 0 0\nv 1 0 zero\n", 2, 7, "malformed number \"zero\"");
+        fails("v 0 0 0\nv 1 0 1e40\n", 2, 7, "non-finite");
+        fails("v 0 0 nan\n", 1, 7, "non-finite");
+        fails("v 0 0 inf\n", 1, 7, "non-finite");
+        fails("v 0 0\n", 1, 1, "found 2 numbers");
+        fails("v 0 0 0 1 2\n", 1, 1, "found 5 numbers");
+        fails("v 0 0 0 1 2 3 4\n", 1, 15, "too many numbers");
+        fails("vn 0 1\n", 1, 1, "expected x y z after \"vn\"");
+        fails("vn 0 1 0 0\n", 1, 10, "too many numbers");
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n",
+            4,
+            7,
+            "index 0 is invalid",
+        );
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",
+            4,
+            7,
+            "vertex index 4 out of range",
+        );
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n",
+            4,
+            7,
+            "vertex index -4 out of range",
+        );
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n",
+            4,
+            7,
+            "malformed vertex index",
+        );
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n",
+            4,
+            1,
+            "at least 3 vertices, found 2",
+        );
+        fails("v 0 0 0\nv 1 0 0\nv 0 1 0\nf\n", 4, 1, "found 0");
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3//1\n",
+            4,
+            10,
+            "normal index 1 out of range",
+        );
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1 2/2 3\n",
+            5,
+            7,
+            "texture coordinate index 2",
+        );
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3/1/1/1\n",
+            4,
+            12,
+            "malformed face vertex",
+        );
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 /1\n",
+            4,
+            7,
+            "no position index",
+        );
+        // Columns count characters, and lines continue past a backslash.
+        fails("# é\nv 0 0 0 \\\n 1 2 3 4\n", 3, 8, "too many numbers");
+        fails(
+            "g é\r\nv 0 0 0\r\nf 1 1 é\r\n",
+            3,
+            7,
+            "malformed vertex index \"é\"",
+        );
+        fails("v 0 0 0\nv 1 0 0\nv 0 1 0\n", 4, 1, "mesh has no triangles");
+        fails("", 1, 1, "mesh has no triangles");
+    }
+
+    #[test]
+    fn shared_meshes_have_the_documented_counts() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/meshes/");
+        for (name, vertices, triangles) in [
+            ("spot.obj", 2_930, 5_856),
+            ("teapot.obj", 3_644, 6_320),
+            ("nefertiti.obj", 49_971, 99_938),
+        ] {
+            let path = format!("{dir}{name}");
+            let Ok(bytes) = std::fs::read(&path) else {
+                eprintln!("skipped: {path} is absent");
+                continue;
+            };
+            let start = std::time::Instant::now();
+            let m = parse(name, &bytes).unwrap_or_else(|e| panic!("{e}"));
+            eprintln!("{name}: loaded in {:?}", start.elapsed());
+            assert_eq!(m.positions.len(), vertices, "{name}");
+            assert_eq!(m.triangles.len(), triangles, "{name}");
+            assert!(m.normals.is_empty(), "{name} has no vn");
+            check_invariants(&m);
+        }
+    }
+
+    #[derive(Debug, Clone)]
+    enum Edit {
+        Flip(usize, u8),
+        Insert(usize, u8),
+        Delete(usize),
+    }
+
+    fn edit() -> impl Strategy<Value = Edit> {
+        // Bytes that matter to the grammar, plus anything.
+        let byte = prop_oneof![
+            prop::sample::select(b"/-\\\n\r #.0123456789ef+vn".to_vec()),
+            any::<u8>(),
+        ];
+        prop_oneof![
+            (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Edit::Flip(i, b)),
+            (any::<usize>(), byte).prop_map(|(i, b)| Edit::Insert(i, b)),
+            any::<usize>().prop_map(Edit::Delete),
+        ]
+    }
+
+    fn apply(mut bytes: Vec<u8>, edits: &[Edit]) -> Vec<u8> {
+        for e in edits {
+            match *e {
+                Edit::Flip(i, b) if !bytes.is_empty() => {
+                    let i = i % bytes.len();
+                    bytes[i] ^= b;
+                }
+                Edit::Insert(i, b) => {
+                    let i = i % (bytes.len() + 1);
+                    bytes.insert(i, b);
+                }
+                Edit::Delete(i) if !bytes.is_empty() => {
+                    let i = i % bytes.len();
+                    bytes.remove(i);
+                }
+                _ => {}
+            }
+        }
+        bytes
+    }
+
+    const WITH_NORMALS: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 1\nvt 0 0\nvn 0 0 1\nvn 0 -1 1\n\
+                                f 1/1/1 2/1/1 3/1/1\nf -4//2 -2//2 -1//-1 \\\n 2//1\n";
+
+    proptest! {
+        #[test]
+        fn mutated_obj_never_panics(
+            base in prop::sample::select(vec![CUBE, WITH_NORMALS]),
+            edits in prop::collection::vec(edit(), 1..12),
+        ) {
+            let bytes = apply(base.as_bytes().to_vec(), &edits);
+            if let Ok(m) = parse("m.obj", &bytes) {
+                check_invariants(&m);
+            }
+        }
+
+        #[test]
+        fn random_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
+            if let Ok(m) = parse("m.obj", &bytes) {
+                check_invariants(&m);
+            }
+        }
+
+        #[test]
+        fn random_statements_never_panic(
+            lines in prop::collection::vec(
+                (prop::sample::select(vec!["v", "vn", "vt", "f", "l", "#", "o"]),
+                 prop::collection::vec(
+                     prop_oneof![
+                         (-6i64..7).prop_map(|i| i.to_string()),
+                         (-6i64..7, -3i64..4).prop_map(|(a, b)| format!("{a}//{b}")),
+                         (-6i64..7, -3i64..4, -3i64..4).prop_map(|(a, b, c)| format!("{a}/{b}/{c}")),
+                         any::<f32>().prop_map(|x| x.to_string()),
+                         Just("\\".to_string()),
+                     ],
+                     0..6)),
+                0..30),
+        ) {
+            let src: String = lines
+                .iter()
+                .map(|(k, args)| format!("{k} {}\n", args.join(" ")))
+                .collect();
+            if let Ok(m) = parse("m.obj", src.as_bytes()) {
+                check_invariants(&m);
+            }
+        }
+    }
 }
