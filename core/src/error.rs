@@ -85,6 +85,15 @@ pub enum OutputError {
         width: u32,
         height: u32,
     },
+    #[error("tile {x},{y} {w}x{h} needs {expected} pixels but {got} were given")]
+    TilePixelCount {
+        x: u32,
+        y: u32,
+        w: u32,
+        h: u32,
+        expected: usize,
+        got: usize,
+    },
     #[error("the frame is incomplete: {missing} rows were never written")]
     Incomplete { missing: u32 },
 }
