@@ -1,32 +1,388 @@
 //! Output images written band by band as tiles complete.
 //!
-//! PLACEHOLDER API (being implemented): see the module owner's task.
+//! [`FrameWriter`] writes one camera's frame to a PNG (8-bit sRGB, see
+//! [`linear_to_srgb8`]) or an OpenEXR file (32-bit float linear RGB), chosen by
+//! the extension of the output path (`.png` / `.exr`, any case).
+//!
+//! # Memory
+//!
+//! The farm stitches frames far larger than any process may hold (16384×16384
+//! is 3 GiB of float RGB), so the writer never holds the frame. It buffers only
+//! *pending rows*: rows that have received at least one pixel and have not yet
+//! been handed to the encoder. Rows are handed over in file order (top to
+//! bottom) as soon as they are complete: PNG one row at a time, EXR one
+//! 16-row scanline block at a time (the block size of ZIP compression).
+//!
+//! Memory held = [`FrameWriter::rows_held`] × (3·width bytes for PNG, stored
+//! already converted to sRGB bytes, or 12·width bytes for EXR) + width/8 bytes
+//! of coverage bits per pending row, plus the encoder's fixed-size state (PNG:
+//! the zlib window, two row buffers and a 64 KiB chunk buffer; EXR: one 16-row
+//! block being compressed on the writer thread and at most one more waiting to
+//! be handed over).
+//!
+//! `rows_held` depends on the order of the tiles. With tiles delivered in band
+//! order (as the scheduler hands them out) and bands H rows tall it is at most
+//! H for PNG, and H + 15 for EXR (complete rows wait for the rest of their
+//! 16-row block; H when bands start at multiples of 16, as with 64-row tiles).
+//! Out of order it is the number of rows between the first incomplete row and
+//! the last row touched, up to the whole frame if the first row completes
+//! last; the writer accepts any order and still produces the same bytes.
+//!
+//! # Files
+//!
+//! Pixels go to a temporary file `.{name}.trevi-tmp-{pid}-{n}` in the output
+//! directory; [`FrameWriter::finish`] fsyncs it and renames it to the final
+//! name, so a file under the final name is always complete. Dropping an
+//! unfinished writer, or a failed `finish`, removes the temporary file.
+//! Output bytes are a deterministic function of the pixels: any tile size,
+//! tile order or machine gives the same file.
 
+mod exr;
+mod pending;
+mod png;
+mod srgb;
+
+pub use self::exr::read_exr_rgb;
+pub use self::png::read_png_rgb8;
+pub use self::srgb::linear_to_srgb8;
+
+use self::exr::{ExrSink, BLOCK_ROWS};
+use self::pending::PendingRows;
+use self::png::PngSink;
 use crate::error::OutputError;
 use crate::tile::Rect;
-use std::path::Path;
+use std::ffi::OsString;
+use std::fs::{self, File, OpenOptions};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The output file formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// 8-bit sRGB RGB PNG.
+    Png,
+    /// 32-bit float linear RGB OpenEXR.
+    Exr,
+}
+
+impl Format {
+    /// The format chosen by `path`'s extension (case-insensitive), if any.
+    pub fn from_path(path: &Path) -> Option<Format> {
+        let ext = path.extension()?.to_str()?;
+        if ext.eq_ignore_ascii_case("png") {
+            Some(Format::Png)
+        } else if ext.eq_ignore_ascii_case("exr") {
+            Some(Format::Exr)
+        } else {
+            None
+        }
+    }
+}
+
+/// The temporary file, removed when dropped unless it was renamed into place.
+struct TempFile {
+    path: PathBuf,
+    armed: bool,
+}
+
+impl TempFile {
+    fn persist(&mut self, to: &Path) -> std::io::Result<()> {
+        fs::rename(&self.path, to)?;
+        self.armed = false;
+        Ok(())
+    }
+}
+
+impl Drop for TempFile {
+    fn drop(&mut self) {
+        if self.armed {
+            let _ = fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// Pending rows and the encoder they go to.
+enum Encoder {
+    /// Rows as R G B sRGB bytes per pixel.
+    Png {
+        rows: PendingRows<u8>,
+        sink: PngSink,
+    },
+    /// Rows as three planes of `width` floats: B, G, R (EXR channel order).
+    Exr {
+        rows: PendingRows<f32>,
+        sink: ExrSink,
+    },
+}
 
 /// Writes one camera's frame to a PNG (8-bit sRGB) or EXR (32-bit float
 /// linear) file, chosen by extension. Tiles may arrive in any order; rows are
 /// encoded and written as soon as they are complete, so only the rows of
-/// incomplete bands are ever held. The file appears under its final name only
-/// when [`FrameWriter::finish`] succeeds; dropping an unfinished writer removes
-/// the temporary file.
+/// incomplete bands are ever held (see the [module docs](self) for the bound).
+/// The file appears under its final name only when [`FrameWriter::finish`]
+/// succeeds; dropping an unfinished writer removes the temporary file.
 pub struct FrameWriter {
-    _private: (),
+    path: PathBuf,
+    width: u32,
+    height: u32,
+    // Declared before `temp`: the encoder (and its file handle or writer
+    // thread) is dropped before the temporary file is removed.
+    encoder: Encoder,
+    /// A handle on the temporary file, for fsync after the encoder is done.
+    sync: File,
+    temp: TempFile,
+    /// First row not yet handed to the encoder; all rows above it are written.
+    next_row: u32,
+    /// Set when writing to the encoder failed; the writer is then unusable.
+    failure: Option<String>,
 }
 
+static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
 impl FrameWriter {
-    pub fn create(_path: &Path, _width: u32, _height: u32) -> Result<Self, OutputError> {
-        unimplemented!()
+    /// Opens a writer for a `width`×`height` frame (each 1 ..= 2³¹−1) to be
+    /// stored at `path`, creating missing parent directories. The format comes
+    /// from the extension; anything but `.png` / `.exr` is
+    /// [`OutputError::UnsupportedFormat`] (and nothing is created).
+    pub fn create(path: &Path, width: u32, height: u32) -> Result<Self, OutputError> {
+        let display = path.display().to_string();
+        let format = Format::from_path(path).ok_or_else(|| OutputError::UnsupportedFormat {
+            path: display.clone(),
+        })?;
+        let io_err = |source| OutputError::Io {
+            path: display.clone(),
+            source,
+        };
+        // Both PNG and EXR store sizes as 31-bit integers.
+        if width == 0 || height == 0 || width > i32::MAX as u32 || height > i32::MAX as u32 {
+            return Err(OutputError::Encode {
+                path: display,
+                message: format!("unsupported frame size {width}x{height}"),
+            });
+        }
+        let name = path
+            .file_name()
+            .ok_or_else(|| OutputError::UnsupportedFormat {
+                path: display.clone(),
+            })?;
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        fs::create_dir_all(dir).map_err(io_err)?;
+
+        let mut temp_name = OsString::from(".");
+        temp_name.push(name);
+        temp_name.push(format!(
+            ".trevi-tmp-{}-{}",
+            std::process::id(),
+            TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        let temp_path = dir.join(temp_name);
+        let file = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temp_path)
+            .map_err(io_err)?;
+        let temp = TempFile {
+            path: temp_path,
+            armed: true,
+        };
+        let sync = file.try_clone().map_err(io_err)?;
+        let samples_per_row = 3 * width as usize;
+        let encoder = match format {
+            Format::Png => Encoder::Png {
+                rows: PendingRows::new(width, samples_per_row),
+                sink: PngSink::new(file, width, height, &display)?,
+            },
+            Format::Exr => Encoder::Exr {
+                rows: PendingRows::new(width, samples_per_row),
+                sink: ExrSink::new(file, width, height, &display)?,
+            },
+        };
+        Ok(FrameWriter {
+            path: path.to_path_buf(),
+            width,
+            height,
+            encoder,
+            sync,
+            temp,
+            next_row: 0,
+            failure: None,
+        })
     }
 
-    /// `pixels` holds `rect.w * rect.h` linear RGB values, row by row.
-    pub fn write_tile(&mut self, _rect: Rect, _pixels: &[[f32; 3]]) -> Result<(), OutputError> {
-        unimplemented!()
+    /// The output format.
+    pub fn format(&self) -> Format {
+        match self.encoder {
+            Encoder::Png { .. } => Format::Png,
+            Encoder::Exr { .. } => Format::Exr,
+        }
     }
 
+    /// How many rows are buffered right now (see the module docs).
+    pub fn rows_held(&self) -> usize {
+        match &self.encoder {
+            Encoder::Png { rows, .. } => rows.len(),
+            Encoder::Exr { rows, .. } => rows.len(),
+        }
+    }
+
+    /// Adds a tile. `pixels` holds `rect.w * rect.h` linear RGB values, row by
+    /// row. Complete rows are encoded and written before this returns.
+    ///
+    /// A tile that does not fit the frame or overlaps pixels already written is
+    /// [`OutputError::BadTile`]; a wrong pixel count is
+    /// [`OutputError::TilePixelCount`]. A rejected tile changes nothing, and the
+    /// writer stays usable. Non-finite values are accepted: PNG maps NaN to 0
+    /// and clamps, EXR stores them as they are.
+    pub fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), OutputError> {
+        if let Some(message) = &self.failure {
+            return Err(OutputError::Encode {
+                path: self.path.display().to_string(),
+                message: format!("an earlier write failed: {message}"),
+            });
+        }
+        let bad_tile = OutputError::BadTile {
+            x: rect.x,
+            y: rect.y,
+            w: rect.w,
+            h: rect.h,
+            width: self.width,
+            height: self.height,
+        };
+        if !rect.fits(self.width, self.height) {
+            return Err(bad_tile);
+        }
+        if pixels.len() != rect.pixel_count() {
+            return Err(OutputError::TilePixelCount {
+                x: rect.x,
+                y: rect.y,
+                w: rect.w,
+                h: rect.h,
+                expected: rect.pixel_count(),
+                got: pixels.len(),
+            });
+        }
+        // Rows above `next_row` are complete, so any tile reaching them overlaps.
+        let (x0, x1) = (rect.x, rect.x + rect.w);
+        let overlaps = rect.y < self.next_row
+            || (rect.y..rect.y + rect.h).any(|y| match &self.encoder {
+                Encoder::Png { rows, .. } => rows.any_written(y, x0, x1),
+                Encoder::Exr { rows, .. } => rows.any_written(y, x0, x1),
+            });
+        if overlaps {
+            return Err(bad_tile);
+        }
+
+        let width = self.width as usize;
+        let lines = pixels.chunks_exact(rect.w as usize);
+        match &mut self.encoder {
+            Encoder::Png { rows, .. } => {
+                for (y, line) in (rect.y..).zip(lines) {
+                    let row = rows.claim(y, x0, x1);
+                    let dst = &mut row[3 * x0 as usize..3 * x1 as usize];
+                    for (d, p) in dst.chunks_exact_mut(3).zip(line) {
+                        d.copy_from_slice(&p.map(linear_to_srgb8));
+                    }
+                }
+            }
+            Encoder::Exr { rows, .. } => {
+                for (y, line) in (rect.y..).zip(lines) {
+                    let row = rows.claim(y, x0, x1);
+                    for (i, p) in (x0 as usize..).zip(line) {
+                        row[i] = p[2];
+                        row[width + i] = p[1];
+                        row[2 * width + i] = p[0];
+                    }
+                }
+            }
+        }
+        self.flush_complete_rows().inspect_err(|e| {
+            self.failure = Some(e.to_string());
+        })
+    }
+
+    /// Hands every complete row at the top of the pending rows to the encoder.
+    fn flush_complete_rows(&mut self) -> Result<(), OutputError> {
+        match &mut self.encoder {
+            Encoder::Png { rows, sink } => {
+                while rows.is_complete(self.next_row) {
+                    let row = rows.take(self.next_row).unwrap_or_default();
+                    sink.write_row(&row)?;
+                    self.next_row += 1;
+                }
+            }
+            Encoder::Exr { rows, sink } => loop {
+                let y0 = self.next_row;
+                let y1 = (y0 + BLOCK_ROWS).min(self.height);
+                if y0 == y1 || !(y0..y1).all(|y| rows.is_complete(y)) {
+                    break;
+                }
+                let block: Vec<Vec<f32>> =
+                    (y0..y1).map(|y| rows.take(y).unwrap_or_default()).collect();
+                sink.write_block(y0, &block)?;
+                self.next_row = y1;
+            },
+        }
+        Ok(())
+    }
+
+    /// Completes the file: [`OutputError::Incomplete`] if any pixel is
+    /// missing; otherwise finishes the encoder, fsyncs, and atomically renames
+    /// the temporary file to the final path. On any error the temporary file is
+    /// removed and the final path is left as it was.
     pub fn finish(self) -> Result<(), OutputError> {
-        unimplemented!()
+        let FrameWriter {
+            path,
+            height,
+            encoder,
+            sync,
+            mut temp,
+            next_row,
+            failure,
+            ..
+        } = self;
+        let display = path.display().to_string();
+        if let Some(message) = failure {
+            return Err(OutputError::Encode {
+                path: display,
+                message: format!("an earlier write failed: {message}"),
+            });
+        }
+        if next_row < height {
+            let complete = match &encoder {
+                Encoder::Png { rows, .. } => rows.complete_count(),
+                Encoder::Exr { rows, .. } => rows.complete_count(),
+            };
+            return Err(OutputError::Incomplete {
+                missing: height - next_row - complete as u32,
+            });
+        }
+        match encoder {
+            Encoder::Png { sink, .. } => sink.finish()?,
+            Encoder::Exr { sink, .. } => sink.finish()?,
+        }
+        let io_err = |source| OutputError::Io {
+            path: display.clone(),
+            source,
+        };
+        sync.sync_all().map_err(io_err)?;
+        drop(sync);
+        temp.persist(&path).map_err(io_err)?;
+        // Make the rename itself durable; the file is already in place, so
+        // a failure here is not worth reporting.
+        #[cfg(unix)]
+        if let Some(dir) = path.parent() {
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
+        Ok(())
     }
 }
