@@ -41,6 +41,8 @@ mod exr;
 mod pending;
 mod png;
 mod srgb;
+#[cfg(test)]
+mod tests;
 
 pub use self::exr::read_exr_rgb;
 pub use self::png::read_png_rgb8;
