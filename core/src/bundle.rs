@@ -86,6 +86,35 @@ impl FileSource for Bundle {
 const MAGIC: &[u8; 8] = b"TREVIBN1";
 
 impl Bundle {
+    /// Reads the scene file at `path` and exactly the files it references:
+    /// the scene is parsed (which refuses references outside its directory
+    /// and reports any error with its location), then each referenced file
+    /// is read once more into the bundle.
+    pub fn from_scene_file(path: &Path) -> Result<Bundle, crate::SceneError> {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let root = path
+            .parent()
+            .map(Path::to_path_buf)
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or_else(|| PathBuf::from("."));
+        let dir = DirSource { root };
+        let desc = crate::scene::aisxml::parse_scene(&name, &dir)?;
+        let mut files = BTreeMap::new();
+        for rel in std::iter::once(&name).chain(desc.files.iter()) {
+            let data = dir.read(rel).map_err(|e| {
+                crate::SceneError::new(
+                    crate::Location::new(rel.clone(), 1, 1),
+                    format!("cannot read: {e}"),
+                )
+            })?;
+            files.insert(rel.clone(), data);
+        }
+        Ok(Bundle { scene: name, files })
+    }
+
     /// Canonical encoding: magic, then for the scene and each file in path
     /// order `len(path) path len(data) data` with little-endian u64 lengths.
     pub fn encode(&self) -> Vec<u8> {

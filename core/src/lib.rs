@@ -20,14 +20,22 @@
 //! bytes.
 
 pub mod bundle;
+pub mod bvh;
+pub mod camera;
 pub mod error;
+pub mod geometry;
+pub mod integrator;
+pub mod lights;
 pub mod mesh;
 pub mod output;
+pub mod sampling;
 pub mod scene;
 pub mod tile;
+pub mod world;
 
 pub use bundle::{Bundle, DirSource, FileSource};
 pub use error::{Location, OutputError, SceneError};
 pub use output::FrameWriter;
 pub use scene::SceneDesc;
-pub use tile::Rect;
+pub use tile::{render_tile, Rect, TileResult};
+pub use world::Scene;

@@ -4,6 +4,10 @@
 //! band by band (top to bottom, left to right inside a band) so that an output
 //! writer can let rows go as soon as a band is complete.
 
+use crate::integrator::{Integrator, RenderOptions};
+use crate::world::Scene;
+use rayon::prelude::*;
+
 /// A rectangle of pixels: columns `x..x+w`, rows `y..y+h` (row 0 at the top).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Rect {
@@ -50,13 +54,60 @@ pub fn band_order_tiles(width: u32, height: u32, tile: u32) -> Vec<Rect> {
     out
 }
 
+/// The rendered pixels of a tile: `rect.w * rect.h` linear RGB values, row
+/// by row, and how many rays were traced for them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TileResult {
+    pub pixels: Vec<[f32; 3]>,
+    pub rays: u64,
+}
+
+/// Renders rectangle `rect` of camera `camera`'s frame on the current rayon
+/// pool (rows in parallel). Each pixel depends only on the scene and its
+/// coordinates, so the result is the same whatever the tiling or threads.
+pub fn render_tile(scene: &Scene, camera: usize, rect: Rect) -> TileResult {
+    render_tile_with(scene, camera, rect, RenderOptions::default())
+}
+
+/// [`render_tile`] with explicit sampling options.
+pub fn render_tile_with(
+    scene: &Scene,
+    camera: usize,
+    rect: Rect,
+    options: RenderOptions,
+) -> TileResult {
+    let integrator = Integrator::new(scene, camera, options);
+    let mut pixels = vec![[0.0f32; 3]; rect.pixel_count()];
+    let rays = pixels
+        .par_chunks_mut(rect.w.max(1) as usize)
+        .enumerate()
+        .map(|(row, out)| {
+            let y = rect.y + row as u32;
+            let mut rays = 0;
+            for (i, px) in out.iter_mut().enumerate() {
+                let (v, r) = integrator.pixel(rect.x + i as u32, y);
+                *px = v;
+                rays += r;
+            }
+            rays
+        })
+        .sum();
+    TileResult { pixels, rays }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn band_order_tiles_cover_the_frame_exactly_once() {
-        for &(w, h, t) in &[(1, 1, 64), (10, 7, 3), (64, 64, 64), (100, 37, 7), (5, 9, 1)] {
+        for &(w, h, t) in &[
+            (1, 1, 64),
+            (10, 7, 3),
+            (64, 64, 64),
+            (100, 37, 7),
+            (5, 9, 1),
+        ] {
             let mut seen = vec![0u8; w as usize * h as usize];
             let tiles = band_order_tiles(w, h, t);
             for r in &tiles {

@@ -1,0 +1,233 @@
+//! Watertight ray–triangle intersection (Woop, Benthin and Wald, "Watertight
+//! Ray/Triangle Intersection", JCGT 2013).
+//!
+//! Why this method: the edge tests of a ray against two triangles sharing an
+//! edge are evaluated on exactly the same numbers, so a ray through a shared
+//! edge or vertex hits at least one of them — closed meshes never leak. The
+//! ray is sheared so it runs along +z from the origin; each edge test is then
+//! a 2D cross product, redone in f64 when it comes out exactly zero.
+
+use glam::Vec3;
+
+/// A ray prepared for many triangle tests (the shear depends only on the ray).
+#[derive(Debug, Clone, Copy)]
+pub struct ShearedRay {
+    pub origin: Vec3,
+    kx: usize,
+    ky: usize,
+    kz: usize,
+    sx: f32,
+    sy: f32,
+    sz: f32,
+}
+
+impl ShearedRay {
+    pub fn new(origin: Vec3, dir: Vec3) -> Self {
+        let ad = dir.abs();
+        let kz = if ad.x >= ad.y && ad.x >= ad.z {
+            0
+        } else if ad.y >= ad.z {
+            1
+        } else {
+            2
+        };
+        let mut kx = (kz + 1) % 3;
+        let mut ky = (kx + 1) % 3;
+        // Swapping keeps the winding (and so the sign of the determinant)
+        // independent of which way the ray points along kz.
+        if dir[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        let sz = 1.0 / dir[kz];
+        ShearedRay {
+            origin,
+            kx,
+            ky,
+            kz,
+            sx: dir[kx] * sz,
+            sy: dir[ky] * sz,
+            sz,
+        }
+    }
+}
+
+/// A hit: the ray parameter, barycentric weights of the three vertices (they
+/// sum to 1), and whether the ray met the front (the side the winding
+/// `(b−a)×(c−a)` faces).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TriangleHit {
+    pub t: f32,
+    pub bary: [f32; 3],
+    pub front: bool,
+}
+
+/// Intersects the ray with triangle `a b c` for `t` in `(0, t_max)`.
+/// Zero-area triangles and rays in the triangle's plane never hit.
+#[inline(always)]
+pub fn intersect(r: &ShearedRay, a: Vec3, b: Vec3, c: Vec3, t_max: f32) -> Option<TriangleHit> {
+    let (kx, ky, kz) = (r.kx, r.ky, r.kz);
+    let aa = a - r.origin;
+    let bb = b - r.origin;
+    let cc = c - r.origin;
+    let ax = aa[kx] - r.sx * aa[kz];
+    let ay = aa[ky] - r.sy * aa[kz];
+    let bx = bb[kx] - r.sx * bb[kz];
+    let by = bb[ky] - r.sy * bb[kz];
+    let cx = cc[kx] - r.sx * cc[kz];
+    let cy = cc[ky] - r.sy * cc[kz];
+    let mut u = cx * by - cy * bx;
+    let mut v = ax * cy - ay * cx;
+    let mut w = bx * ay - by * ax;
+    if u == 0.0 || v == 0.0 || w == 0.0 {
+        // Exactly on an edge in f32: decide in f64 so neighbours agree.
+        let (ax, ay, bx, by, cx, cy) = (
+            ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64,
+        );
+        u = (cx * by - cy * bx) as f32;
+        v = (ax * cy - ay * cx) as f32;
+        w = (bx * ay - by * ax) as f32;
+    }
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return None;
+    }
+    let det = u + v + w;
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let az = r.sz * aa[kz];
+    let bz = r.sz * bb[kz];
+    let cz = r.sz * cc[kz];
+    let t_scaled = u * az + v * bz + w * cz;
+    // Compare before dividing, with the determinant's sign folded in.
+    if det > 0.0 {
+        if t_scaled <= 0.0 || t_scaled >= t_max * det {
+            return None;
+        }
+    } else if t_scaled >= 0.0 || t_scaled <= t_max * det {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let t = t_scaled * inv;
+    if !(t > 0.0) {
+        return None;
+    }
+    Some(TriangleHit {
+        t,
+        bary: [u * inv, v * inv, w * inv],
+        // With this shear a counter-clockwise triangle seen from the ray's
+        // side has a positive determinant (checked in the tests below).
+        front: det > 0.0,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hit(o: Vec3, d: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Option<TriangleHit> {
+        intersect(&ShearedRay::new(o, d), a, b, c, f32::INFINITY)
+    }
+
+    // The report's own test: triangle <0,0,0> <0,0,1> <1,0,1>, rays straight down.
+    #[test]
+    fn report_triangle_centre_edges_corners_and_outside() {
+        let (a, b, c) = (
+            Vec3::ZERO,
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, 1.0),
+        );
+        let d = Vec3::new(0.0, -1.0, 0.0);
+        let centre = (a + b + c) / 3.0;
+        let h = hit(centre + Vec3::Y * 2.0, d, a, b, c).expect("centre hits");
+        assert!((h.t - 2.0).abs() < 1e-6);
+        for w in h.bary {
+            assert!((w - 1.0 / 3.0).abs() < 1e-6);
+        }
+        for p in [a, b, c, (a + b) * 0.5, (b + c) * 0.5, (a + c) * 0.5] {
+            assert!(hit(p + Vec3::Y, d, a, b, c).is_some(), "{p}");
+        }
+        for p in [
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(-0.1, 0.0, 0.5),
+            Vec3::new(0.5, 0.0, 1.1),
+        ] {
+            assert!(hit(p + Vec3::Y, d, a, b, c).is_none(), "{p}");
+        }
+        // Behind the origin: no hit.
+        assert!(hit(centre - Vec3::Y, d, a, b, c).is_none());
+    }
+
+    #[test]
+    fn front_is_the_side_the_winding_faces_for_every_axis_and_direction() {
+        let tris = [
+            (Vec3::ZERO, Vec3::X, Vec3::Y),
+            (Vec3::ZERO, Vec3::Y, Vec3::Z),
+            (Vec3::ZERO, Vec3::Z, Vec3::X),
+            (
+                Vec3::ZERO,
+                Vec3::new(1.0, 0.2, 0.1),
+                Vec3::new(0.3, 1.0, 0.4),
+            ),
+        ];
+        for (a, b, c) in tris {
+            let n = (b - a).cross(c - a).normalize();
+            let p = (a + b + c) / 3.0;
+            let front = hit(p + n * 3.0, -n, a, b, c).unwrap();
+            assert!(front.front);
+            let back = hit(p - n * 3.0, n, a, b, c).unwrap();
+            assert!(!back.front);
+            // Oblique rays agree too.
+            let d = (-n + Vec3::new(0.3, -0.2, 0.1)).normalize();
+            assert!(hit(p - d * 2.0, d, a, b, c).unwrap().front);
+        }
+    }
+
+    #[test]
+    fn barycentrics_reconstruct_the_hit_point() {
+        let (a, b, c) = (
+            Vec3::new(-1.0, -0.5, 2.0),
+            Vec3::new(2.0, 0.1, 1.0),
+            Vec3::new(0.2, 2.0, 1.5),
+        );
+        let o = Vec3::new(0.1, 0.3, -4.0);
+        let target = a * 0.2 + b * 0.3 + c * 0.5;
+        let d = target - o;
+        let h = hit(o, d, a, b, c).unwrap();
+        let p = a * h.bary[0] + b * h.bary[1] + c * h.bary[2];
+        assert!((p - target).length() < 1e-5);
+        assert!((o + d * h.t - target).length() < 1e-5);
+    }
+
+    #[test]
+    fn degenerate_and_parallel_cases_never_hit_or_produce_nan() {
+        let d = Vec3::new(0.0, -1.0, 0.0);
+        // Zero-area (collinear) triangle.
+        assert!(hit(Vec3::Y, d, Vec3::ZERO, Vec3::X, Vec3::X * 2.0).is_none());
+        // Coincident vertices.
+        assert!(hit(Vec3::Y, d, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO).is_none());
+        // Ray in the triangle's plane.
+        let (a, b, c) = (Vec3::ZERO, Vec3::X, Vec3::Z);
+        assert!(hit(Vec3::new(-1.0, 0.0, 0.1), Vec3::X, a, b, c).is_none());
+    }
+
+    #[test]
+    fn a_ray_through_a_shared_edge_hits_one_of_the_two_triangles() {
+        // Quad split along its diagonal; rays through diagonal points.
+        let (p0, p1, p2, p3) = (
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(0.0, 0.0, 1.0),
+        );
+        for i in 0..=1000 {
+            let s = i as f32 / 1000.0;
+            let target = p0 + (p2 - p0) * s;
+            let o = Vec3::new(0.37, 1.3, -0.21);
+            let d = target - o;
+            let r = ShearedRay::new(o, d);
+            let h1 = intersect(&r, p0, p1, p2, f32::INFINITY);
+            let h2 = intersect(&r, p0, p2, p3, f32::INFINITY);
+            assert!(h1.is_some() || h2.is_some(), "leak at s = {s}");
+        }
+    }
+}

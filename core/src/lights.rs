@@ -1,0 +1,143 @@
+//! Point and spot lights: the spec's E, spot falloff and soft-shadow jitter.
+
+use crate::scene::{Light, LightKind};
+use glam::Vec3;
+
+/// What a light delivers to a point `p` from (possibly jittered) position
+/// `from`: E = color·intensity / (c + l·d + q·d²), times the spot falloff;
+/// `l` is the unit direction from `p` to the light; `dist` its distance.
+#[derive(Debug, Clone, Copy)]
+pub struct Incident {
+    pub e: Vec3,
+    pub l: Vec3,
+    pub dist: f32,
+}
+
+/// `None` when `p` sits on the light itself or nothing arrives.
+#[inline]
+pub fn incident(light: &Light, from: Vec3, p: Vec3) -> Option<Incident> {
+    let to_light = from - p;
+    let dist = to_light.length();
+    if !(dist > 0.0) || !dist.is_finite() {
+        return None;
+    }
+    let l = to_light / dist;
+    let [c, lin, q] = light.attenuation.to_array();
+    let denom = c + lin * dist + q * dist * dist;
+    if !(denom > 0.0) {
+        return None;
+    }
+    let mut e = light.color * (light.intensity / denom);
+    if let LightKind::Spot {
+        direction,
+        cos_inner,
+        cos_outer,
+    } = light.kind
+    {
+        // θ: between the spot's direction and the light-to-point vector.
+        let cos_theta = direction.dot(-l);
+        e *= smoothstep(cos_outer, cos_inner, cos_theta);
+    }
+    if e == Vec3::ZERO {
+        return None;
+    }
+    Some(Incident { e, l, dist })
+}
+
+/// GLSL smoothstep; a hard step at `e1` when the edges coincide.
+#[inline]
+pub fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
+    if e1 <= e0 {
+        return if x >= e1 { 1.0 } else { 0.0 };
+    }
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// The light position jittered over the square of side 2·radius
+/// perpendicular to the light-to-point direction (the report's soft
+/// shadows): w = normalize(light − p), u = normalize(up × w) with up = y
+/// (x when w is parallel to y), v = w × u.
+#[inline]
+pub fn jittered_position(light: &Light, p: Vec3, u: [f32; 2]) -> Vec3 {
+    if light.radius <= 0.0 {
+        return light.position;
+    }
+    let w = (light.position - p).normalize_or_zero();
+    if w == Vec3::ZERO {
+        return light.position;
+    }
+    let mut uu = Vec3::Y.cross(w);
+    if uu.length_squared() < 1e-12 {
+        uu = Vec3::X.cross(w);
+    }
+    let uu = uu.normalize();
+    let vv = w.cross(uu);
+    let r = light.radius;
+    light.position + uu * ((2.0 * u[0] - 1.0) * r) + vv * ((2.0 * u[1] - 1.0) * r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(att: Vec3) -> Light {
+        Light {
+            kind: LightKind::Point,
+            position: Vec3::new(0.0, 4.0, 0.0),
+            color: Vec3::new(1.0, 0.5, 0.25),
+            intensity: 2.0,
+            radius: 0.0,
+            attenuation: att,
+        }
+    }
+
+    #[test]
+    fn attenuation_follows_the_spec_formula() {
+        let l = point(Vec3::new(1.0, 0.5, 0.25));
+        let inc = incident(&l, l.position, Vec3::ZERO).unwrap();
+        let expect = 2.0 / (1.0 + 0.5 * 4.0 + 0.25 * 16.0);
+        assert!((inc.e - Vec3::new(1.0, 0.5, 0.25) * expect).length() < 1e-6);
+        assert!((inc.l - Vec3::Y).length() < 1e-6);
+        assert_eq!(inc.dist, 4.0);
+        assert!(incident(&l, l.position, l.position).is_none());
+    }
+
+    #[test]
+    fn spot_falloff_is_smoothstep_between_outer_and_inner() {
+        let mut l = point(Vec3::new(1.0, 0.0, 0.0));
+        l.kind = LightKind::Spot {
+            direction: -Vec3::Y,
+            cos_inner: 20f32.to_radians().cos(),
+            cos_outer: 30f32.to_radians().cos(),
+        };
+        let at = |deg: f32| {
+            let a = deg.to_radians();
+            let p = l.position + Vec3::new(a.sin(), -a.cos(), 0.0) * 4.0;
+            incident(&l, l.position, p).map_or(0.0, |i| i.e.x / 2.0)
+        };
+        assert!((at(0.0) - 1.0).abs() < 1e-6);
+        assert!((at(19.9) - 1.0).abs() < 1e-6);
+        assert_eq!(at(30.1), 0.0);
+        let c = 25f32.to_radians().cos();
+        let (c0, c1) = (30f32.to_radians().cos(), 20f32.to_radians().cos());
+        let t = (c - c0) / (c1 - c0);
+        assert!((at(25.0) - t * t * (3.0 - 2.0 * t)).abs() < 1e-5);
+    }
+
+    #[test]
+    fn jitter_stays_on_the_square_perpendicular_to_the_light_direction() {
+        let mut l = point(Vec3::new(1.0, 0.0, 0.0));
+        l.radius = 0.5;
+        for p in [Vec3::new(3.0, 0.0, 1.0), Vec3::ZERO] {
+            let w = (l.position - p).normalize();
+            for u in [[0.0, 0.0], [1.0, 1.0], [0.3, 0.8]] {
+                let q = jittered_position(&l, p, u) - l.position;
+                assert!(q.dot(w).abs() < 1e-5);
+                assert!(q.x.abs().max(q.y.abs()).max(q.z.abs()) <= 0.5 * 2f32.sqrt() + 1e-5);
+            }
+            let corner = jittered_position(&l, p, [1.0, 1.0]) - l.position;
+            assert!((corner.length() - 0.5 * 2f32.sqrt()).abs() < 1e-5);
+        }
+    }
+}
