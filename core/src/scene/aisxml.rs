@@ -437,8 +437,9 @@ impl<'a> Resolver<'a> {
                     ),
                 ));
             }
-            for t in lo as usize..=hi as usize {
-                let prev = table[t];
+            let (lo, hi) = (lo as usize, hi as usize);
+            for (t, slot) in (lo..).zip(&mut table[lo..=hi]) {
+                let prev = *slot;
                 if prev != 0 {
                     let at = owners
                         .get(usize::from(prev) - 1)
@@ -450,7 +451,7 @@ impl<'a> Resolver<'a> {
                         ),
                     ));
                 }
-                table[t] = k;
+                *slot = k;
             }
         }
         if !any {
@@ -1020,7 +1021,7 @@ fn inline_mesh(el: &El, id: &str) -> Result<Mesh> {
     };
     let vel = El::new(el.src, ve);
     let v = vel.text_reals()?;
-    if v.len() % 3 != 0 {
+    if !v.len().is_multiple_of(3) {
         return Err(vel.err(format!(
             "<vertices> of mesh \"{}\": expected 3 numbers per vertex (a multiple of 3), found {}",
             excerpt(id),
@@ -1080,7 +1081,7 @@ fn inline_mesh(el: &El, id: &str) -> Result<Mesh> {
             excerpt(id)
         )));
     }
-    if idx.len() % 3 != 0 {
+    if !idx.len().is_multiple_of(3) {
         return Err(tel.err(format!(
             "<triangles> of mesh \"{}\": expected 3 indices per triangle (a multiple of 3), found {}",
             excerpt(id),

@@ -1248,6 +1248,47 @@ fn non_whitespace_text() {
     );
 }
 
+#[test]
+fn encoding_bom_and_columns_in_characters() {
+    // Columns count characters, not bytes.
+    check(
+        &doc(r#"<!-- é→ --><sphere id="s" center="0 0 0" radius="0"/>"#),
+        2,
+        42,
+        &["expected a number > 0"],
+    );
+    // A BOM and a declaration at the start are fine.
+    parse(&format!(
+        "\u{feff}<?xml version=\"1.0\" encoding=\"utf-8\"?>\n{}",
+        doc("")
+    ))
+    .unwrap();
+    check(
+        &format!(
+            "<?xml version=\"1.0\" encoding=\"ISO-8859-1\"?>\n{}",
+            doc("")
+        ),
+        1,
+        1,
+        &["encoding other than UTF-8"],
+    );
+    let mut bytes = doc("").into_bytes();
+    bytes.splice(20..20, [b'x', 0xff]);
+    let b = Bundle {
+        scene: "scene.xml".into(),
+        files: [("scene.xml".to_string(), bytes)].into(),
+    };
+    let e = parse_scene("scene.xml", &b).unwrap_err();
+    assert_eq!((e.location.line, e.location.column), (2, 2), "{e}");
+    assert!(e.message.contains("expected UTF-8"), "{e}");
+    check(
+        &format!("<![CDATA[ ]]>{}", doc("")),
+        1,
+        1,
+        &["CDATA section outside the root element"],
+    );
+}
+
 // ------------------------------------------------------------ mesh files
 
 #[test]

@@ -484,6 +484,12 @@ pub(super) fn parse_document(src: &Src) -> Result<Elem, SceneError> {
                 let raw = std::str::from_utf8(t)
                     .map_err(|_| src.err(start, "malformed XML: text is not valid UTF-8"))?;
                 let content_pos = start + "<![CDATA[".len();
+                if stack.is_empty() {
+                    return Err(src.err(
+                        start,
+                        "malformed XML: a CDATA section outside the root element (expected only comments and whitespace there)",
+                    ));
+                }
                 match stack.last_mut() {
                     Some(p) if takes_text(&p.name) => p.text.push_literal(raw, content_pos),
                     p => only_whitespace(
