@@ -1,1 +1,24 @@
-//! The Trevi coordinator. Placeholder until the farm lands.
+//! The Trevi coordinator: job queue, tile leases, validation and stitching.
+//!
+//! - [`scheduler`]: pure bookkeeping of jobs, tiles and leases (time passed in).
+//! - [`farm`]: the coordinator without the network: bundles on disk, result
+//!   validation, and stitching each job's tiles into its output file through
+//!   `trevi_core::FrameWriter` (rows leave as soon as a band is complete, and
+//!   the file is moved into place when the last tile is in).
+//! - [`grpc`]: the `trevi.v1` services over [`farm::Farm`], plus
+//!   `grpc.health.v1` and server reflection.
+//!
+//! Memory: tiles are leased in band order and at most a window of bands ahead
+//! of the first incomplete band, so the rows held by a job's writer are
+//! bounded by the window (see [`scheduler::SchedulerConfig::window_bytes`]),
+//! not by the image height.
+
+pub mod bundles;
+pub mod error;
+pub mod farm;
+pub mod grpc;
+pub mod scheduler;
+
+pub use error::FarmError;
+pub use farm::{Farm, FarmConfig, TileOutcome, TileSink};
+pub use scheduler::{JobId, JobInfo, JobSpec, JobState, SchedulerConfig};

@@ -1,0 +1,83 @@
+//! The coordinator's typed errors and their one mapping to gRPC codes.
+
+use crate::scheduler::SchedError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum FarmError {
+    #[error("no job {0}")]
+    UnknownJob(u64),
+    #[error("unknown worker {0}; register again")]
+    UnknownWorker(u64),
+    #[error("no bundle {0}; upload it first")]
+    UnknownBundle(String),
+    #[error("bad scene bundle: {0}")]
+    BadBundle(String),
+    #[error("bad scene: {0}")]
+    BadScene(String),
+    #[error("tile rejected: {0}")]
+    BadTile(String),
+    #[error("job {0} has no output: {1}")]
+    NoOutput(u64, String),
+    #[error("{0}")]
+    Io(String),
+}
+
+impl From<SchedError> for FarmError {
+    fn from(e: SchedError) -> Self {
+        match e {
+            SchedError::UnknownJob(j) => FarmError::UnknownJob(j),
+            SchedError::UnknownWorker(w) => FarmError::UnknownWorker(w),
+            e @ SchedError::NotATile(..) => FarmError::BadTile(e.to_string()),
+        }
+    }
+}
+
+impl FarmError {
+    pub fn code(&self) -> tonic::Code {
+        use tonic::Code;
+        match self {
+            FarmError::UnknownJob(_) | FarmError::UnknownBundle(_) => Code::NotFound,
+            // Workers re-register when they see this code.
+            FarmError::UnknownWorker(_) => Code::Unauthenticated,
+            FarmError::BadBundle(_) | FarmError::BadScene(_) | FarmError::BadTile(_) => {
+                Code::InvalidArgument
+            }
+            FarmError::NoOutput(..) => Code::FailedPrecondition,
+            FarmError::Io(_) => Code::Internal,
+        }
+    }
+}
+
+impl From<FarmError> for tonic::Status {
+    fn from(e: FarmError) -> Self {
+        tonic::Status::new(e.code(), e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tonic::Code;
+
+    #[test]
+    fn errors_map_to_grpc_codes_and_keep_their_message() {
+        let cases = [
+            (FarmError::UnknownJob(3), Code::NotFound),
+            (FarmError::UnknownBundle("ab".into()), Code::NotFound),
+            (FarmError::UnknownWorker(9), Code::Unauthenticated),
+            (FarmError::BadBundle("x".into()), Code::InvalidArgument),
+            (FarmError::BadScene("x".into()), Code::InvalidArgument),
+            (FarmError::BadTile("x".into()), Code::InvalidArgument),
+            (FarmError::NoOutput(1, "x".into()), Code::FailedPrecondition),
+            (FarmError::Io("x".into()), Code::Internal),
+        ];
+        for (e, code) in cases {
+            let msg = e.to_string();
+            let status = tonic::Status::from(e);
+            assert_eq!(status.code(), code);
+            assert_eq!(status.message(), msg);
+        }
+        let e: FarmError = SchedError::UnknownWorker(4).into();
+        assert!(matches!(e, FarmError::UnknownWorker(4)));
+    }
+}

@@ -1,0 +1,367 @@
+//! The `trevi.v1` gRPC services: thin wrappers around [`Farm`], one struct
+//! per service holding it behind an `Arc`. Server streams are a task feeding
+//! a channel wrapped in `ReceiverStream`.
+
+use crate::farm::{Farm, TileOutcome};
+use crate::scheduler::{JobInfo, JobState};
+use crate::FarmError;
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::net::TcpListener;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::{ReceiverStream, TcpListenerStream};
+use tonic::{Request, Response, Status, Streaming};
+use trevi_proto::pb::{self, tile_upload::Part};
+use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
+
+/// Largest bundle the coordinator takes.
+pub const MAX_BUNDLE_BYTES: usize = 2 << 30;
+
+/// How long a `LeaseTile` call waits for work before answering "none".
+const LEASE_WAIT: Duration = Duration::from_secs(2);
+
+fn join_error(e: tokio::task::JoinError) -> Status {
+    Status::internal(format!("task failed: {e}"))
+}
+
+/// Runs `f` on the blocking pool.
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, FarmError> + Send + 'static,
+) -> Result<T, Status> {
+    Ok(tokio::task::spawn_blocking(f).await.map_err(join_error)??)
+}
+
+pub fn job_status(info: &JobInfo) -> pb::JobStatus {
+    let state = match info.state {
+        JobState::Queued => pb::JobState::Queued,
+        JobState::Running => pb::JobState::Running,
+        JobState::Done => pb::JobState::Done,
+        JobState::Failed => pb::JobState::Failed,
+        JobState::Cancelled => pb::JobState::Cancelled,
+    };
+    pb::JobStatus {
+        id: info.id,
+        state: state as i32,
+        camera: info.spec.camera.clone(),
+        priority: info.spec.priority,
+        width: info.spec.width,
+        height: info.spec.height,
+        tiles_total: info.tiles_total,
+        tiles_done: info.tiles_done,
+        rays: info.rays,
+        output_name: info.spec.output_name.clone(),
+        elapsed_ms: info.elapsed.as_millis() as u64,
+        error: info.error.clone().unwrap_or_default(),
+        finish_order: info.finish_order,
+        bundle_hash: info.spec.bundle_hash.clone(),
+    }
+}
+
+/// Sends `data` in chunks made by `make` (`first` tells the first chunk).
+fn stream_chunks<T: Send + 'static>(
+    data: Vec<u8>,
+    make: impl Fn(Vec<u8>, bool) -> T + Send + 'static,
+) -> ReceiverStream<Result<T, Status>> {
+    let (tx, rx) = mpsc::channel(4);
+    tokio::spawn(async move {
+        if data.is_empty() {
+            let _ = tx.send(Ok(make(Vec::new(), true))).await;
+        }
+        for (i, c) in data.chunks(CHUNK_SIZE).enumerate() {
+            if tx.send(Ok(make(c.to_vec(), i == 0))).await.is_err() {
+                break;
+            }
+        }
+    });
+    ReceiverStream::new(rx)
+}
+
+/// `trevi.v1.Bundles`.
+pub struct BundlesService {
+    pub farm: Arc<Farm>,
+}
+
+#[tonic::async_trait]
+impl pb::bundles_server::Bundles for BundlesService {
+    async fn upload_bundle(
+        &self,
+        req: Request<Streaming<pb::BundleChunk>>,
+    ) -> Result<Response<pb::BundleRef>, Status> {
+        let mut s = req.into_inner();
+        let mut buf = Vec::new();
+        while let Some(c) = s.message().await? {
+            if buf.len() + c.data.len() > MAX_BUNDLE_BYTES {
+                return Err(Status::resource_exhausted("the bundle is too large"));
+            }
+            buf.extend_from_slice(&c.data);
+        }
+        let size = buf.len() as u64;
+        let farm = self.farm.clone();
+        let hash = blocking(move || farm.bundles().put(&buf)).await?;
+        tracing::info!(%hash, size, "bundle stored");
+        Ok(Response::new(pb::BundleRef { hash, size }))
+    }
+
+    type DownloadBundleStream = ReceiverStream<Result<pb::BundleChunk, Status>>;
+
+    async fn download_bundle(
+        &self,
+        req: Request<pb::BundleRef>,
+    ) -> Result<Response<Self::DownloadBundleStream>, Status> {
+        let hash = req.into_inner().hash;
+        let farm = self.farm.clone();
+        let data = blocking(move || farm.bundles().get_bytes(&hash)).await?;
+        Ok(Response::new(stream_chunks(data, |data, _| {
+            pb::BundleChunk { data }
+        })))
+    }
+}
+
+/// `trevi.v1.Jobs`.
+pub struct JobsService {
+    pub farm: Arc<Farm>,
+}
+
+#[tonic::async_trait]
+impl pb::jobs_server::Jobs for JobsService {
+    async fn submit_job(
+        &self,
+        req: Request<pb::SubmitJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        let r = req.into_inner();
+        let farm = self.farm.clone();
+        let info = blocking(move || {
+            let spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
+            farm.submit(spec)
+        })
+        .await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    type WatchJobStream = ReceiverStream<Result<pb::JobStatus, Status>>;
+
+    async fn watch_job(
+        &self,
+        req: Request<pb::JobId>,
+    ) -> Result<Response<Self::WatchJobStream>, Status> {
+        let mut rx = self.farm.watch(req.into_inner().id)?;
+        let (tx, out) = mpsc::channel(4);
+        tokio::spawn(async move {
+            loop {
+                let info = rx.borrow_and_update().clone();
+                let fin = info.state.is_final();
+                if tx.send(Ok(job_status(&info))).await.is_err() || fin {
+                    break;
+                }
+                // Coalesce bursts of tiles into at most ~20 updates a second.
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                if rx.changed().await.is_err() {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(out)))
+    }
+
+    async fn get_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {
+        Ok(Response::new(job_status(
+            &self.farm.info(req.into_inner().id)?,
+        )))
+    }
+
+    async fn list_jobs(
+        &self,
+        _req: Request<pb::ListJobsRequest>,
+    ) -> Result<Response<pb::ListJobsResponse>, Status> {
+        let jobs = self.farm.list().iter().map(job_status).collect();
+        Ok(Response::new(pb::ListJobsResponse { jobs }))
+    }
+
+    async fn cancel_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {
+        let id = req.into_inner().id;
+        let farm = self.farm.clone();
+        let info = blocking(move || farm.cancel(id)).await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    type DownloadOutputStream = ReceiverStream<Result<pb::OutputChunk, Status>>;
+
+    async fn download_output(
+        &self,
+        req: Request<pb::JobId>,
+    ) -> Result<Response<Self::DownloadOutputStream>, Status> {
+        use tokio::io::AsyncReadExt;
+        let id = req.into_inner().id;
+        let path = self.farm.output_file(id)?;
+        let mut file = tokio::fs::File::open(&path)
+            .await
+            .map_err(|e| Status::internal(format!("opening the output of job {id}: {e}")))?;
+        let size = file.metadata().await.map(|m| m.len()).unwrap_or(0);
+        let (tx, rx) = mpsc::channel(4);
+        tokio::spawn(async move {
+            let mut first = true;
+            loop {
+                let mut buf = vec![0u8; CHUNK_SIZE];
+                let n = match file.read(&mut buf).await {
+                    Ok(n) => n,
+                    Err(e) => {
+                        let _ = tx
+                            .send(Err(Status::internal(format!("reading: {e}"))))
+                            .await;
+                        break;
+                    }
+                };
+                if n == 0 && !first {
+                    break;
+                }
+                buf.truncate(n);
+                let chunk = pb::OutputChunk {
+                    data: buf,
+                    size: if first { size } else { 0 },
+                };
+                first = false;
+                if tx.send(Ok(chunk)).await.is_err() || n == 0 {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
+    }
+}
+
+/// `trevi.v1.Workers`.
+pub struct WorkersService {
+    pub farm: Arc<Farm>,
+}
+
+#[tonic::async_trait]
+impl pb::workers_server::Workers for WorkersService {
+    async fn register(
+        &self,
+        req: Request<pb::RegisterRequest>,
+    ) -> Result<Response<pb::RegisterResponse>, Status> {
+        let r = req.into_inner();
+        let id = self.farm.register_worker();
+        tracing::info!(worker = id, name = %r.name, threads = r.threads, "worker registered");
+        Ok(Response::new(pb::RegisterResponse {
+            worker_id: id,
+            lease_ttl_ms: self.farm.config().sched.lease_ttl.as_millis() as u64,
+        }))
+    }
+
+    async fn lease_tile(
+        &self,
+        req: Request<pb::LeaseRequest>,
+    ) -> Result<Response<pb::LeaseResponse>, Status> {
+        let worker = req.into_inner().worker_id;
+        let lease = self.farm.lease_wait(worker, LEASE_WAIT).await?;
+        Ok(Response::new(pb::LeaseResponse {
+            lease: lease.map(|l| pb::Lease {
+                lease_id: l.id,
+                job_id: l.job,
+                bundle_hash: l.bundle_hash,
+                camera: l.camera,
+                rect: Some(l.rect.into()),
+            }),
+        }))
+    }
+
+    async fn heartbeat(
+        &self,
+        req: Request<pb::HeartbeatRequest>,
+    ) -> Result<Response<pb::HeartbeatResponse>, Status> {
+        let r = req.into_inner();
+        let dropped = self.farm.heartbeat(r.worker_id, &r.lease_ids)?;
+        Ok(Response::new(pb::HeartbeatResponse { dropped }))
+    }
+
+    async fn submit_tile(
+        &self,
+        req: Request<Streaming<pb::TileUpload>>,
+    ) -> Result<Response<pb::TileAck>, Status> {
+        let mut s = req.into_inner();
+        let header = match s.message().await?.and_then(|m| m.part) {
+            Some(Part::Header(h)) => h,
+            _ => {
+                return Err(Status::invalid_argument(
+                    "a tile upload starts with its header",
+                ))
+            }
+        };
+        let rect = rect_from(header.rect).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let expected = rect.pixel_count() * 12;
+        let mut bytes = Vec::with_capacity(expected.min(64 << 20));
+        let mut oversized = false;
+        while let Some(m) = s.message().await? {
+            match m.part {
+                Some(Part::Pixels(p)) if !oversized => {
+                    if bytes.len() + p.len() > expected {
+                        // Keep reading to the end; the size check rejects it.
+                        oversized = true;
+                    } else {
+                        bytes.extend_from_slice(&p);
+                    }
+                }
+                Some(Part::Pixels(_)) => {}
+                _ => return Err(Status::invalid_argument("a tile upload has one header")),
+            }
+        }
+        let pixels = match pixels_from_bytes(&bytes) {
+            Ok(p) if !oversized => p,
+            _ => Vec::new(), // Wrong size: validation rejects and re-queues.
+        };
+        let farm = self.farm.clone();
+        let (lease, job, rays) = (header.lease_id, header.job_id, header.rays);
+        let outcome = blocking(move || farm.put_tile(lease, job, rect, rays, &pixels)).await?;
+        Ok(Response::new(pb::TileAck {
+            accepted: outcome == TileOutcome::Accepted,
+        }))
+    }
+}
+
+/// Serves the coordinator on `listener` until `shutdown` resolves: the three
+/// `trevi.v1` services, `grpc.health.v1` and server reflection; plus a task
+/// that re-queues expired leases.
+pub async fn serve(
+    farm: Arc<Farm>,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), tonic::transport::Error> {
+    use pb::{
+        bundles_server::BundlesServer, jobs_server::JobsServer, workers_server::WorkersServer,
+    };
+
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health.set_serving::<JobsServer<JobsService>>().await;
+    health.set_serving::<WorkersServer<WorkersService>>().await;
+    health.set_serving::<BundlesServer<BundlesService>>().await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()
+        .expect("the embedded descriptor sets are valid");
+
+    let reaper = {
+        let farm = farm.clone();
+        let period = (farm.config().sched.lease_ttl / 4).max(Duration::from_millis(20));
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            loop {
+                tick.tick().await;
+                farm.expire();
+            }
+        })
+    };
+
+    let result = tonic::transport::Server::builder()
+        .add_service(health_service)
+        .add_service(reflection)
+        .add_service(BundlesServer::new(BundlesService { farm: farm.clone() }))
+        .add_service(JobsServer::new(JobsService { farm: farm.clone() }))
+        .add_service(WorkersServer::new(WorkersService { farm }))
+        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), shutdown)
+        .await;
+    reaper.abort();
+    result
+}

@@ -1,0 +1,639 @@
+//! The job queue and the tile leases: pure bookkeeping, no I/O, and time is
+//! passed in, so every rule can be unit-tested without a network or a clock.
+//!
+//! Rules:
+//! - Jobs run by priority (higher first), then in submission order; several
+//!   jobs run at once when the first cannot use an idle worker.
+//! - A job's tiles are leased in band order (top band first), and never more
+//!   than `window_bands` bands ahead of the first band that is not complete,
+//!   so the stitcher holds a bounded number of rows whatever the height.
+//! - A lease lives `lease_ttl` past its last heartbeat; an expired lease puts
+//!   its tile back in the queue (ahead of later tiles of the same job).
+//! - The first valid result for a tile wins; later and duplicate results are
+//!   ignored. An invalid result re-queues the tile at once.
+
+use std::cmp::Reverse;
+use std::collections::{BTreeSet, HashMap};
+use std::time::{Duration, Instant};
+use trevi_core::tile::{band_order_tiles, Rect};
+
+pub type JobId = u64;
+pub type LeaseId = u64;
+pub type WorkerId = u64;
+
+/// Where a job is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JobState {
+    Queued,
+    Running,
+    Done,
+    Failed,
+    Cancelled,
+}
+
+impl JobState {
+    /// Whether the job will not change any more.
+    pub fn is_final(self) -> bool {
+        matches!(
+            self,
+            JobState::Done | JobState::Failed | JobState::Cancelled
+        )
+    }
+}
+
+/// What a job renders: one camera's frame of one bundle.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct JobSpec {
+    pub bundle_hash: String,
+    pub camera: String,
+    pub priority: i32,
+    pub width: u32,
+    pub height: u32,
+    pub tile_size: u32,
+    /// File name of the output; its extension selects the format.
+    pub output_name: String,
+}
+
+/// A snapshot of a job, for status and progress.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobInfo {
+    pub id: JobId,
+    pub spec: JobSpec,
+    pub state: JobState,
+    pub tiles_total: u64,
+    pub tiles_done: u64,
+    pub rays: u64,
+    pub elapsed: Duration,
+    pub error: Option<String>,
+    /// 1 for the first job to finish, and so on; 0 while unfinished.
+    pub finish_order: u64,
+}
+
+/// A tile handed to a worker.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Lease {
+    pub id: LeaseId,
+    pub job: JobId,
+    pub bundle_hash: String,
+    pub camera: String,
+    pub rect: Rect,
+}
+
+/// What became of a result handed to [`Scheduler::accept_tile`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Accepted {
+    /// The tile is now done; `last` says it was the job's last tile.
+    New { last: bool },
+    /// Late or duplicate (the tile was already done, or the job is over).
+    Ignored,
+}
+
+/// Why the scheduler refused something.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SchedError {
+    #[error("no job {0}")]
+    UnknownJob(JobId),
+    #[error("unknown worker {0}")]
+    UnknownWorker(WorkerId),
+    #[error("{0:?} is not a tile of job {1}")]
+    NotATile(Rect, JobId),
+}
+
+/// Tunables.
+#[derive(Debug, Clone, Copy)]
+pub struct SchedulerConfig {
+    /// How long a lease lives without a heartbeat.
+    pub lease_ttl: Duration,
+    /// Budget for rows held by the stitcher per job, in bytes (counted at 12
+    /// bytes a pixel); sets how many bands may be in flight.
+    pub window_bytes: u64,
+}
+
+impl Default for SchedulerConfig {
+    fn default() -> Self {
+        SchedulerConfig {
+            lease_ttl: Duration::from_secs(10),
+            window_bytes: 16 << 20,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum TileState {
+    Pending,
+    Leased(LeaseId),
+    Done,
+}
+
+struct Job {
+    spec: JobSpec,
+    state: JobState,
+    tiles: Vec<Rect>,
+    tile_state: Vec<TileState>,
+    /// Indices of pending tiles; the smallest goes first (band order).
+    pending: BTreeSet<u32>,
+    cols: u32,
+    window_bands: u32,
+    /// Smallest tile index not done.
+    first_undone: u32,
+    tiles_total: u64,
+    done: u64,
+    rays: u64,
+    submitted: Instant,
+    finished: Option<Instant>,
+    error: Option<String>,
+    finish_order: u64,
+}
+
+impl Job {
+    fn tile_index(&self, rect: Rect) -> Option<u32> {
+        let t = self.spec.tile_size;
+        if rect.x % t != 0 || rect.y % t != 0 {
+            return None;
+        }
+        let idx = (rect.y / t) as u64 * self.cols as u64 + (rect.x / t) as u64;
+        let idx = u32::try_from(idx).ok()?;
+        (self.tiles.get(idx as usize) == Some(&rect)).then_some(idx)
+    }
+
+    /// Drops the bookkeeping only a running job needs.
+    fn retire(&mut self) {
+        self.tiles = Vec::new();
+        self.tile_state = Vec::new();
+        self.pending = BTreeSet::new();
+    }
+}
+
+struct LeaseEntry {
+    job: JobId,
+    tile: u32,
+    worker: WorkerId,
+    deadline: Instant,
+}
+
+/// The job queue and leases.
+pub struct Scheduler {
+    cfg: SchedulerConfig,
+    jobs: HashMap<JobId, Job>,
+    /// Unfinished jobs in the order they get workers.
+    queue: BTreeSet<(Reverse<i32>, JobId)>,
+    leases: HashMap<LeaseId, LeaseEntry>,
+    workers: HashMap<WorkerId, Instant>,
+    next_job: JobId,
+    next_lease: LeaseId,
+    next_worker: WorkerId,
+    finished: u64,
+}
+
+impl Scheduler {
+    /// `worker_id_base` keeps worker ids of different coordinator runs apart,
+    /// so a worker that outlived a restart is told to register again.
+    pub fn new(cfg: SchedulerConfig, worker_id_base: u64) -> Self {
+        Scheduler {
+            cfg,
+            jobs: HashMap::new(),
+            queue: BTreeSet::new(),
+            leases: HashMap::new(),
+            workers: HashMap::new(),
+            next_job: 1,
+            next_lease: 1,
+            next_worker: worker_id_base.max(1),
+            finished: 0,
+        }
+    }
+
+    pub fn config(&self) -> SchedulerConfig {
+        self.cfg
+    }
+
+    pub fn register_worker(&mut self, now: Instant) -> WorkerId {
+        let id = self.next_worker;
+        self.next_worker += 1;
+        self.workers.insert(id, now);
+        id
+    }
+
+    /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
+    pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
+        let id = self.next_job;
+        self.next_job += 1;
+        let tile = spec.tile_size.max(1);
+        let spec = JobSpec {
+            tile_size: tile,
+            ..spec
+        };
+        let tiles = band_order_tiles(spec.width, spec.height, tile);
+        let cols = spec.width.div_ceil(tile).max(1);
+        let band_bytes = spec.width as u64 * tile as u64 * 12;
+        let window_bands = (self.cfg.window_bytes / band_bytes.max(1)).clamp(2, u32::MAX as u64);
+        let n = tiles.len();
+        let job = Job {
+            state: JobState::Queued,
+            tile_state: vec![TileState::Pending; n],
+            pending: (0..n as u32).collect(),
+            cols,
+            window_bands: window_bands as u32,
+            first_undone: 0,
+            tiles_total: n as u64,
+            done: 0,
+            rays: 0,
+            submitted: now,
+            finished: None,
+            error: None,
+            finish_order: 0,
+            tiles,
+            spec,
+        };
+        self.queue.insert((Reverse(job.spec.priority), id));
+        self.jobs.insert(id, job);
+        id
+    }
+
+    /// The next tile for `worker`, if any job has one it may hand out now.
+    pub fn lease(&mut self, worker: WorkerId, now: Instant) -> Result<Option<Lease>, SchedError> {
+        self.touch(worker, now)?;
+        self.expire(now);
+        for &(_, id) in &self.queue {
+            let job = self.jobs.get_mut(&id).expect("queued jobs exist");
+            let Some(&idx) = job.pending.first() else {
+                continue;
+            };
+            let limit = (job.first_undone / job.cols) as u64 + job.window_bands as u64;
+            if (idx / job.cols) as u64 >= limit {
+                continue;
+            }
+            job.pending.remove(&idx);
+            let lease_id = self.next_lease;
+            self.next_lease += 1;
+            job.tile_state[idx as usize] = TileState::Leased(lease_id);
+            if job.state == JobState::Queued {
+                job.state = JobState::Running;
+            }
+            self.leases.insert(
+                lease_id,
+                LeaseEntry {
+                    job: id,
+                    tile: idx,
+                    worker,
+                    deadline: now + self.cfg.lease_ttl,
+                },
+            );
+            return Ok(Some(Lease {
+                id: lease_id,
+                job: id,
+                bundle_hash: job.spec.bundle_hash.clone(),
+                camera: job.spec.camera.clone(),
+                rect: job.tiles[idx as usize],
+            }));
+        }
+        Ok(None)
+    }
+
+    /// Renews `worker`'s leases; returns those it should drop.
+    pub fn heartbeat(
+        &mut self,
+        worker: WorkerId,
+        leases: &[LeaseId],
+        now: Instant,
+    ) -> Result<Vec<LeaseId>, SchedError> {
+        self.touch(worker, now)?;
+        let ttl = self.cfg.lease_ttl;
+        let mut dropped = Vec::new();
+        for &l in leases {
+            match self.leases.get_mut(&l) {
+                Some(e) if e.worker == worker && e.deadline >= now => e.deadline = now + ttl,
+                _ => dropped.push(l),
+            }
+        }
+        Ok(dropped)
+    }
+
+    /// Re-queues the tiles of leases past their deadline; returns how many.
+    pub fn expire(&mut self, now: Instant) -> usize {
+        let expired: Vec<LeaseId> = self
+            .leases
+            .iter()
+            .filter(|(_, e)| e.deadline < now)
+            .map(|(&id, _)| id)
+            .collect();
+        for &id in &expired {
+            self.release(id);
+        }
+        expired.len()
+    }
+
+    /// Removes a lease and puts its tile back in the queue if it is not done.
+    fn release(&mut self, lease: LeaseId) {
+        let Some(e) = self.leases.remove(&lease) else {
+            return;
+        };
+        if let Some(job) = self.jobs.get_mut(&e.job) {
+            if job.tile_state.get(e.tile as usize) == Some(&TileState::Leased(lease)) {
+                job.tile_state[e.tile as usize] = TileState::Pending;
+                job.pending.insert(e.tile);
+            }
+        }
+    }
+
+    /// The tile index of `rect` in `job`, checking that it is one of its tiles.
+    pub fn check_tile(&self, job: JobId, rect: Rect) -> Result<(), SchedError> {
+        let j = self.jobs.get(&job).ok_or(SchedError::UnknownJob(job))?;
+        if j.state.is_final() {
+            return Ok(()); // Retired: the result will be ignored anyway.
+        }
+        j.tile_index(rect)
+            .map(|_| ())
+            .ok_or(SchedError::NotATile(rect, job))
+    }
+
+    /// Records a valid result for `rect` of `job`.
+    pub fn accept_tile(
+        &mut self,
+        job: JobId,
+        rect: Rect,
+        rays: u64,
+    ) -> Result<Accepted, SchedError> {
+        let j = self.jobs.get_mut(&job).ok_or(SchedError::UnknownJob(job))?;
+        if j.state.is_final() {
+            return Ok(Accepted::Ignored);
+        }
+        let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
+        match j.tile_state[idx as usize] {
+            TileState::Done => return Ok(Accepted::Ignored),
+            TileState::Leased(l) => {
+                self.leases.remove(&l);
+            }
+            TileState::Pending => {
+                j.pending.remove(&idx);
+            }
+        }
+        j.tile_state[idx as usize] = TileState::Done;
+        j.done += 1;
+        j.rays += rays;
+        while (j.first_undone as usize) < j.tile_state.len()
+            && j.tile_state[j.first_undone as usize] == TileState::Done
+        {
+            j.first_undone += 1;
+        }
+        Ok(Accepted::New {
+            last: j.done == j.tiles_total,
+        })
+    }
+
+    /// An invalid result arrived under `lease`: put the tile back at once
+    /// (unless someone else holds it or it is done).
+    pub fn reject_tile(&mut self, lease: LeaseId) {
+        self.release(lease);
+    }
+
+    /// Ends a job: `Ok` when its output is in place, `Err` when it failed.
+    pub fn finish(&mut self, job: JobId, result: Result<(), String>, now: Instant) {
+        let Some(j) = self.jobs.get_mut(&job) else {
+            return;
+        };
+        if j.state.is_final() {
+            return;
+        }
+        self.finished += 1;
+        j.finish_order = self.finished;
+        j.finished = Some(now);
+        match result {
+            Ok(()) => j.state = JobState::Done,
+            Err(e) => {
+                j.state = JobState::Failed;
+                j.error = Some(e);
+            }
+        }
+        self.retire(job);
+    }
+
+    /// Cancels an unfinished job; its leases are dropped at the workers' next
+    /// heartbeat. Returns the state the job is in afterwards.
+    pub fn cancel(&mut self, job: JobId, now: Instant) -> Result<JobState, SchedError> {
+        let j = self.jobs.get_mut(&job).ok_or(SchedError::UnknownJob(job))?;
+        if !j.state.is_final() {
+            j.state = JobState::Cancelled;
+            j.finished = Some(now);
+            self.retire(job);
+        }
+        Ok(self.jobs[&job].state)
+    }
+
+    fn retire(&mut self, job: JobId) {
+        let j = self.jobs.get_mut(&job).expect("job exists");
+        self.queue.remove(&(Reverse(j.spec.priority), job));
+        j.retire();
+        self.leases.retain(|_, e| e.job != job);
+    }
+
+    pub fn info(&self, job: JobId, now: Instant) -> Option<JobInfo> {
+        let j = self.jobs.get(&job)?;
+        Some(JobInfo {
+            id: job,
+            spec: j.spec.clone(),
+            state: j.state,
+            tiles_total: j.tiles_total,
+            tiles_done: j.done,
+            rays: j.rays,
+            elapsed: j
+                .finished
+                .unwrap_or(now)
+                .saturating_duration_since(j.submitted),
+            error: j.error.clone(),
+            finish_order: j.finish_order,
+        })
+    }
+
+    /// Every job, by id.
+    pub fn list(&self, now: Instant) -> Vec<JobInfo> {
+        let mut ids: Vec<JobId> = self.jobs.keys().copied().collect();
+        ids.sort_unstable();
+        ids.into_iter()
+            .filter_map(|id| self.info(id, now))
+            .collect()
+    }
+
+    /// Number of live leases (for tests and metrics).
+    pub fn lease_count(&self) -> usize {
+        self.leases.len()
+    }
+
+    fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<(), SchedError> {
+        match self.workers.get_mut(&worker) {
+            Some(seen) => {
+                *seen = now;
+                Ok(())
+            }
+            None => Err(SchedError::UnknownWorker(worker)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(priority: i32, w: u32, h: u32, tile: u32) -> JobSpec {
+        JobSpec {
+            bundle_hash: "h".into(),
+            camera: "cam".into(),
+            priority,
+            width: w,
+            height: h,
+            tile_size: tile,
+            output_name: "out.png".into(),
+        }
+    }
+
+    fn sched() -> (Scheduler, Instant, WorkerId) {
+        let now = Instant::now();
+        let mut s = Scheduler::new(
+            SchedulerConfig {
+                lease_ttl: Duration::from_secs(5),
+                window_bytes: 1 << 30,
+            },
+            100,
+        );
+        let w = s.register_worker(now);
+        (s, now, w)
+    }
+
+    #[test]
+    fn jobs_run_by_priority_then_submission_order() {
+        let (mut s, now, w) = sched();
+        let low = s.submit(spec(0, 4, 4, 4), now);
+        let high = s.submit(spec(5, 4, 4, 4), now);
+        let low2 = s.submit(spec(0, 4, 4, 4), now);
+        let order: Vec<JobId> = (0..3)
+            .map(|_| s.lease(w, now).unwrap().unwrap().job)
+            .collect();
+        assert_eq!(order, vec![high, low, low2]);
+        assert_eq!(s.lease(w, now).unwrap(), None);
+    }
+
+    #[test]
+    fn tiles_go_out_in_band_order_and_idle_workers_take_the_next_job() {
+        let (mut s, now, w) = sched();
+        let a = s.submit(spec(1, 20, 10, 8), now);
+        let b = s.submit(spec(0, 8, 8, 8), now);
+        let rects: Vec<Rect> = (0..6)
+            .map(|_| s.lease(w, now).unwrap().unwrap())
+            .filter(|l| l.job == a)
+            .map(|l| l.rect)
+            .collect();
+        assert_eq!(rects, band_order_tiles(20, 10, 8));
+        assert_eq!(s.lease(w, now).unwrap().unwrap().job, b);
+        assert_eq!(s.info(a, now).unwrap().state, JobState::Running);
+    }
+
+    #[test]
+    fn leasing_stays_within_the_band_window() {
+        let now = Instant::now();
+        // One band of a 16-wide frame with 4-pixel tiles is 16*4*12 bytes.
+        let mut s = Scheduler::new(
+            SchedulerConfig {
+                lease_ttl: Duration::from_secs(5),
+                window_bytes: 2 * 16 * 4 * 12,
+            },
+            1,
+        );
+        let w = s.register_worker(now);
+        let j = s.submit(spec(0, 16, 64, 4), now);
+        let mut leased = Vec::new();
+        while let Some(l) = s.lease(w, now).unwrap() {
+            leased.push(l);
+        }
+        assert_eq!(leased.len(), 8, "two bands of four tiles");
+        // Completing the first band opens the third.
+        for l in &leased[..4] {
+            s.accept_tile(j, l.rect, 1).unwrap();
+        }
+        let more: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
+        assert_eq!(more.len(), 4);
+        assert!(more.iter().all(|l| l.rect.y == 8));
+    }
+
+    #[test]
+    fn heartbeats_renew_and_missed_deadlines_requeue_first() {
+        let (mut s, t0, w) = sched();
+        let j = s.submit(spec(0, 8, 4, 4), t0);
+        let l1 = s.lease(w, t0).unwrap().unwrap();
+        let l2 = s.lease(w, t0).unwrap().unwrap();
+        let t1 = t0 + Duration::from_secs(4);
+        assert_eq!(s.heartbeat(w, &[l2.id], t1).unwrap(), Vec::<LeaseId>::new());
+        let t2 = t0 + Duration::from_secs(6);
+        // l1 missed its deadline, l2 was renewed until t1+5.
+        assert_eq!(s.expire(t2), 1);
+        assert_eq!(s.heartbeat(w, &[l1.id, l2.id], t2).unwrap(), vec![l1.id]);
+        let again = s.lease(w, t2).unwrap().unwrap();
+        assert_eq!((again.job, again.rect), (j, l1.rect));
+        assert_ne!(again.id, l1.id);
+        // An unknown worker is told so.
+        assert_eq!(s.lease(999, t2), Err(SchedError::UnknownWorker(999)));
+    }
+
+    #[test]
+    fn first_valid_result_wins_late_and_duplicate_ignored() {
+        let (mut s, t0, w) = sched();
+        let w2 = s.register_worker(t0);
+        let j = s.submit(spec(0, 4, 4, 4), t0);
+        let l1 = s.lease(w, t0).unwrap().unwrap();
+        let t1 = t0 + Duration::from_secs(6);
+        s.expire(t1);
+        let l2 = s.lease(w2, t1).unwrap().unwrap();
+        assert_eq!(l2.rect, l1.rect);
+        // The late worker finishes first: its result counts.
+        assert_eq!(
+            s.accept_tile(j, l1.rect, 7),
+            Ok(Accepted::New { last: true })
+        );
+        assert_eq!(s.accept_tile(j, l2.rect, 7), Ok(Accepted::Ignored));
+        // w2's lease is gone.
+        assert_eq!(s.heartbeat(w2, &[l2.id], t1).unwrap(), vec![l2.id]);
+        assert_eq!(s.info(j, t1).unwrap().rays, 7);
+        assert_eq!(
+            s.accept_tile(j, Rect::new(1, 0, 3, 4), 0),
+            Err(SchedError::NotATile(Rect::new(1, 0, 3, 4), j))
+        );
+    }
+
+    #[test]
+    fn rejected_result_requeues_only_its_own_lease() {
+        let (mut s, t0, w) = sched();
+        let w2 = s.register_worker(t0);
+        s.submit(spec(0, 4, 4, 4), t0);
+        let l1 = s.lease(w, t0).unwrap().unwrap();
+        s.reject_tile(l1.id);
+        let l2 = s.lease(w2, t0).unwrap().unwrap();
+        assert_eq!(l2.rect, l1.rect);
+        // A second bad result under the dead lease does not touch w2's.
+        s.reject_tile(l1.id);
+        assert_eq!(s.lease(w, t0).unwrap(), None);
+        assert_eq!(s.lease_count(), 1);
+    }
+
+    #[test]
+    fn cancel_stops_leasing_and_drops_leases() {
+        let (mut s, t0, w) = sched();
+        let j = s.submit(spec(0, 8, 8, 4), t0);
+        let l = s.lease(w, t0).unwrap().unwrap();
+        assert_eq!(s.cancel(j, t0), Ok(JobState::Cancelled));
+        assert_eq!(s.lease(w, t0).unwrap(), None);
+        assert_eq!(s.heartbeat(w, &[l.id], t0).unwrap(), vec![l.id]);
+        assert_eq!(s.accept_tile(j, l.rect, 1), Ok(Accepted::Ignored));
+        assert_eq!(s.cancel(42, t0), Err(SchedError::UnknownJob(42)));
+    }
+
+    #[test]
+    fn finish_order_is_recorded() {
+        let (mut s, t0, _) = sched();
+        let a = s.submit(spec(0, 4, 4, 4), t0);
+        let b = s.submit(spec(0, 4, 4, 4), t0);
+        s.finish(b, Ok(()), t0);
+        s.finish(a, Err("disk full".into()), t0);
+        let (ia, ib) = (s.info(a, t0).unwrap(), s.info(b, t0).unwrap());
+        assert_eq!((ib.state, ib.finish_order), (JobState::Done, 1));
+        assert_eq!((ia.state, ia.finish_order), (JobState::Failed, 2));
+        assert_eq!(ia.error.as_deref(), Some("disk full"));
+    }
+}
