@@ -1307,6 +1307,30 @@ fn obj_mesh_file_is_loaded_once_and_recorded() {
     assert_eq!(s.models[1].triangle_surface, vec![1]);
 }
 
+#[test]
+fn ply_mesh_file_is_loaded() {
+    // Needs the PLY loader (crate::mesh::ply).
+    let text = doc(r#"<mesh id="a" file="m/t.ply"/><model id="x" mesh="a"/>"#);
+    let ply = b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    let b = bundle_with(&text, &[("m/t.ply", ply)]);
+    let s = parse_scene("scene.xml", &b).unwrap();
+    assert_eq!(s.files, vec!["m/t.ply".to_string()]);
+    assert_eq!(s.meshes[0].triangles, vec![[0, 1, 2]]);
+    assert!(close(s.meshes[0].normals[1], Vec3::Z));
+}
+
+#[test]
+fn mesh_file_errors_pass_through() {
+    let text = doc(r#"<mesh id="a" file="m/bad.obj"/>"#);
+    let b = bundle_with(
+        &text,
+        &[("m/bad.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n")],
+    );
+    let e = parse_scene("scene.xml", &b).unwrap_err();
+    assert_eq!(e.location.file, "m/bad.obj", "{e}");
+    assert_eq!(e.location.line, 4, "{e}");
+}
+
 // -------------------------------------------------------------- robustness
 
 mod fuzz {
