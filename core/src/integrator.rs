@@ -308,8 +308,9 @@ impl<'a> Integrator<'a> {
     }
 
     /// G at `level` (1 = the first level): mean over `count` cosine
-    /// directions of f(s_k)·D(q_k), with D(q) = kd_q ⊙ (Σ vis·E·max(0,N·L)
-    /// + G'(q)) and G' one direction deeper, `diffuse-depth` levels in all.
+    /// directions of f(s_k)·D(q_k), with
+    /// D(q) = kd_q ⊙ (Σ vis·E·max(0,N·L) + G'(q)) and G' one direction
+    /// deeper, `diffuse-depth` levels in all.
     /// Sample `k` uses index `index·count + k`.
     fn gather(
         &self,

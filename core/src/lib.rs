@@ -19,6 +19,10 @@
 //! (see `sampling`), so any tiling, thread count or machine gives the same
 //! bytes.
 
+// `!(x > 0.0)` is deliberate throughout the geometry code: it is true for
+// NaN as well, which is exactly what the hit tests must reject.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod bundle;
 pub mod bvh;
 pub mod camera;
