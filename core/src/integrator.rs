@@ -341,11 +341,12 @@ impl<'a> Integrator<'a> {
                 continue;
             }
             let shadow_stream = hash2(hash2(stream, TAG_GATHER_SHADOW), level as u64);
-            let mut light = self.direct(ctx, &q, None, shadow_stream, idx);
+            // `direct` already weights by kd_q, so D(q) = direct + kd_q ⊙ G'(q).
+            let mut d_q = self.direct(ctx, &q, None, shadow_stream, idx);
             if level < r.diffuse_depth {
-                light += self.gather(ctx, &q, level + 1, 1, stream, idx);
+                d_q += q.surface.diffuse * self.gather(ctx, &q, level + 1, 1, stream, idx);
             }
-            sum += q.surface.diffuse * light * f;
+            sum += d_q * f;
         }
         sum / count as f32
     }
