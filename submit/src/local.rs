@@ -1,93 +1,71 @@
-//! Rendering on this machine: tiles in band order, each band's tiles in
-//! parallel, each finished band handed to the output writer, so memory holds
-//! one band of tiles, never the frame.
+//! Rendering on this machine: an embedded coordinator on 127.0.0.1 (an
+//! ephemeral port, data in a temporary directory) and an in-process worker
+//! with every core, driven by the same client code as a farm (`remote.rs`),
+//! so the output is byte-identical to the farm's.
 
 use anyhow::{Context, Result};
-use indicatif::{ProgressBar, ProgressStyle};
-use rayon::prelude::*;
-use std::path::Path;
-use std::time::Instant;
-use trevi_core::tile::band_order_tiles;
-use trevi_core::{render_tile, FrameWriter, Scene};
+use std::sync::Arc;
+use tokio::sync::{oneshot, watch};
+use tokio::task::JoinHandle;
+use trevi_coordinator::{Farm, FarmConfig};
+use trevi_worker::WorkerConfig;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Progress {
-    Quiet,
-    Bar,
-    Lines,
+/// A coordinator and a worker running inside this process.
+pub struct Embedded {
+    pub url: String,
+    stop_server: oneshot::Sender<()>,
+    stop_worker: watch::Sender<bool>,
+    server: JoinHandle<()>,
+    worker: JoinHandle<()>,
+    _data: tempfile::TempDir,
 }
 
-pub struct Stats {
-    pub rays: u64,
-    pub seconds: f64,
-}
-
-pub fn render_camera(
-    scene: &Scene,
-    camera: usize,
-    out: &Path,
-    tile: u32,
-    progress: Progress,
-) -> Result<Stats> {
-    let desc = &scene.desc.cameras[camera];
-    let (w, h) = (desc.render.width, desc.render.height);
-    let start = Instant::now();
-    let mut writer = FrameWriter::create(out, w, h)
-        .with_context(|| format!("cannot write {}", out.display()))?;
-    let tiles = band_order_tiles(w, h, tile);
-    let bar = match progress {
-        Progress::Bar => {
-            let b = ProgressBar::new(tiles.len() as u64);
-            b.set_style(
-                ProgressStyle::with_template(
-                    "{prefix} [{bar:40}] {pos}/{len} tiles {msg} ETA {eta}",
-                )
-                .expect("static template")
-                .progress_chars("=> "),
-            );
-            b.set_prefix(desc.id.clone());
-            Some(b)
-        }
-        _ => None,
-    };
-    let mut rays = 0u64;
-    let mut done = 0usize;
-    let mut last_line = 0usize;
-    for band in tiles.chunk_by(|a, b| a.y == b.y) {
-        let results: Vec<_> = band
-            .par_iter()
-            .map(|&r| (r, render_tile(scene, camera, r)))
-            .collect();
-        for (r, res) in results {
-            writer.write_tile(r, &res.pixels)?;
-            rays += res.rays;
-        }
-        done += band.len();
-        let secs = start.elapsed().as_secs_f64();
-        let rate = rays as f64 / secs.max(1e-9) / 1e6;
-        if let Some(b) = &bar {
-            b.set_position(done as u64);
-            b.set_message(format!("{rate:.2} M rays/s"));
-        } else if progress == Progress::Lines {
-            let pct = done * 100 / tiles.len();
-            if pct >= last_line + 10 || done == tiles.len() {
-                last_line = pct;
-                eprintln!(
-                    "{}: {pct}% ({done}/{} tiles, {rate:.2} M rays/s)",
-                    desc.id,
-                    tiles.len()
-                );
+impl Embedded {
+    /// `threads` render threads (0: every core); `tile` the default tile edge.
+    pub async fn start(threads: usize, tile: u32) -> Result<Embedded> {
+        let data = tempfile::Builder::new()
+            .prefix("trevi-submit-")
+            .tempdir()
+            .context("cannot create a temporary directory")?;
+        let mut cfg = FarmConfig::new(data.path());
+        cfg.default_tile = tile;
+        let farm = Arc::new(Farm::new(cfg).context("cannot start the embedded coordinator")?);
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .context("cannot listen on 127.0.0.1")?;
+        let url = format!("http://{}", listener.local_addr()?);
+        let (stop_server, stopped) = oneshot::channel::<()>();
+        let server = tokio::spawn(async move {
+            let shutdown = async {
+                let _ = stopped.await;
+            };
+            if let Err(e) = trevi_coordinator::grpc::serve(farm, listener, shutdown).await {
+                eprintln!("trevi-submit: embedded coordinator failed: {e}");
             }
-        }
+        });
+        let (stop_worker, stop) = watch::channel(false);
+        let mut wcfg = WorkerConfig::new(url.clone());
+        wcfg.threads = threads;
+        wcfg.name = "embedded".into();
+        let worker = tokio::spawn(async move {
+            if let Err(e) = trevi_worker::run(wcfg, stop).await {
+                eprintln!("trevi-submit: embedded worker failed: {e}");
+            }
+        });
+        Ok(Embedded {
+            url,
+            stop_server,
+            stop_worker,
+            server,
+            worker,
+            _data: data,
+        })
     }
-    writer
-        .finish()
-        .with_context(|| format!("cannot finish {}", out.display()))?;
-    if let Some(b) = bar {
-        b.finish_and_clear();
+
+    pub async fn stop(self) {
+        let _ = self.stop_worker.send(true);
+        let _ = self.worker.await;
+        let _ = self.stop_server.send(());
+        let _ = self.server.await;
     }
-    Ok(Stats {
-        rays,
-        seconds: start.elapsed().as_secs_f64(),
-    })
 }

@@ -1,10 +1,13 @@
 //! `trevi-submit`: what users type.
 //!
 //! `trevi-submit SCENE.xml [--camera ID] [-o OUT]` renders every camera of
-//! the scene (or the one named) to its `output` file. Without a farm address
-//! the frame is rendered on this machine with every core.
+//! the scene (or the one named) to its `output` file. With `--coordinator
+//! URL` the frames are rendered on a farm; without it, by a coordinator and a
+//! worker embedded in this process with every core, through the same client
+//! code. `trevi-submit status|list|cancel` manage a farm's jobs.
 
 mod local;
+mod remote;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -12,10 +15,27 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "trevi-submit", version, about = "Render an AISXML scene")]
+#[command(
+    name = "trevi-submit",
+    version,
+    about = "Render an AISXML scene",
+    args_conflicts_with_subcommands = true
+)]
 struct Args {
+    #[command(subcommand)]
+    command: Option<Command>,
     /// The scene file (AISXML).
-    scene: PathBuf,
+    scene: Option<PathBuf>,
+    /// The farm's coordinator, like http://host:50051 (default: render on
+    /// this machine).
+    #[arg(long, env = "TREVI_COORDINATOR", global = true)]
+    coordinator: Option<String>,
+    /// Job priority on the farm: higher runs first.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    priority: i32,
+    /// Submit and print the job ids without waiting (needs --coordinator).
+    #[arg(long)]
+    detach: bool,
     /// Render only this camera (default: every camera in the scene).
     #[arg(long)]
     camera: Option<String>,
@@ -34,6 +54,16 @@ struct Args {
     quiet: bool,
 }
 
+#[derive(clap::Subcommand, Debug)]
+enum Command {
+    /// Show a job.
+    Status { id: u64 },
+    /// List the farm's jobs.
+    List,
+    /// Cancel a job: it takes no more worker time and leaves no output.
+    Cancel { id: u64 },
+}
+
 fn main() {
     let args = Args::parse();
     if let Err(e) = run(args) {
@@ -43,13 +73,43 @@ fn main() {
 }
 
 fn run(args: Args) -> Result<()> {
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
+    if let Some(cmd) = &args.command {
+        let url = args
+            .coordinator
+            .as_deref()
+            .context("status, list and cancel need --coordinator URL (or TREVI_COORDINATOR)")?;
+        return runtime.block_on(async {
+            let mut client = remote::Client::connect(url).await?;
+            match cmd {
+                Command::Status { id } => {
+                    println!("{}", remote::describe(&client.status(*id).await?))
+                }
+                Command::List => {
+                    for s in client.list().await? {
+                        println!("{}", remote::describe(&s));
+                    }
+                }
+                Command::Cancel { id } => {
+                    println!("{}", remote::describe(&client.cancel(*id).await?))
+                }
+            }
+            Ok(())
+        });
+    }
+    let Some(scene_path) = args.scene.clone() else {
+        bail!("name a scene file (or one of status, list, cancel); see --help");
+    };
     if args.tile == 0 {
         bail!("--tile must be at least 1");
     }
-    let bundle = trevi_core::Bundle::from_scene_file(&args.scene)
-        .map_err(|e| anyhow::anyhow!("{}", with_dir(&args.scene, e)))?;
+    if args.detach && args.coordinator.is_none() {
+        bail!("--detach needs --coordinator URL: the embedded farm ends with this process");
+    }
+    let bundle = trevi_core::Bundle::from_scene_file(&scene_path)
+        .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
     let scene = trevi_core::Scene::from_bundle(&bundle)
-        .map_err(|e| anyhow::anyhow!("{}", with_dir(&args.scene, e)))?;
+        .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
     let cameras: Vec<usize> = match &args.camera {
         Some(id) => vec![scene.camera_index(id).with_context(|| {
             let ids: Vec<_> = scene.desc.cameras.iter().map(|c| c.id.as_str()).collect();
@@ -66,44 +126,61 @@ fn run(args: Args) -> Result<()> {
             cameras.len()
         );
     }
-    let scene_dir = args
-        .scene
+    let scene_dir = scene_path
         .parent()
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("."));
     let progress = if args.quiet {
-        local::Progress::Quiet
+        remote::Progress::Quiet
     } else if std::io::stderr().is_terminal() {
-        local::Progress::Bar
+        remote::Progress::Bar
     } else {
-        local::Progress::Lines
+        remote::Progress::Lines
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads.unwrap_or(0))
-        .build()
-        .context("cannot start the worker threads")?;
-    for cam in cameras {
-        let desc = &scene.desc.cameras[cam];
-        let out = match &args.output {
-            Some(o) => o.clone(),
-            None => scene_dir.join(&desc.render.output),
-        };
-        let stats =
-            pool.install(|| local::render_camera(&scene, cam, &out, args.tile, progress))?;
-        if !args.quiet {
-            eprintln!(
-                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s)",
-                desc.id,
-                desc.render.width,
-                desc.render.height,
-                out.display(),
-                stats.seconds,
-                stats.rays as f64 / 1e6,
-                stats.rays as f64 / 1e6 / stats.seconds.max(1e-9)
-            );
+    let targets: Vec<remote::Target> = cameras
+        .iter()
+        .map(|&cam| {
+            let desc = &scene.desc.cameras[cam];
+            remote::Target {
+                camera: desc.id.clone(),
+                out: match &args.output {
+                    Some(o) => o.clone(),
+                    None => scene_dir.join(&desc.render.output),
+                },
+            }
+        })
+        .collect();
+    drop(scene);
+    runtime.block_on(async {
+        match &args.coordinator {
+            Some(url) => {
+                let mut client = remote::Client::connect(url).await?;
+                client
+                    .render(
+                        &bundle,
+                        &targets,
+                        args.priority,
+                        args.tile,
+                        args.detach,
+                        progress,
+                    )
+                    .await
+            }
+            None => {
+                let farm = local::Embedded::start(args.threads.unwrap_or(0), args.tile).await?;
+                let result = async {
+                    let mut client = remote::Client::connect(&farm.url).await?;
+                    client.announce = false;
+                    client
+                        .render(&bundle, &targets, args.priority, args.tile, false, progress)
+                        .await
+                }
+                .await;
+                farm.stop().await;
+                result
+            }
         }
-    }
-    Ok(())
+    })
 }
 
 /// Scene errors name bundle-relative files; show them as the user typed the

@@ -1,1 +1,364 @@
-//! The Trevi worker. Placeholder until the farm lands.
+//! The Trevi worker: a stateless tile renderer around `trevi_core::render_tile`.
+//!
+//! [`run`] loops: connect (with exponential backoff), register, lease a tile,
+//! fetch its scene bundle by hash (verifying the SHA-256, keeping the last few
+//! built scenes), render the tile on a rayon pool of `threads` threads while
+//! heartbeating the lease, and stream the pixels back. It keeps nothing that
+//! matters: kill it at any moment and the coordinator re-queues its tile when
+//! the lease runs out. It survives a coordinator restart by reconnecting and
+//! registering again. When `shutdown` turns true it finishes the tile in
+//! hand, sends it, and returns.
+
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::watch;
+use tonic::transport::Channel;
+use tonic::Code;
+use trevi_core::{Bundle, Rect, Scene};
+use trevi_proto::pb::{self, bundles_client::BundlesClient, workers_client::WorkersClient};
+use trevi_proto::{pixels_to_bytes, rect_from, CHUNK_SIZE, MAX_MESSAGE_SIZE};
+
+/// Worker settings.
+#[derive(Debug, Clone)]
+pub struct WorkerConfig {
+    /// Like `http://host:50051`.
+    pub coordinator: String,
+    /// Render threads (0: every core).
+    pub threads: usize,
+    /// How the worker introduces itself in the coordinator's logs.
+    pub name: String,
+    /// How many built scenes to keep.
+    pub cache_size: usize,
+}
+
+impl WorkerConfig {
+    pub fn new(coordinator: impl Into<String>) -> Self {
+        WorkerConfig {
+            coordinator: coordinator.into(),
+            threads: 0,
+            name: default_name(),
+            cache_size: 4,
+        }
+    }
+}
+
+fn default_name() -> String {
+    let host = std::fs::read_to_string("/etc/hostname")
+        .ok()
+        .map(|s| s.trim().to_string())
+        .filter(|s| !s.is_empty())
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .unwrap_or_else(|| "worker".into());
+    format!("{host}-{}", std::process::id())
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    #[error("bad coordinator address \"{0}\": {1}")]
+    BadAddress(String, String),
+    #[error("cannot start {0} render threads: {1}")]
+    Pool(usize, String),
+}
+
+/// Why a session with the coordinator ended.
+enum End {
+    Shutdown,
+    /// Connection lost or coordinator restarted: connect and register again.
+    Reconnect(String),
+}
+
+/// Scenes built from bundles, most recently used last.
+struct SceneCache {
+    cap: usize,
+    scenes: Vec<(String, Arc<Scene>)>,
+}
+
+impl SceneCache {
+    fn get(&mut self, hash: &str) -> Option<Arc<Scene>> {
+        let i = self.scenes.iter().position(|(h, _)| h == hash)?;
+        let e = self.scenes.remove(i);
+        let s = e.1.clone();
+        self.scenes.push(e);
+        Some(s)
+    }
+    fn put(&mut self, hash: String, scene: Arc<Scene>) {
+        if self.scenes.len() >= self.cap.max(1) {
+            self.scenes.remove(0);
+        }
+        self.scenes.push((hash, scene));
+    }
+}
+
+/// Runs the worker until `shutdown` turns true.
+pub async fn run(
+    cfg: WorkerConfig,
+    mut shutdown: watch::Receiver<bool>,
+) -> Result<(), WorkerError> {
+    let endpoint = Channel::from_shared(cfg.coordinator.clone())
+        .map_err(|e| WorkerError::BadAddress(cfg.coordinator.clone(), e.to_string()))?
+        .connect_timeout(Duration::from_secs(5))
+        .tcp_nodelay(true);
+    let threads = if cfg.threads == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        cfg.threads
+    };
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("trevi-render-{i}"))
+            .build()
+            .map_err(|e| WorkerError::Pool(threads, e.to_string()))?,
+    );
+    let mut cache = SceneCache {
+        cap: cfg.cache_size,
+        scenes: Vec::new(),
+    };
+    let mut backoff = Duration::from_millis(100);
+    loop {
+        if *shutdown.borrow() {
+            return Ok(());
+        }
+        let channel = tokio::select! {
+            c = endpoint.connect() => c,
+            _ = shutdown.changed() => continue,
+        };
+        let end = match channel {
+            Ok(channel) => {
+                let mut s = Session {
+                    workers: WorkersClient::new(channel.clone())
+                        .max_decoding_message_size(MAX_MESSAGE_SIZE),
+                    bundles: BundlesClient::new(channel)
+                        .max_decoding_message_size(MAX_MESSAGE_SIZE),
+                    pool: pool.clone(),
+                    threads,
+                };
+                s.serve(&cfg, &mut cache, &mut shutdown, &mut backoff).await
+            }
+            Err(e) => End::Reconnect(format!("cannot connect: {e}")),
+        };
+        match end {
+            End::Shutdown => return Ok(()),
+            End::Reconnect(why) => {
+                tracing::warn!(coordinator = %cfg.coordinator, retry_in = ?backoff, "{why}");
+                tokio::select! {
+                    _ = tokio::time::sleep(backoff) => {}
+                    _ = shutdown.changed() => {}
+                }
+                backoff = (backoff * 2).min(Duration::from_secs(5));
+            }
+        }
+    }
+}
+
+struct Session {
+    workers: WorkersClient<Channel>,
+    bundles: BundlesClient<Channel>,
+    pool: Arc<rayon::ThreadPool>,
+    threads: usize,
+}
+
+fn reconnect(what: &str, s: tonic::Status) -> End {
+    End::Reconnect(format!("{what}: {}: {}", s.code(), s.message()))
+}
+
+impl Session {
+    async fn serve(
+        &mut self,
+        cfg: &WorkerConfig,
+        cache: &mut SceneCache,
+        shutdown: &mut watch::Receiver<bool>,
+        backoff: &mut Duration,
+    ) -> End {
+        let reg = match self
+            .workers
+            .register(pb::RegisterRequest {
+                name: cfg.name.clone(),
+                threads: self.threads as u32,
+            })
+            .await
+        {
+            Ok(r) => r.into_inner(),
+            Err(s) => return reconnect("register", s),
+        };
+        *backoff = Duration::from_millis(100);
+        let worker = reg.worker_id;
+        let beat = Duration::from_millis((reg.lease_ttl_ms / 3).max(10));
+        tracing::info!(worker, coordinator = %cfg.coordinator, threads = self.threads, "registered");
+        loop {
+            if *shutdown.borrow() {
+                return End::Shutdown;
+            }
+            let lease = tokio::select! {
+                r = self.workers.lease_tile(pb::LeaseRequest { worker_id: worker }) => r,
+                _ = shutdown.changed() => return End::Shutdown,
+            };
+            let lease = match lease {
+                Ok(r) => match r.into_inner().lease {
+                    Some(l) => l,
+                    None => continue,
+                },
+                Err(s) => return reconnect("lease", s),
+            };
+            let rect = match rect_from(lease.rect) {
+                Ok(r) => r,
+                Err(e) => {
+                    tracing::error!(lease = lease.lease_id, "bad lease: {e}");
+                    continue;
+                }
+            };
+            let scene = match self.scene(cache, &lease.bundle_hash).await {
+                Ok(s) => s,
+                Err(e) => {
+                    // The lease runs out and the tile goes to someone else.
+                    tracing::error!(bundle = %lease.bundle_hash, "cannot load the scene: {e}");
+                    continue;
+                }
+            };
+            let Some(camera) = scene.camera_index(&lease.camera) else {
+                tracing::error!(camera = %lease.camera, "the scene has no such camera");
+                continue;
+            };
+            match self.render(worker, &lease, scene, camera, rect, beat).await {
+                Ok(Some((pixels, rays))) => {
+                    if let Err(s) = self.send(worker, &lease, rect, rays, &pixels).await {
+                        if s.code() == Code::InvalidArgument {
+                            tracing::error!(
+                                lease = lease.lease_id,
+                                "tile rejected: {}",
+                                s.message()
+                            );
+                        } else {
+                            return reconnect("sending a tile", s);
+                        }
+                    }
+                }
+                Ok(None) => {
+                    tracing::info!(lease = lease.lease_id, "lease dropped by the coordinator")
+                }
+                Err(end) => return end,
+            }
+        }
+    }
+
+    /// The built scene for `hash`, from the cache or fetched and built.
+    async fn scene(&mut self, cache: &mut SceneCache, hash: &str) -> Result<Arc<Scene>, String> {
+        if let Some(s) = cache.get(hash) {
+            return Ok(s);
+        }
+        let mut stream = self
+            .bundles
+            .download_bundle(pb::BundleRef {
+                hash: hash.to_string(),
+                size: 0,
+            })
+            .await
+            .map_err(|s| s.message().to_string())?
+            .into_inner();
+        let mut bytes = Vec::new();
+        while let Some(c) = stream
+            .message()
+            .await
+            .map_err(|s| s.message().to_string())?
+        {
+            bytes.extend_from_slice(&c.data);
+        }
+        let want = hash.to_string();
+        let scene = tokio::task::spawn_blocking(move || -> Result<Scene, String> {
+            let got = trevi_core::bundle::sha256_hex(&bytes);
+            if got != want {
+                return Err(format!("bundle {want} arrived with hash {got}"));
+            }
+            let bundle = Bundle::decode(&bytes)?;
+            Scene::from_bundle(&bundle).map_err(|e| e.to_string())
+        })
+        .await
+        .map_err(|e| e.to_string())??;
+        let scene = Arc::new(scene);
+        tracing::info!(bundle = %hash, "scene built");
+        cache.put(hash.to_string(), scene.clone());
+        Ok(scene)
+    }
+
+    /// Renders while heartbeating; `None` when the coordinator dropped the lease.
+    async fn render(
+        &mut self,
+        worker: u64,
+        lease: &pb::Lease,
+        scene: Arc<Scene>,
+        camera: usize,
+        rect: Rect,
+        beat: Duration,
+    ) -> Result<Option<(Vec<[f32; 3]>, u64)>, End> {
+        let pool = self.pool.clone();
+        let mut job = tokio::task::spawn_blocking(move || {
+            pool.install(|| trevi_core::render_tile(&scene, camera, rect))
+        });
+        let mut dropped = false;
+        let mut tick = tokio::time::interval(beat);
+        tick.tick().await;
+        loop {
+            tokio::select! {
+                r = &mut job => {
+                    let r = r.map_err(|e| End::Reconnect(format!("render task failed: {e}")))?;
+                    return Ok((!dropped).then_some((r.pixels, r.rays)));
+                }
+                _ = tick.tick(), if !dropped => {
+                    let hb = self.workers.heartbeat(pb::HeartbeatRequest {
+                        worker_id: worker,
+                        lease_ids: vec![lease.lease_id],
+                    }).await;
+                    match hb {
+                        // Finish the tile anyway (it cannot be interrupted),
+                        // but do not send it.
+                        Ok(r) => dropped = !r.into_inner().dropped.is_empty(),
+                        Err(s) if s.code() == Code::Unauthenticated => dropped = true,
+                        Err(s) => tracing::warn!("heartbeat failed: {}", s.message()),
+                    }
+                }
+            }
+        }
+    }
+
+    async fn send(
+        &mut self,
+        worker: u64,
+        lease: &pb::Lease,
+        rect: Rect,
+        rays: u64,
+        pixels: &[[f32; 3]],
+    ) -> Result<bool, tonic::Status> {
+        let msgs = tile_messages(worker, lease, rect, rays, pixels);
+        let ack = self
+            .workers
+            .submit_tile(tokio_stream::iter(msgs))
+            .await?
+            .into_inner();
+        Ok(ack.accepted)
+    }
+}
+
+/// The messages of a tile upload: the header, then the pixels in chunks.
+pub fn tile_messages(
+    worker: u64,
+    lease: &pb::Lease,
+    rect: Rect,
+    rays: u64,
+    pixels: &[[f32; 3]],
+) -> Vec<pb::TileUpload> {
+    use pb::tile_upload::Part;
+    let bytes = pixels_to_bytes(pixels);
+    let mut msgs = vec![pb::TileUpload {
+        part: Some(Part::Header(pb::TileHeader {
+            worker_id: worker,
+            lease_id: lease.lease_id,
+            job_id: lease.job_id,
+            rect: Some(rect.into()),
+            rays,
+        })),
+    }];
+    msgs.extend(bytes.chunks(CHUNK_SIZE).map(|c| pb::TileUpload {
+        part: Some(Part::Pixels(c.to_vec())),
+    }));
+    msgs
+}

@@ -1,0 +1,350 @@
+//! The farm client: upload a bundle, submit jobs, watch them, download the
+//! images; and `status`, `list`, `cancel`.
+//!
+//! The same code drives a remote coordinator and the embedded one
+//! (see `local.rs`), so both produce the same bytes.
+
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use tonic::transport::Channel;
+use trevi_core::Bundle;
+use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient, JobState};
+use trevi_proto::{CHUNK_SIZE, MAX_MESSAGE_SIZE};
+
+/// How progress is shown.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Progress {
+    Quiet,
+    /// A progress bar (stderr is a terminal).
+    Bar,
+    /// Plain lines every 10 %.
+    Lines,
+}
+
+/// A connection to a coordinator.
+pub struct Client {
+    url: String,
+    /// Say which jobs were queued where (off for the embedded farm).
+    pub announce: bool,
+    jobs: JobsClient<Channel>,
+    bundles: BundlesClient<Channel>,
+}
+
+/// One camera to render and where its image goes.
+pub struct Target {
+    pub camera: String,
+    pub out: PathBuf,
+}
+
+impl Client {
+    pub async fn connect(url: &str) -> Result<Client> {
+        let channel = Channel::from_shared(url.to_string())
+            .with_context(|| format!("bad coordinator address \"{url}\""))?
+            .connect_timeout(Duration::from_secs(10))
+            .connect()
+            .await
+            .with_context(|| format!("cannot reach the coordinator at {url}"))?;
+        Ok(Client {
+            url: url.to_string(),
+            announce: true,
+            jobs: JobsClient::new(channel.clone()).max_decoding_message_size(MAX_MESSAGE_SIZE),
+            bundles: BundlesClient::new(channel).max_decoding_message_size(MAX_MESSAGE_SIZE),
+        })
+    }
+
+    /// Uploads exactly this bundle, in chunks; returns its hash.
+    pub async fn upload(&mut self, bundle: &Bundle) -> Result<String> {
+        let bytes = bundle.encode();
+        let want = trevi_core::bundle::sha256_hex(&bytes);
+        let chunks: Vec<pb::BundleChunk> = bytes
+            .chunks(CHUNK_SIZE)
+            .map(|c| pb::BundleChunk { data: c.to_vec() })
+            .collect();
+        let got = self
+            .bundles
+            .upload_bundle(tokio_stream::iter(chunks))
+            .await
+            .map_err(status_error)
+            .context("the coordinator refused the scene bundle")?
+            .into_inner();
+        if got.hash != want {
+            bail!(
+                "the coordinator stored the bundle as {} instead of {want}",
+                got.hash
+            );
+        }
+        Ok(want)
+    }
+
+    pub async fn submit(
+        &mut self,
+        bundle_hash: &str,
+        camera: &str,
+        priority: i32,
+        tile_size: u32,
+    ) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: bundle_hash.to_string(),
+                camera: camera.to_string(),
+                priority,
+                tile_size,
+            })
+            .await
+            .map_err(status_error)
+            .with_context(|| format!("the coordinator refused camera \"{camera}\""))?
+            .into_inner())
+    }
+
+    /// Follows a job until it ends, showing progress; returns its last status.
+    pub async fn watch(&mut self, id: u64, progress: Progress) -> Result<pb::JobStatus> {
+        let mut stream = self
+            .jobs
+            .watch_job(pb::JobId { id })
+            .await
+            .map_err(status_error)?
+            .into_inner();
+        let mut view = ProgressView::new(progress);
+        let mut last = None;
+        while let Some(s) = stream.message().await.map_err(status_error)? {
+            view.show(&s);
+            last = Some(s);
+        }
+        view.done();
+        let last = last.context("the coordinator ended the progress stream at once")?;
+        if !last.state().is_final() {
+            bail!(
+                "lost the coordinator while job {id} was {}",
+                last.state().label()
+            );
+        }
+        Ok(last)
+    }
+
+    /// Downloads a finished job's image to `out` (through a temporary file
+    /// beside it, renamed into place when complete).
+    pub async fn download(&mut self, id: u64, out: &Path) -> Result<u64> {
+        use tokio::io::AsyncWriteExt;
+        let mut stream = self
+            .jobs
+            .download_output(pb::JobId { id })
+            .await
+            .map_err(status_error)?
+            .into_inner();
+        let dir = out
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        tokio::fs::create_dir_all(dir)
+            .await
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        let name = out.file_name().and_then(|n| n.to_str()).unwrap_or("out");
+        let tmp = dir.join(format!(".{name}.{}.part", std::process::id()));
+        let result = async {
+            let mut file = tokio::fs::File::create(&tmp)
+                .await
+                .with_context(|| format!("cannot write {}", tmp.display()))?;
+            let mut size = None;
+            let mut got = 0u64;
+            while let Some(c) = stream.message().await.map_err(status_error)? {
+                if size.is_none() {
+                    size = Some(c.size);
+                }
+                got += c.data.len() as u64;
+                file.write_all(&c.data).await?;
+            }
+            file.sync_all().await?;
+            if size != Some(got) {
+                bail!("the download of job {id} stopped at {got} of {size:?} bytes");
+            }
+            tokio::fs::rename(&tmp, out)
+                .await
+                .with_context(|| format!("cannot move the image to {}", out.display()))?;
+            Ok(got)
+        }
+        .await;
+        if result.is_err() {
+            let _ = tokio::fs::remove_file(&tmp).await;
+        }
+        result
+    }
+
+    pub async fn status(&mut self, id: u64) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .get_job(pb::JobId { id })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    pub async fn list(&mut self) -> Result<Vec<pb::JobStatus>> {
+        Ok(self
+            .jobs
+            .list_jobs(pb::ListJobsRequest {})
+            .await
+            .map_err(status_error)?
+            .into_inner()
+            .jobs)
+    }
+
+    pub async fn cancel(&mut self, id: u64) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .cancel_job(pb::JobId { id })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// Uploads the bundle, submits one job per target, and unless `detach`
+    /// follows each and downloads its image.
+    pub async fn render(
+        &mut self,
+        bundle: &Bundle,
+        targets: &[Target],
+        priority: i32,
+        tile_size: u32,
+        detach: bool,
+        progress: Progress,
+    ) -> Result<()> {
+        let hash = self.upload(bundle).await?;
+        let mut jobs = Vec::new();
+        for t in targets {
+            let s = self.submit(&hash, &t.camera, priority, tile_size).await?;
+            if detach || (self.announce && progress != Progress::Quiet) {
+                eprintln!(
+                    "job {} queued: camera {} ({}x{}, {} tiles) on {}",
+                    s.id, s.camera, s.width, s.height, s.tiles_total, self.url
+                );
+            }
+            if detach {
+                println!("{}", s.id);
+            }
+            jobs.push(s.id);
+        }
+        if detach {
+            return Ok(());
+        }
+        for (t, id) in targets.iter().zip(jobs) {
+            let s = self.watch(id, progress).await?;
+            match s.state() {
+                JobState::Done => {}
+                JobState::Cancelled => bail!("job {id} (camera {}) was cancelled", t.camera),
+                other => bail!(
+                    "job {id} (camera {}) {}: {}",
+                    t.camera,
+                    other.label(),
+                    s.error
+                ),
+            }
+            self.download(id, &t.out).await?;
+            if progress != Progress::Quiet {
+                let secs = s.elapsed_ms as f64 / 1e3;
+                eprintln!(
+                    "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s)",
+                    s.camera,
+                    s.width,
+                    s.height,
+                    t.out.display(),
+                    secs,
+                    s.rays as f64 / 1e6,
+                    s.rays as f64 / 1e6 / secs.max(1e-9)
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A gRPC status as an error that reads well.
+fn status_error(s: tonic::Status) -> anyhow::Error {
+    anyhow::anyhow!("{} ({:?})", s.message(), s.code())
+}
+
+/// One line about a job, for `status` and `list`.
+pub fn describe(s: &pb::JobStatus) -> String {
+    let mut line = format!(
+        "{:>6}  {:<9}  camera {}  {}x{}  {}/{} tiles  priority {}  {:.1} s",
+        s.id,
+        s.state().label(),
+        s.camera,
+        s.width,
+        s.height,
+        s.tiles_done,
+        s.tiles_total,
+        s.priority,
+        s.elapsed_ms as f64 / 1e3
+    );
+    if !s.error.is_empty() {
+        line.push_str(&format!("  error: {}", s.error));
+    }
+    line
+}
+
+struct ProgressView {
+    mode: Progress,
+    bar: Option<ProgressBar>,
+    last_pct: Option<u64>,
+}
+
+impl ProgressView {
+    fn new(mode: Progress) -> Self {
+        ProgressView {
+            mode,
+            bar: None,
+            last_pct: None,
+        }
+    }
+
+    fn show(&mut self, s: &pb::JobStatus) {
+        let secs = s.elapsed_ms as f64 / 1e3;
+        let rate = s.rays as f64 / secs.max(1e-9) / 1e6;
+        let eta = if s.tiles_done > 0 && s.tiles_done < s.tiles_total {
+            let left = secs * (s.tiles_total - s.tiles_done) as f64 / s.tiles_done as f64;
+            format!("ETA {left:.0} s")
+        } else {
+            "ETA -".to_string()
+        };
+        match self.mode {
+            Progress::Quiet => {}
+            Progress::Bar => {
+                let bar = self.bar.get_or_insert_with(|| {
+                    let b = ProgressBar::new(s.tiles_total);
+                    b.set_style(
+                        ProgressStyle::with_template("{prefix} [{bar:40}] {pos}/{len} tiles {msg}")
+                            .expect("static template")
+                            .progress_chars("=> "),
+                    );
+                    b.set_prefix(s.camera.clone());
+                    b
+                });
+                bar.set_position(s.tiles_done);
+                bar.set_message(format!("{rate:.2} M rays/s {eta}"));
+            }
+            Progress::Lines => {
+                let pct = s.tiles_done * 100 / s.tiles_total.max(1);
+                let due = match self.last_pct {
+                    None => true,
+                    Some(p) => pct >= p + 10 || (pct == 100 && p != 100),
+                };
+                if due {
+                    self.last_pct = Some(pct);
+                    eprintln!(
+                        "{}: {pct}% ({}/{} tiles, {rate:.2} M rays/s, {eta})",
+                        s.camera, s.tiles_done, s.tiles_total
+                    );
+                }
+            }
+        }
+    }
+
+    fn done(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
+}

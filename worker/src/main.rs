@@ -1,0 +1,65 @@
+//! `trevi-worker --coordinator URL [--threads N]`: a stateless render worker.
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use trevi_worker::WorkerConfig;
+
+#[derive(Parser, Debug)]
+#[command(name = "trevi-worker", version, about = "A Trevi render farm worker")]
+struct Args {
+    /// The coordinator, like http://host:50051.
+    #[arg(long, env = "TREVI_COORDINATOR")]
+    coordinator: String,
+    /// Render threads (default: every core).
+    #[arg(long, env = "TREVI_THREADS", default_value_t = 0)]
+    threads: usize,
+    /// Built scenes kept in memory.
+    #[arg(long, env = "TREVI_SCENE_CACHE", default_value_t = 4)]
+    scene_cache: usize,
+    /// Name shown in the coordinator's logs (default: host-pid).
+    #[arg(long, env = "TREVI_WORKER_NAME")]
+    name: Option<String>,
+}
+
+#[tokio::main]
+async fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
+    let args = Args::parse();
+    let mut cfg = WorkerConfig::new(args.coordinator);
+    cfg.threads = args.threads;
+    cfg.cache_size = args.scene_cache;
+    if let Some(n) = args.name {
+        cfg.name = n;
+    }
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    tokio::spawn(async move {
+        wait_for_signal().await;
+        tracing::info!("stopping: finishing the tile in hand");
+        let _ = tx.send(true);
+    });
+    trevi_worker::run(cfg, rx)
+        .await
+        .context("the worker failed")?;
+    tracing::info!("worker stopped");
+    Ok(())
+}
+
+async fn wait_for_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut term = signal(SignalKind::terminate()).expect("SIGTERM handler");
+        tokio::select! {
+            _ = term.recv() => {}
+            _ = tokio::signal::ctrl_c() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = tokio::signal::ctrl_c().await;
+}
