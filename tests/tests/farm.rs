@@ -1,0 +1,640 @@
+//! The render farm end to end: a real `trevi-coordinator`, real
+//! `trevi-worker`s and `trevi-submit`, on 127.0.0.1 ephemeral ports.
+//!
+//! The binaries are the workspace's own: `cargo test --workspace` builds them
+//! next to this test's executable (its grandparent directory).
+//!
+//! Each test works in its own temporary directory; on failure the message
+//! carries every process's log.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+use tonic::transport::Channel;
+use trevi_proto::pb::{self, jobs_client::JobsClient, workers_client::WorkersClient};
+
+const SCENE: &str = r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.1 0.1 0.1"/>
+  <sphere id="ball" center="0 1 0" radius="1">
+    <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" shininess="40" reflectivity="0.2"/>
+  </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="64" height="48" supersample="2" output="main.png"/>
+  </camera>
+</scene>
+"#;
+
+/// Same scene, with enough samples that a tile takes tens of milliseconds on
+/// one thread, so a job lasts long enough to interfere with.
+const SLOW_SCENE: &str = r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
+  <sphere id="ball" center="0 1 0" radius="1">
+    <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" reflectivity="0.2"/>
+  </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="96" height="64" supersample="6" shadow-samples="8" ao-samples="16" output="slow.png"/>
+  </camera>
+</scene>
+"#;
+
+fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("current_exe");
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("the test runs from target/<profile>/deps");
+    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        path.exists(),
+        "{} is missing: run the tests with `cargo test --workspace` (or build the \
+         workspace's binaries first with `cargo build --workspace --bins` using the same profile)",
+        path.display()
+    );
+    path
+}
+
+/// A test's working directory; its logs are shown when an assertion fails.
+struct Dir {
+    tmp: tempfile::TempDir,
+}
+
+impl Dir {
+    fn new() -> Dir {
+        Dir {
+            tmp: tempfile::Builder::new()
+                .prefix("trevi-e2e-")
+                .tempdir()
+                .unwrap(),
+        }
+    }
+
+    fn path(&self) -> &Path {
+        self.tmp.path()
+    }
+
+    fn write(&self, rel: &str, text: &str) -> PathBuf {
+        let p = self.path().join(rel);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    fn log(&self, name: &str) -> std::fs::File {
+        std::fs::File::create(self.path().join(format!("{name}.log"))).unwrap()
+    }
+
+    /// Every log, for failure messages.
+    fn logs(&self) -> String {
+        let mut out = format!("working directory {}\n", self.path().display());
+        let mut entries: Vec<_> = std::fs::read_dir(self.path())
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e == "log"))
+            .collect();
+        entries.sort();
+        for p in entries {
+            let text = std::fs::read_to_string(&p).unwrap_or_default();
+            let tail: Vec<&str> = text.lines().rev().take(40).collect();
+            out.push_str(&format!("--- {}\n", p.display()));
+            for l in tail.into_iter().rev() {
+                out.push_str(l);
+                out.push('\n');
+            }
+        }
+        out
+    }
+}
+
+/// A child process killed when dropped.
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+struct Coordinator {
+    _proc: Proc,
+    url: String,
+    data: PathBuf,
+}
+
+fn coordinator(dir: &Dir, lease_ttl_ms: u64) -> Coordinator {
+    let data = dir.path().join("data");
+    let mut child = Command::new(bin("trevi-coordinator"))
+        .args(["--listen", "127.0.0.1:0", "--tile-size", "16"])
+        .arg("--data-dir")
+        .arg(&data)
+        .args(["--lease-ttl-ms", &lease_ttl_ms.to_string()])
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(dir.log("coordinator"))
+        .spawn()
+        .expect("start trevi-coordinator");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("coordinator said {line:?}\n{}", dir.logs()))
+        .to_string();
+    Coordinator {
+        _proc: Proc(child),
+        url: format!("http://{addr}"),
+        data,
+    }
+}
+
+fn worker(dir: &Dir, url: &str, name: &str) -> Proc {
+    Proc(
+        Command::new(bin("trevi-worker"))
+            .args(["--coordinator", url, "--threads", "1", "--name", name])
+            .stdout(Stdio::null())
+            .stderr(dir.log(name))
+            .spawn()
+            .expect("start trevi-worker"),
+    )
+}
+
+fn submit_cmd(args: &[&str]) -> Command {
+    let mut c = Command::new(bin("trevi-submit"));
+    c.args(args).env_remove("TREVI_COORDINATOR");
+    c
+}
+
+fn submit(dir: &Dir, args: &[&str]) -> Output {
+    static RUNS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let out = submit_cmd(args).output().expect("run trevi-submit");
+    std::fs::write(
+        dir.path().join(format!("submit-{n:03}.log")),
+        [&out.stdout[..], &out.stderr[..]].concat(),
+    )
+    .unwrap();
+    out
+}
+
+/// The embedded (one-process) render of a scene.
+fn embedded(dir: &Dir, scene: &Path, out: &str) -> Vec<u8> {
+    let out = dir.path().join(out);
+    let o = submit(
+        dir,
+        &[
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--tile",
+            "16",
+            "--quiet",
+        ],
+    );
+    assert!(
+        o.status.success(),
+        "embedded render failed\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    std::fs::read(out).unwrap()
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+async fn jobs(url: &str) -> JobsClient<Channel> {
+    JobsClient::connect(url.to_string()).await.unwrap()
+}
+
+fn job(rt: &tokio::runtime::Runtime, url: &str, id: u64) -> pb::JobStatus {
+    rt.block_on(async {
+        jobs(url)
+            .await
+            .get_job(pb::JobId { id })
+            .await
+            .unwrap()
+            .into_inner()
+    })
+}
+
+/// Polls `cond` until it holds; fails with the logs after `secs` seconds.
+fn wait_for(dir: &Dir, what: &str, secs: u64, mut cond: impl FnMut() -> bool) {
+    let end = Instant::now() + Duration::from_secs(secs);
+    while !cond() {
+        assert!(
+            Instant::now() < end,
+            "timed out waiting for {what}\n{}",
+            dir.logs()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn wait_child(dir: &Dir, child: &mut Child, secs: u64) -> std::process::ExitStatus {
+    let end = Instant::now() + Duration::from_secs(secs);
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        assert!(
+            Instant::now() < end,
+            "a process did not finish\n{}",
+            dir.logs()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn three_workers_render_the_same_bytes_as_the_embedded_render() {
+    let dir = Dir::new();
+    let scene = dir.write("scene/s.xml", SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let c = coordinator(&dir, 10_000);
+    let _w: Vec<Proc> = (0..3)
+        .map(|i| worker(&dir, &c.url, &format!("worker{i}")))
+        .collect();
+    let out = dir.path().join("farm.png");
+    let o = submit(
+        &dir,
+        &[
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &c.url,
+            "-o",
+            out.to_str().unwrap(),
+            "--tile",
+            "16",
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "farm output differs\n{}",
+        dir.logs()
+    );
+    // The farm's jobs can be listed and looked at.
+    let list = submit(&dir, &["list", "--coordinator", &c.url]);
+    let text = String::from_utf8_lossy(&list.stdout);
+    assert!(
+        list.status.success() && text.contains("done"),
+        "{text}\n{}",
+        dir.logs()
+    );
+    let status = submit(&dir, &["status", "1", "--coordinator", &c.url]);
+    assert!(String::from_utf8_lossy(&status.stdout).contains("12/12 tiles"));
+}
+
+#[test]
+fn health_and_reflection_answer() {
+    let dir = Dir::new();
+    let c = coordinator(&dir, 10_000);
+    let rt = runtime();
+    rt.block_on(async {
+        use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
+        let channel = Channel::from_shared(c.url.clone())
+            .unwrap()
+            .connect()
+            .await
+            .unwrap();
+        let mut h = HealthClient::new(channel.clone());
+        for service in ["", "trevi.v1.Jobs", "trevi.v1.Workers", "trevi.v1.Bundles"] {
+            let r = h
+                .check(HealthCheckRequest {
+                    service: service.into(),
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            assert_eq!(r.status, 1, "{service} is not SERVING");
+        }
+
+        use tonic_reflection::pb::v1::{
+            server_reflection_client::ServerReflectionClient,
+            server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
+            ServerReflectionRequest,
+        };
+        let mut r = ServerReflectionClient::new(channel);
+        let req = ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(MessageRequest::ListServices(String::new())),
+        };
+        let mut stream = r
+            .server_reflection_info(tokio_stream::iter([req]))
+            .await
+            .unwrap()
+            .into_inner();
+        let msg = stream.message().await.unwrap().unwrap();
+        let Some(MessageResponse::ListServicesResponse(list)) = msg.message_response else {
+            panic!("unexpected reflection answer {msg:?}");
+        };
+        let names: Vec<String> = list.service.into_iter().map(|s| s.name).collect();
+        for s in [
+            "trevi.v1.Jobs",
+            "trevi.v1.Workers",
+            "trevi.v1.Bundles",
+            "grpc.health.v1.Health",
+        ] {
+            assert!(names.iter().any(|n| n == s), "{s} missing from {names:?}");
+        }
+    });
+}
+
+#[test]
+fn a_worker_killed_mid_job_does_not_stop_the_job() {
+    let dir = Dir::new();
+    let scene = dir.write("s.xml", SLOW_SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let c = coordinator(&dir, 700);
+    let mut doomed = worker(&dir, &c.url, "doomed");
+    let out = dir.path().join("farm.png");
+    let mut sub = submit_cmd(&[
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &c.url,
+        "-o",
+        out.to_str().unwrap(),
+        "--tile",
+        "16",
+    ])
+    .stderr(dir.log("submit"))
+    .spawn()
+    .unwrap();
+    let rt = runtime();
+    wait_for(&dir, "the first tiles", 60, || {
+        rt.block_on(async {
+            match jobs(&c.url).await.get_job(pb::JobId { id: 1 }).await {
+                Ok(s) => s.into_inner().tiles_done >= 3,
+                Err(_) => false,
+            }
+        })
+    });
+    doomed.0.kill().unwrap(); // SIGKILL
+    doomed.0.wait().unwrap();
+    let s = job(&rt, &c.url, 1);
+    assert!(
+        s.tiles_done < s.tiles_total,
+        "the job ended before the kill; make the scene slower"
+    );
+    let _others = [worker(&dir, &c.url, "w1"), worker(&dir, &c.url, "w2")];
+    let status = wait_child(&dir, &mut sub, 120);
+    assert!(status.success(), "{}", dir.logs());
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "output differs\n{}",
+        dir.logs()
+    );
+}
+
+#[test]
+fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
+    let dir = Dir::new();
+    let scene = dir.write("s.xml", SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let c = coordinator(&dir, 10_000);
+    let out = dir.path().join("farm.png");
+    let mut sub = submit_cmd(&[
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &c.url,
+        "-o",
+        out.to_str().unwrap(),
+        "--tile",
+        "16",
+    ])
+    .stderr(dir.log("submit"))
+    .spawn()
+    .unwrap();
+    let rt = runtime();
+    rt.block_on(async {
+        let mut w = WorkersClient::connect(c.url.clone()).await.unwrap();
+        let id = w
+            .register(pb::RegisterRequest {
+                name: "liar".into(),
+                threads: 1,
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .worker_id;
+        let mut lease = None;
+        while lease.is_none() {
+            lease = w
+                .lease_tile(pb::LeaseRequest { worker_id: id })
+                .await
+                .unwrap()
+                .into_inner()
+                .lease;
+        }
+        let lease = lease.unwrap();
+        let rect: trevi_core::Rect = lease.rect.unwrap().into();
+        let sender = w.clone();
+        let send = |pixels: Vec<[f32; 3]>, lease: pb::Lease| {
+            let mut w = sender.clone();
+            async move {
+                let msgs = vec![
+                    pb::TileUpload {
+                        part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
+                            worker_id: id,
+                            lease_id: lease.lease_id,
+                            job_id: lease.job_id,
+                            rect: lease.rect,
+                            rays: 1,
+                        })),
+                    },
+                    pb::TileUpload {
+                        part: Some(pb::tile_upload::Part::Pixels(trevi_proto::pixels_to_bytes(
+                            &pixels,
+                        ))),
+                    },
+                ];
+                w.submit_tile(tokio_stream::iter(msgs)).await
+            }
+        };
+        // Too few pixels.
+        let short = vec![[0.5f32; 3]; rect.pixel_count() - 1];
+        let e = send(short, lease.clone()).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+        // The tile is back in the queue, first.
+        let again = w
+            .lease_tile(pb::LeaseRequest { worker_id: id })
+            .await
+            .unwrap()
+            .into_inner()
+            .lease
+            .unwrap();
+        assert_eq!(again.rect, lease.rect);
+        let mut nan = vec![[0.5f32; 3]; rect.pixel_count()];
+        nan[3][2] = f32::NAN;
+        let e = send(nan, again.clone()).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+        let s = jobs(&c.url)
+            .await
+            .get_job(pb::JobId { id: 1 })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(s.tiles_done, 0);
+    });
+    let _w = worker(&dir, &c.url, "honest");
+    let status = wait_child(&dir, &mut sub, 60);
+    assert!(status.success(), "{}", dir.logs());
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "output differs\n{}",
+        dir.logs()
+    );
+}
+
+fn detach(dir: &Dir, url: &str, scene: &Path, priority: &str) -> u64 {
+    let o = submit(
+        dir,
+        &[
+            scene.to_str().unwrap(),
+            "--coordinator",
+            url,
+            "--priority",
+            priority,
+            "--detach",
+            "--tile",
+            "16",
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    String::from_utf8_lossy(&o.stdout)
+        .trim()
+        .parse()
+        .unwrap_or_else(|_| panic!("--detach printed {:?}", String::from_utf8_lossy(&o.stdout)))
+}
+
+#[test]
+fn priorities_order_jobs_and_a_cancelled_job_stops_and_leaves_no_output() {
+    let dir = Dir::new();
+    let scene = dir.write("s.xml", SCENE);
+    let slow = dir.write("slow.xml", SLOW_SCENE);
+    let c = coordinator(&dir, 10_000);
+    let low = detach(&dir, &c.url, &scene, "-1");
+    let high = detach(&dir, &c.url, &scene, "5");
+    let doomed = detach(&dir, &c.url, &slow, "9");
+    let rt = runtime();
+    let _w = worker(&dir, &c.url, "worker");
+    wait_for(&dir, "the doomed job to start", 60, || {
+        job(&rt, &c.url, doomed).tiles_done >= 2
+    });
+    let o = submit(
+        &dir,
+        &["cancel", &doomed.to_string(), "--coordinator", &c.url],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("cancelled"));
+    let at_cancel = job(&rt, &c.url, doomed).tiles_done;
+    wait_for(&dir, "both jobs", 60, || {
+        job(&rt, &c.url, low).state == pb::JobState::Done as i32
+    });
+    let (l, h, d) = (
+        job(&rt, &c.url, low),
+        job(&rt, &c.url, high),
+        job(&rt, &c.url, doomed),
+    );
+    assert_eq!(h.state, pb::JobState::Done as i32);
+    assert!(
+        h.finish_order < l.finish_order,
+        "high priority finished after low: {h:?} {l:?}"
+    );
+    assert_eq!(d.state, pb::JobState::Cancelled as i32);
+    // At most the tile in hand when it was cancelled counts afterwards.
+    assert!(d.tiles_done <= at_cancel + 1, "{d:?} vs {at_cancel}");
+    assert!(d.tiles_done < d.tiles_total);
+    // No output anywhere for the cancelled job.
+    assert!(
+        !c.data.join("jobs").join(doomed.to_string()).exists(),
+        "{}",
+        dir.logs()
+    );
+    assert!(!dir.path().join("slow.png").exists());
+    let e = rt.block_on(async {
+        let mut s = jobs(&c.url)
+            .await
+            .download_output(pb::JobId { id: doomed })
+            .await?
+            .into_inner();
+        s.message().await
+    });
+    assert_eq!(e.unwrap_err().code(), tonic::Code::FailedPrecondition);
+}
+
+const OUTSIDE_SCENE: &str = r#"<scene version="1">
+  <mesh id="m" file="../outside.obj"/>
+  <model id="x" mesh="m"/>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="8" height="8" output="o.png"/>
+  </camera>
+</scene>
+"#;
+
+#[test]
+fn a_bundle_reaching_outside_its_directory_is_refused_by_submit_and_coordinator() {
+    let dir = Dir::new();
+    dir.write("outside.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let scene = dir.write("scene/s.xml", OUTSIDE_SCENE);
+    let c = coordinator(&dir, 10_000);
+    let o = submit(&dir, &[scene.to_str().unwrap(), "--coordinator", &c.url]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "submit accepted it");
+    assert!(err.contains("outside.obj"), "{err}");
+    assert!(!dir.path().join("scene/o.png").exists());
+
+    // A hand-made client sends the same scene anyway; and a bundle whose
+    // file list itself climbs out.
+    let rt = runtime();
+    rt.block_on(async {
+        use trevi_core::Bundle;
+        use trevi_proto::pb::bundles_client::BundlesClient;
+        let mut b = BundlesClient::connect(c.url.clone()).await.unwrap();
+        let mut files = std::collections::BTreeMap::new();
+        files.insert("s.xml".to_string(), OUTSIDE_SCENE.as_bytes().to_vec());
+        let bundle = Bundle {
+            scene: "s.xml".into(),
+            files: files.clone(),
+        };
+        let upload = |bytes: Vec<u8>| {
+            let mut b = b.clone();
+            async move {
+                b.upload_bundle(tokio_stream::iter([pb::BundleChunk { data: bytes }]))
+                    .await
+            }
+        };
+        let hash = upload(bundle.encode()).await.unwrap().into_inner().hash;
+        let e = jobs(&c.url)
+            .await
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: hash,
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument);
+        assert!(e.message().contains("outside.obj"), "{}", e.message());
+
+        files.insert("../outside.obj".to_string(), b"v 0 0 0".to_vec());
+        let sneaky = Bundle {
+            scene: "s.xml".into(),
+            files,
+        };
+        let e = upload(sneaky.encode()).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+        let _ = &mut b;
+    });
+}
