@@ -230,4 +230,76 @@ mod tests {
             assert!(h1.is_some() || h2.is_some(), "leak at s = {s}");
         }
     }
+
+    /// Reference in f64 (Möller–Trumbore): t and barycentrics, or None when
+    /// the ray is parallel to the plane.
+    fn reference(
+        o: [f64; 3],
+        d: [f64; 3],
+        a: [f64; 3],
+        b: [f64; 3],
+        c: [f64; 3],
+    ) -> Option<(f64, [f64; 3])> {
+        let sub = |x: [f64; 3], y: [f64; 3]| [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
+        let cross = |x: [f64; 3], y: [f64; 3]| {
+            [
+                x[1] * y[2] - x[2] * y[1],
+                x[2] * y[0] - x[0] * y[2],
+                x[0] * y[1] - x[1] * y[0],
+            ]
+        };
+        let dot = |x: [f64; 3], y: [f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+        let (e1, e2) = (sub(b, a), sub(c, a));
+        let p = cross(d, e2);
+        let det = dot(e1, p);
+        if det.abs() < 1e-300 {
+            return None;
+        }
+        let s = sub(o, a);
+        let u = dot(s, p) / det;
+        let q = cross(s, e1);
+        let v = dot(d, q) / det;
+        let t = dot(e2, q) / det;
+        Some((t, [1.0 - u - v, u, v]))
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(20000))]
+        /// Wherever the f64 reference is clear (every barycentric at least
+        /// 1e-4 inside or one 1e-4 outside, t not tiny), the watertight f32
+        /// test agrees on hit or miss, and on t and the barycentrics.
+        #[test]
+        fn agrees_with_an_f64_reference(
+            o in proptest::array::uniform3(-10.0f32..10.0),
+            d in proptest::array::uniform3(-1.0f32..1.0),
+            a in proptest::array::uniform3(-5.0f32..5.0),
+            b in proptest::array::uniform3(-5.0f32..5.0),
+            c in proptest::array::uniform3(-5.0f32..5.0),
+            scale_pow in -3i32..4,
+        ) {
+            let k = 10f32.powi(scale_pow);
+            let (o, a, b, c) = (Vec3::from(o) * k, Vec3::from(a) * k, Vec3::from(b) * k, Vec3::from(c) * k);
+            let d = Vec3::from(d);
+            proptest::prop_assume!(d.length() > 1e-3);
+            let f64v = |v: Vec3| [v.x as f64, v.y as f64, v.z as f64];
+            let got = intersect(&ShearedRay::new(o, d), a, b, c, f32::INFINITY);
+            let n = (b - a).cross(c - a);
+            // Skip near-degenerate and near-parallel configurations.
+            proptest::prop_assume!(n.length() > 1e-3 * k * k);
+            proptest::prop_assume!(n.normalize().dot(d.normalize()).abs() > 1e-2);
+            if let Some((t, bary)) = reference(f64v(o), f64v(d), f64v(a), f64v(b), f64v(c)) {
+                let inside = bary.iter().all(|&w| w > 1e-4);
+                let outside = bary.iter().any(|&w| w < -1e-4);
+                if inside && t > 1e-3 * k as f64 {
+                    let h = got.expect("f64 says hit, f32 missed");
+                    proptest::prop_assert!(((h.t as f64) - t).abs() <= 1e-4 * t.abs().max(k as f64));
+                    for i in 0..3 {
+                        proptest::prop_assert!(((h.bary[i] as f64) - bary[i]).abs() < 1e-4);
+                    }
+                } else if outside || t < -1e-3 * k as f64 {
+                    proptest::prop_assert!(got.is_none(), "f64 says miss (t {t}, bary {bary:?}), f32 hit {got:?}");
+                }
+            }
+        }
+    }
 }
