@@ -62,10 +62,14 @@ impl Embedded {
         })
     }
 
+    /// Stops both at once: the jobs are over, and a graceful stop would wait
+    /// for the worker's pending lease request.
     pub async fn stop(self) {
         let _ = self.stop_worker.send(true);
-        let _ = self.worker.await;
         let _ = self.stop_server.send(());
+        self.worker.abort();
+        self.server.abort();
+        let _ = self.worker.await;
         let _ = self.server.await;
     }
 }

@@ -128,15 +128,19 @@ struct Coordinator {
 }
 
 fn coordinator(dir: &Dir, lease_ttl_ms: u64) -> Coordinator {
+    coordinator_at(dir, lease_ttl_ms, "127.0.0.1:0", "coordinator")
+}
+
+fn coordinator_at(dir: &Dir, lease_ttl_ms: u64, listen: &str, name: &str) -> Coordinator {
     let data = dir.path().join("data");
     let mut child = Command::new(bin("trevi-coordinator"))
-        .args(["--listen", "127.0.0.1:0", "--tile-size", "16"])
+        .args(["--listen", listen, "--tile-size", "16"])
         .arg("--data-dir")
         .arg(&data)
         .args(["--lease-ttl-ms", &lease_ttl_ms.to_string()])
         .env("RUST_LOG", "info")
         .stdout(Stdio::piped())
-        .stderr(dir.log("coordinator"))
+        .stderr(dir.log(name))
         .spawn()
         .expect("start trevi-coordinator");
     let mut line = String::new();
@@ -637,4 +641,99 @@ fn a_bundle_reaching_outside_its_directory_is_refused_by_submit_and_coordinator(
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
         let _ = &mut b;
     });
+}
+
+fn sigterm(p: &Proc) {
+    let ok = Command::new("kill")
+        .args(["-TERM", &p.0.id().to_string()])
+        .status()
+        .expect("run kill")
+        .success();
+    assert!(ok);
+}
+
+#[test]
+fn sigterm_makes_a_worker_finish_its_tiles_and_exit() {
+    let dir = Dir::new();
+    let scene = dir.write("s.xml", SLOW_SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    // Leases that outlive their worker would stall the job for a minute.
+    let c = coordinator(&dir, 60_000);
+    let mut first = worker(&dir, &c.url, "first");
+    let out = dir.path().join("farm.png");
+    let mut sub = submit_cmd(&[
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &c.url,
+        "-o",
+        out.to_str().unwrap(),
+        "--tile",
+        "16",
+    ])
+    .stderr(dir.log("submit"))
+    .spawn()
+    .unwrap();
+    let rt = runtime();
+    wait_for(&dir, "the first tiles", 60, || {
+        rt.block_on(async {
+            match jobs(&c.url).await.get_job(pb::JobId { id: 1 }).await {
+                Ok(s) => s.into_inner().tiles_done >= 2,
+                Err(_) => false,
+            }
+        })
+    });
+    sigterm(&first);
+    let status = wait_child(&dir, &mut first.0, 30);
+    assert!(status.success(), "worker exit {status:?}\n{}", dir.logs());
+    let s = job(&rt, &c.url, 1);
+    assert!(
+        s.tiles_done < s.tiles_total,
+        "the job ended before the signal"
+    );
+    let _second = worker(&dir, &c.url, "second");
+    let status = wait_child(&dir, &mut sub, 30);
+    assert!(status.success(), "{}", dir.logs());
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "output differs\n{}",
+        dir.logs()
+    );
+}
+
+#[test]
+fn a_worker_survives_a_coordinator_restart() {
+    let dir = Dir::new();
+    let scene = dir.write("s.xml", SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let c = coordinator(&dir, 10_000);
+    let addr = c.url.trim_start_matches("http://").to_string();
+    let _w = worker(&dir, &c.url, "worker");
+    let out1 = dir.path().join("one.png");
+    let o = submit(
+        &dir,
+        &[
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &c.url,
+            "-o",
+            out1.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    drop(c); // SIGKILL
+    let c = coordinator_at(&dir, 10_000, &addr, "coordinator2");
+    let out2 = dir.path().join("two.png");
+    let o = submit(
+        &dir,
+        &[
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &c.url,
+            "-o",
+            out2.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(std::fs::read(&out1).unwrap() == expected);
+    assert!(std::fs::read(&out2).unwrap() == expected);
 }

@@ -29,6 +29,10 @@ pub struct WorkerConfig {
     pub name: String,
     /// How many built scenes to keep.
     pub cache_size: usize,
+    /// Tiles in flight at once (each leased, rendered and sent by its own
+    /// loop, all sharing the render threads), so the threads stay busy
+    /// while a result travels and the next lease arrives.
+    pub tiles_in_flight: usize,
 }
 
 impl WorkerConfig {
@@ -38,6 +42,7 @@ impl WorkerConfig {
             threads: 0,
             name: default_name(),
             cache_size: 4,
+            tiles_in_flight: 2,
         }
     }
 }
@@ -110,10 +115,10 @@ pub async fn run(
             .build()
             .map_err(|e| WorkerError::Pool(threads, e.to_string()))?,
     );
-    let mut cache = SceneCache {
+    let cache = Arc::new(tokio::sync::Mutex::new(SceneCache {
         cap: cfg.cache_size,
         scenes: Vec::new(),
-    };
+    }));
     let mut backoff = Duration::from_millis(100);
     loop {
         if *shutdown.borrow() {
@@ -133,7 +138,7 @@ pub async fn run(
                     pool: pool.clone(),
                     threads,
                 };
-                s.serve(&cfg, &mut cache, &mut shutdown, &mut backoff).await
+                s.serve(&cfg, &cache, &shutdown, &mut backoff).await
             }
             Err(e) => End::Reconnect(format!("cannot connect: {e}")),
         };
@@ -151,6 +156,7 @@ pub async fn run(
     }
 }
 
+#[derive(Clone)]
 struct Session {
     workers: WorkersClient<Channel>,
     bundles: BundlesClient<Channel>,
@@ -166,8 +172,8 @@ impl Session {
     async fn serve(
         &mut self,
         cfg: &WorkerConfig,
-        cache: &mut SceneCache,
-        shutdown: &mut watch::Receiver<bool>,
+        cache: &Arc<tokio::sync::Mutex<SceneCache>>,
+        shutdown: &watch::Receiver<bool>,
         backoff: &mut Duration,
     ) -> End {
         let reg = match self
@@ -185,14 +191,45 @@ impl Session {
         let worker = reg.worker_id;
         let beat = Duration::from_millis((reg.lease_ttl_ms / 3).max(10));
         tracing::info!(worker, coordinator = %cfg.coordinator, threads = self.threads, "registered");
+        let mut slots = tokio::task::JoinSet::new();
+        for _ in 0..cfg.tiles_in_flight.max(1) {
+            let mut slot = self.clone();
+            let (cache, shutdown) = (cache.clone(), shutdown.clone());
+            slots.spawn(async move { slot.work(worker, beat, cache, shutdown).await });
+        }
+        let mut end = End::Shutdown;
+        while let Some(r) = slots.join_next().await {
+            if let Ok(End::Reconnect(why)) = r {
+                if matches!(end, End::Shutdown) {
+                    // The other loops' leases will expire and be re-queued.
+                    slots.abort_all();
+                    end = End::Reconnect(why);
+                }
+            }
+        }
+        end
+    }
+
+    /// One lease → render → send loop.
+    async fn work(
+        &mut self,
+        worker: u64,
+        beat: Duration,
+        cache: Arc<tokio::sync::Mutex<SceneCache>>,
+        shutdown: watch::Receiver<bool>,
+    ) -> End {
         loop {
             if *shutdown.borrow() {
                 return End::Shutdown;
             }
-            let lease = tokio::select! {
-                r = self.workers.lease_tile(pb::LeaseRequest { worker_id: worker }) => r,
-                _ = shutdown.changed() => return End::Shutdown,
-            };
+            // Not interrupted by `shutdown`: a lease granted while the answer
+            // is on its way would be lost until it expires. The call returns
+            // within the coordinator's short wait, and a tile it brings is
+            // finished before stopping.
+            let lease = self
+                .workers
+                .lease_tile(pb::LeaseRequest { worker_id: worker })
+                .await;
             let lease = match lease {
                 Ok(r) => match r.into_inner().lease {
                     Some(l) => l,
@@ -207,7 +244,11 @@ impl Session {
                     continue;
                 }
             };
-            let scene = match self.scene(cache, &lease.bundle_hash).await {
+            let scene = {
+                let mut cache = cache.lock().await;
+                self.scene(&mut cache, &lease.bundle_hash).await
+            };
+            let scene = match scene {
                 Ok(s) => s,
                 Err(e) => {
                     // The lease runs out and the tile goes to someone else.

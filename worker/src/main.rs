@@ -16,6 +16,9 @@ struct Args {
     /// Built scenes kept in memory.
     #[arg(long, env = "TREVI_SCENE_CACHE", default_value_t = 4)]
     scene_cache: usize,
+    /// Tiles rendered at once (sharing the threads), hiding network latency.
+    #[arg(long, env = "TREVI_TILES_IN_FLIGHT", default_value_t = 2)]
+    tiles_in_flight: usize,
     /// Name shown in the coordinator's logs (default: host-pid).
     #[arg(long, env = "TREVI_WORKER_NAME")]
     name: Option<String>,
@@ -34,6 +37,7 @@ async fn main() -> Result<()> {
     let mut cfg = WorkerConfig::new(args.coordinator);
     cfg.threads = args.threads;
     cfg.cache_size = args.scene_cache;
+    cfg.tiles_in_flight = args.tiles_in_flight;
     if let Some(n) = args.name {
         cfg.name = n;
     }
