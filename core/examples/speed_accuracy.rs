@@ -55,10 +55,21 @@ fn render(desc: &SceneDesc, sampler: SamplerKind) -> Render {
     let scene = Scene::build(desc.clone());
     let r = &scene.desc.cameras[0].render;
     let rect = Rect::new(0, 0, r.width, r.height);
-    let t0 = Instant::now();
-    let t = render_tile_with(&scene, 0, rect, RenderOptions { sampler });
+    // Best of up to three runs (renders under 2 s): the machine is shared.
+    let mut best = f64::INFINITY;
+    let mut t;
+    let mut runs = 0;
+    loop {
+        let t0 = Instant::now();
+        t = render_tile_with(&scene, 0, rect, RenderOptions { sampler });
+        best = best.min(t0.elapsed().as_secs_f64());
+        runs += 1;
+        if runs == 3 || best > 2.0 {
+            break;
+        }
+    }
     Render {
-        seconds: t0.elapsed().as_secs_f64(),
+        seconds: best,
         pixels: t.pixels,
         rays: t.rays,
     }
@@ -227,9 +238,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let g = Group::new(
         "all",
         base.clone(),
-        Cfg { ss: 64, seed: REF_SEED, ..all },
-        Cfg { ss: 90, seed: REF_SEED, ..all },
-        "supersample 64 (4096 spp), one sample of each effect per camera sample; doubled: supersample 90 (8100 spp)",
+        Cfg { ss: 128, seed: REF_SEED, ..all },
+        Cfg { ss: 181, seed: REF_SEED, ..all },
+        "supersample 128 (16384 spp), one sample of each effect per camera sample; doubled: supersample 181 (32761 spp)",
     );
     for n in [1, 2, 3, 4, 6, 8, 11, 16] {
         g.run(
@@ -316,7 +327,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 ..none
             },
             |c, k| Cfg { shadow: k, ..c },
-            8192,
+            32768,
         ),
         (
             "iso-diffuse",
@@ -444,6 +455,27 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "{} {}: RMSE {:.3e} in {:.2} s; outside the supersampling curve",
                 r.strategy, r.setting, r.rmse, r.seconds
             ),
+        }
+    }
+    let ss_rays: Vec<(f64, f64)> = {
+        let mut v: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r.group == "all" && r.strategy == "supersample")
+            .map(|r| (r.rays as f64, r.rmse))
+            .collect();
+        v.sort_by(|a, b| a.0.total_cmp(&b.0));
+        v
+    };
+    for r in rows.iter().filter(|r| r.strategy.starts_with("adaptive")) {
+        if let Some(n) = time_at_rmse(&ss_rays, r.rmse) {
+            println!(
+                "{} {}: {} rays; supersampling needs {:.0} rays for the same RMSE: saves {:.0}%",
+                r.strategy,
+                r.setting,
+                r.rays,
+                n,
+                100.0 * (1.0 - r.rays as f64 / n)
+            );
         }
     }
     for name in ["iso-ao", "iso-shadow"] {
