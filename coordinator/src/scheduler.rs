@@ -13,9 +13,9 @@
 //!   ignored. An invalid result re-queues the tile at once.
 
 use std::cmp::Reverse;
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::{Duration, Instant};
-use trevi_core::tile::{band_order_tiles, Rect};
+use trevi_core::tile::Rect;
 
 pub type JobId = u64;
 pub type LeaseId = u64;
@@ -125,18 +125,24 @@ enum TileState {
     Done,
 }
 
+/// A job's tiles, numbered in band order. Only the tiles between the first
+/// one not done and the first one never leased are stored; the window keeps
+/// that span to a few bands, so the bookkeeping does not grow with the
+/// image height either.
 struct Job {
     spec: JobSpec,
     state: JobState,
-    tiles: Vec<Rect>,
-    tile_state: Vec<TileState>,
-    /// Indices of pending tiles; the smallest goes first (band order).
-    pending: BTreeSet<u32>,
     cols: u32,
+    tiles_total: u32,
     window_bands: u32,
-    /// Smallest tile index not done.
+    /// Every tile before this one is done.
     first_undone: u32,
-    tiles_total: u64,
+    /// Every tile from this one on is pending and was never leased.
+    next_fresh: u32,
+    /// States of tiles `first_undone..next_fresh`.
+    active: BTreeMap<u32, TileState>,
+    /// Pending tiles before `next_fresh` (re-queued), smallest first.
+    requeued: BTreeSet<u32>,
     done: u64,
     rays: u64,
     submitted: Instant,
@@ -146,21 +152,73 @@ struct Job {
 }
 
 impl Job {
+    fn rect(&self, idx: u32) -> Rect {
+        let t = self.spec.tile_size;
+        let (x, y) = ((idx % self.cols) * t, (idx / self.cols) * t);
+        Rect::new(
+            x,
+            y,
+            t.min(self.spec.width - x),
+            t.min(self.spec.height - y),
+        )
+    }
+
     fn tile_index(&self, rect: Rect) -> Option<u32> {
         let t = self.spec.tile_size;
-        if rect.x % t != 0 || rect.y % t != 0 {
+        if rect.x % t != 0 || rect.y % t != 0 || rect.x >= self.spec.width {
             return None;
         }
         let idx = (rect.y / t) as u64 * self.cols as u64 + (rect.x / t) as u64;
-        let idx = u32::try_from(idx).ok()?;
-        (self.tiles.get(idx as usize) == Some(&rect)).then_some(idx)
+        let idx = u32::try_from(idx).ok().filter(|&i| i < self.tiles_total)?;
+        (self.rect(idx) == rect).then_some(idx)
+    }
+
+    fn tile_state(&self, idx: u32) -> TileState {
+        if idx < self.first_undone {
+            TileState::Done
+        } else if idx >= self.next_fresh {
+            TileState::Pending
+        } else {
+            self.active[&idx]
+        }
+    }
+
+    /// The pending tile to hand out next, if the window allows one.
+    fn next_tile(&self) -> Option<u32> {
+        let idx = match self.requeued.first() {
+            Some(&i) => i,
+            None if self.next_fresh < self.tiles_total => self.next_fresh,
+            None => return None,
+        };
+        let limit = (self.first_undone / self.cols) as u64 + self.window_bands as u64;
+        (((idx / self.cols) as u64) < limit).then_some(idx)
+    }
+
+    fn set_leased(&mut self, idx: u32, lease: LeaseId) {
+        if idx == self.next_fresh {
+            self.next_fresh += 1;
+        } else {
+            self.requeued.remove(&idx);
+        }
+        self.active.insert(idx, TileState::Leased(lease));
+    }
+
+    /// Marks a tile done and moves `first_undone` past the done prefix.
+    fn set_done(&mut self, idx: u32) {
+        self.requeued.remove(&idx);
+        self.active.insert(idx, TileState::Done);
+        while self.first_undone < self.next_fresh
+            && self.active.get(&self.first_undone) == Some(&TileState::Done)
+        {
+            self.active.remove(&self.first_undone);
+            self.first_undone += 1;
+        }
     }
 
     /// Drops the bookkeeping only a running job needs.
     fn retire(&mut self) {
-        self.tiles = Vec::new();
-        self.tile_state = Vec::new();
-        self.pending = BTreeSet::new();
+        self.active = BTreeMap::new();
+        self.requeued = BTreeSet::new();
     }
 }
 
@@ -222,26 +280,25 @@ impl Scheduler {
             tile_size: tile,
             ..spec
         };
-        let tiles = band_order_tiles(spec.width, spec.height, tile);
         let cols = spec.width.div_ceil(tile).max(1);
+        let rows = spec.height.div_ceil(tile);
         let band_bytes = spec.width as u64 * tile as u64 * 12;
         let window_bands = (self.cfg.window_bytes / band_bytes.max(1)).clamp(2, u32::MAX as u64);
-        let n = tiles.len();
         let job = Job {
             state: JobState::Queued,
-            tile_state: vec![TileState::Pending; n],
-            pending: (0..n as u32).collect(),
             cols,
+            tiles_total: u32::try_from(cols as u64 * rows as u64).unwrap_or(u32::MAX),
             window_bands: window_bands as u32,
             first_undone: 0,
-            tiles_total: n as u64,
+            next_fresh: 0,
+            active: BTreeMap::new(),
+            requeued: BTreeSet::new(),
             done: 0,
             rays: 0,
             submitted: now,
             finished: None,
             error: None,
             finish_order: 0,
-            tiles,
             spec,
         };
         self.queue.insert((Reverse(job.spec.priority), id));
@@ -255,17 +312,12 @@ impl Scheduler {
         self.expire(now);
         for &(_, id) in &self.queue {
             let job = self.jobs.get_mut(&id).expect("queued jobs exist");
-            let Some(&idx) = job.pending.first() else {
+            let Some(idx) = job.next_tile() else {
                 continue;
             };
-            let limit = (job.first_undone / job.cols) as u64 + job.window_bands as u64;
-            if (idx / job.cols) as u64 >= limit {
-                continue;
-            }
-            job.pending.remove(&idx);
             let lease_id = self.next_lease;
             self.next_lease += 1;
-            job.tile_state[idx as usize] = TileState::Leased(lease_id);
+            job.set_leased(idx, lease_id);
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
             }
@@ -283,7 +335,7 @@ impl Scheduler {
                 job: id,
                 bundle_hash: job.spec.bundle_hash.clone(),
                 camera: job.spec.camera.clone(),
-                rect: job.tiles[idx as usize],
+                rect: job.rect(idx),
             }));
         }
         Ok(None)
@@ -328,9 +380,9 @@ impl Scheduler {
             return;
         };
         if let Some(job) = self.jobs.get_mut(&e.job) {
-            if job.tile_state.get(e.tile as usize) == Some(&TileState::Leased(lease)) {
-                job.tile_state[e.tile as usize] = TileState::Pending;
-                job.pending.insert(e.tile);
+            if !job.state.is_final() && job.tile_state(e.tile) == TileState::Leased(lease) {
+                job.active.insert(e.tile, TileState::Pending);
+                job.requeued.insert(e.tile);
             }
         }
     }
@@ -358,25 +410,20 @@ impl Scheduler {
             return Ok(Accepted::Ignored);
         }
         let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
-        match j.tile_state[idx as usize] {
+        match j.tile_state(idx) {
             TileState::Done => return Ok(Accepted::Ignored),
+            // Never handed out: not a result of this coordinator's leases.
+            TileState::Pending if idx >= j.next_fresh => return Ok(Accepted::Ignored),
             TileState::Leased(l) => {
                 self.leases.remove(&l);
             }
-            TileState::Pending => {
-                j.pending.remove(&idx);
-            }
+            TileState::Pending => {}
         }
-        j.tile_state[idx as usize] = TileState::Done;
+        j.set_done(idx);
         j.done += 1;
         j.rays += rays;
-        while (j.first_undone as usize) < j.tile_state.len()
-            && j.tile_state[j.first_undone as usize] == TileState::Done
-        {
-            j.first_undone += 1;
-        }
         Ok(Accepted::New {
-            last: j.done == j.tiles_total,
+            last: j.done == j.tiles_total as u64,
         })
     }
 
@@ -432,7 +479,7 @@ impl Scheduler {
             id: job,
             spec: j.spec.clone(),
             state: j.state,
-            tiles_total: j.tiles_total,
+            tiles_total: j.tiles_total as u64,
             tiles_done: j.done,
             rays: j.rays,
             elapsed: j
@@ -497,6 +544,8 @@ mod tests {
         let w = s.register_worker(now);
         (s, now, w)
     }
+
+    use trevi_core::tile::band_order_tiles;
 
     #[test]
     fn jobs_run_by_priority_then_submission_order() {
@@ -635,5 +684,49 @@ mod tests {
         assert_eq!((ib.state, ib.finish_order), (JobState::Done, 1));
         assert_eq!((ia.state, ia.finish_order), (JobState::Failed, 2));
         assert_eq!(ia.error.as_deref(), Some("disk full"));
+    }
+
+    #[test]
+    fn bookkeeping_stays_within_the_window_whatever_the_height() {
+        let now = Instant::now();
+        let mut s = Scheduler::new(
+            SchedulerConfig {
+                lease_ttl: Duration::from_secs(5),
+                window_bytes: 2 * 16 * 4 * 12,
+            },
+            1,
+        );
+        let w = s.register_worker(now);
+        let j = s.submit(spec(0, 16, 4000, 4), now);
+        let mut peak = 0;
+        loop {
+            let leased: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
+            if leased.is_empty() {
+                break;
+            }
+            for l in leased.iter().rev() {
+                s.accept_tile(j, l.rect, 1).unwrap();
+                peak = peak.max(s.jobs[&j].active.len());
+            }
+        }
+        assert_eq!(s.info(j, now).unwrap().tiles_done, 4000);
+        assert!(peak <= 8, "tracked {peak} tiles at once");
+    }
+
+    #[test]
+    fn results_for_tiles_never_leased_are_ignored() {
+        let (mut s, now, w) = sched();
+        let j = s.submit(spec(0, 8, 8, 4), now);
+        let l = s.lease(w, now).unwrap().unwrap();
+        assert_eq!(
+            s.accept_tile(j, Rect::new(4, 4, 4, 4), 1),
+            Ok(Accepted::Ignored)
+        );
+        assert_eq!(
+            s.accept_tile(j, l.rect, 1),
+            Ok(Accepted::New { last: false })
+        );
+        assert!(s.accept_tile(j, Rect::new(8, 0, 4, 4), 1).is_err());
+        assert_eq!(s.info(j, now).unwrap().tiles_done, 1);
     }
 }

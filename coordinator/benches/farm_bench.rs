@@ -1,0 +1,248 @@
+//! Benchmarks of the farm (not timed tests; results go in docs/benchmarks.md).
+//!
+//! ```text
+//! cargo bench -p trevi-coordinator --bench farm_bench -- ingest --coordinator URL \
+//!     [--width 4096] [--height 4096] [--tile 64] [--workers 8] [--format png] [--pid PID]
+//! cargo bench -p trevi-coordinator --bench farm_bench -- direct SCENE.xml OUT.png [--tile 64]
+//! ```
+//!
+//! `ingest`: synthetic workers that replay ready tiles (noise, so the PNG
+//! encoder gets no easy rows) as fast as the coordinator takes them, for one
+//! job of `width`×`height`. Reports tiles per second from the first lease to
+//! the output in place, and with `--pid` the coordinator's peak RSS (VmHWM).
+//!
+//! `direct`: renders a scene's first camera in this process with no farm at
+//! all (band by band, the tiles of a band in parallel on every core, straight
+//! into a FrameWriter): the baseline for "one worker through the coordinator".
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tonic::transport::Channel;
+use trevi_core::{Bundle, Rect};
+use trevi_proto::pb::{
+    self, bundles_client::BundlesClient, jobs_client::JobsClient, workers_client::WorkersClient,
+};
+
+fn arg(args: &[String], name: &str) -> Option<String> {
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1).cloned())
+}
+
+fn num(args: &[String], name: &str, default: u64) -> u64 {
+    arg(args, name).map_or(default, |v| v.parse().expect("a number"))
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| a != "--bench")
+        .collect();
+    match args.first().map(String::as_str) {
+        Some("ingest") => ingest(&args),
+        Some("direct") => direct(&args),
+        _ => {
+            // `cargo bench` with no arguments: nothing to do (the benchmarks
+            // need a running coordinator or a scene).
+            eprintln!("usage: farm_bench ingest --coordinator URL ... | direct SCENE OUT");
+        }
+    }
+}
+
+fn peak_rss_kib(pid: &str) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
+fn noise_tile(seed: u32, n: usize) -> Vec<u8> {
+    let mut x = seed.wrapping_mul(2654435761).wrapping_add(12345);
+    let px: Vec<[f32; 3]> = (0..n)
+        .map(|_| {
+            let mut c = [0.0; 3];
+            for v in &mut c {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                *v = (x % 1000) as f32 / 1000.0;
+            }
+            c
+        })
+        .collect();
+    trevi_proto::pixels_to_bytes(&px)
+}
+
+fn ingest(args: &[String]) {
+    let url = arg(args, "--coordinator").expect("--coordinator URL");
+    let (w, h) = (
+        num(args, "--width", 4096) as u32,
+        num(args, "--height", 4096) as u32,
+    );
+    let tile = num(args, "--tile", 64) as u32;
+    let workers = num(args, "--workers", 8) as usize;
+    let format = arg(args, "--format").unwrap_or_else(|| "png".into());
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async move {
+        let channel = Channel::from_shared(url.clone())
+            .unwrap()
+            .connect()
+            .await
+            .unwrap();
+        let scene = format!(
+            r#"<scene version="1">
+  <light type="point" position="0 5 0"/>
+  <camera id="bench" position="0 0 5" lookat="0 0 0" fov="40">
+    <render width="{w}" height="{h}" output="bench.{format}"/>
+  </camera>
+</scene>
+"#
+        );
+        let mut files = BTreeMap::new();
+        files.insert("bench.xml".to_string(), scene.into_bytes());
+        let bundle = Bundle {
+            scene: "bench.xml".into(),
+            files,
+        };
+        let hash = BundlesClient::new(channel.clone())
+            .upload_bundle(tokio_stream::iter([pb::BundleChunk {
+                data: bundle.encode(),
+            }]))
+            .await
+            .unwrap()
+            .into_inner()
+            .hash;
+        // Ready tiles, made before the clock starts.
+        let full: Arc<Vec<Vec<u8>>> = Arc::new(
+            (0..16)
+                .map(|s| noise_tile(s, (tile * tile) as usize))
+                .collect(),
+        );
+        let mut jobs = JobsClient::new(channel.clone());
+        let start = Instant::now();
+        let job = jobs
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: hash,
+                camera: String::new(),
+                priority: 0,
+                tile_size: tile,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let sent = Arc::new(AtomicU64::new(0));
+        let mut tasks = Vec::new();
+        for _ in 0..workers {
+            let channel = Channel::from_shared(url.clone())
+                .unwrap()
+                .connect()
+                .await
+                .unwrap();
+            let (full, sent) = (full.clone(), sent.clone());
+            tasks.push(tokio::spawn(async move {
+                let mut wc = WorkersClient::new(channel);
+                let id = wc
+                    .register(pb::RegisterRequest {
+                        name: "synthetic".into(),
+                        threads: 1,
+                    })
+                    .await
+                    .unwrap()
+                    .into_inner()
+                    .worker_id;
+                loop {
+                    let lease = wc
+                        .lease_tile(pb::LeaseRequest { worker_id: id })
+                        .await
+                        .unwrap()
+                        .into_inner()
+                        .lease;
+                    let Some(lease) = lease else { break };
+                    let rect: Rect = lease.rect.unwrap().into();
+                    let n = sent.fetch_add(1, Ordering::Relaxed);
+                    let pixels = if rect.w == tile && rect.h == tile {
+                        full[(n % 16) as usize].clone()
+                    } else {
+                        noise_tile(n as u32, rect.pixel_count())
+                    };
+                    let msgs = vec![
+                        pb::TileUpload {
+                            part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
+                                worker_id: id,
+                                lease_id: lease.lease_id,
+                                job_id: lease.job_id,
+                                rect: lease.rect,
+                                rays: rect.pixel_count() as u64,
+                            })),
+                        },
+                        pb::TileUpload {
+                            part: Some(pb::tile_upload::Part::Pixels(pixels)),
+                        },
+                    ];
+                    wc.submit_tile(tokio_stream::iter(msgs)).await.unwrap();
+                }
+            }));
+        }
+        // Wait for the job to end (workers stop when no lease comes in 2 s).
+        let mut watch = jobs
+            .watch_job(pb::JobId { id: job.id })
+            .await
+            .unwrap()
+            .into_inner();
+        let mut last = None;
+        while let Some(s) = watch.message().await.unwrap() {
+            last = Some(s);
+        }
+        let secs = start.elapsed().as_secs_f64();
+        let last = last.unwrap();
+        assert_eq!(last.state(), pb::JobState::Done, "{last:?}");
+        println!(
+            "ingest: {w}x{h} {format}, {} tiles of {tile}x{tile}, {workers} synthetic workers: \
+             {secs:.2} s, {:.0} tiles/s, {:.1} Mpixel/s",
+            last.tiles_total,
+            last.tiles_total as f64 / secs,
+            (w as f64 * h as f64) / secs / 1e6
+        );
+        if let Some(pid) = arg(args, "--pid") {
+            match peak_rss_kib(&pid) {
+                Some(k) => println!("coordinator peak RSS (VmHWM): {:.1} MiB", k as f64 / 1024.0),
+                None => println!("cannot read /proc/{pid}/status"),
+            }
+        }
+        for t in tasks {
+            t.abort();
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    });
+}
+
+fn direct(args: &[String]) {
+    use rayon::prelude::*;
+    let scene_path = args.get(1).expect("SCENE");
+    let out = args.get(2).expect("OUT");
+    let tile = num(args, "--tile", 64) as u32;
+    let bundle = Bundle::from_scene_file(std::path::Path::new(scene_path)).expect("scene");
+    let scene = trevi_core::Scene::from_bundle(&bundle).expect("scene");
+    let r = &scene.desc.cameras[0].render;
+    let (w, h) = (r.width, r.height);
+    let start = Instant::now();
+    let mut fw = trevi_core::FrameWriter::create(std::path::Path::new(out), w, h).unwrap();
+    let tiles = trevi_core::tile::band_order_tiles(w, h, tile);
+    for band in tiles.chunk_by(|a, b| a.y == b.y) {
+        let results: Vec<_> = band
+            .par_iter()
+            .map(|&r| (r, trevi_core::render_tile(&scene, 0, r)))
+            .collect();
+        for (r, res) in results {
+            fw.write_tile(r, &res.pixels).unwrap();
+        }
+    }
+    fw.finish().unwrap();
+    println!("direct: {w}x{h} in {:.3} s", start.elapsed().as_secs_f64());
+}
