@@ -313,7 +313,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         seed: 0,
     };
     let ks = [1u32, 2, 4, 8, 16, 32, 64];
-    let effects: [(&'static str, Cfg, fn(Cfg, u32) -> Cfg, u32); 4] = [
+    /// (group, base settings, "with k samples of the effect", reference k)
+    type Effect = (&'static str, Cfg, fn(Cfg, u32) -> Cfg, u32);
+    let effects: [Effect; 4] = [
         (
             "iso-ao",
             Cfg { ao: 1, ..none },

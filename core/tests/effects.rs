@@ -140,8 +140,8 @@ fn ambient_occlusion_at_the_centre_of_a_closed_cube_floor_matches_the_integral()
         want > 0.5 && want < 0.95,
         "the test geometry occludes: {want}"
     );
-    for ch in 0..3 {
-        assert_close(got[ch], want, 0.02, "AO at the cube floor centre");
+    for v in got {
+        assert_close(v, want, 0.02, "AO at the cube floor centre");
     }
 }
 
@@ -586,7 +586,7 @@ fn adaptive_sampling_spends_samples_where_the_noise_is_and_meets_its_threshold()
     for k in 0..values.len() {
         let v = reference[k][0] as f64;
         // Umbra (0) or full light (E·N·L ≈ 1, varying smoothly).
-        if v < 1e-4 || v > 0.999 {
+        if !(1e-4..=0.999).contains(&v) {
             flat.push(spp[k]);
         } else if v > 0.1 && v < 0.9 {
             noisy.push(spp[k]);
