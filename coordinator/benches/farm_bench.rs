@@ -62,6 +62,32 @@ fn peak_rss_kib(pid: &str) -> Option<u64> {
         .ok()
 }
 
+/// utime + stime of a process, in seconds (clock ticks at 100 Hz).
+fn cpu_seconds(pid: &str) -> Option<f64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: u64 = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
+    Some(ticks as f64 / 100.0)
+}
+
+/// A render-like tile: smooth gradients with a little noise.
+fn smooth_tile(seed: u32, w: u32, h: u32) -> Vec<u8> {
+    let mut x = seed.wrapping_mul(2654435761).wrapping_add(777);
+    let mut px = Vec::with_capacity((w * h) as usize);
+    for j in 0..h {
+        for i in 0..w {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            let n = (x % 100) as f32 / 10000.0;
+            let (u, v) = (i as f32 / w as f32, j as f32 / h as f32);
+            px.push([0.2 + 0.6 * u + n, 0.3 + 0.4 * v + n, 0.5 + 0.3 * u * v + n]);
+        }
+    }
+    trevi_proto::pixels_to_bytes(&px)
+}
+
 fn noise_tile(seed: u32, n: usize) -> Vec<u8> {
     let mut x = seed.wrapping_mul(2654435761).wrapping_add(12345);
     let px: Vec<[f32; 3]> = (0..n)
@@ -88,6 +114,15 @@ fn ingest(args: &[String]) {
     let tile = num(args, "--tile", 64) as u32;
     let workers = num(args, "--workers", 8) as usize;
     let format = arg(args, "--format").unwrap_or_else(|| "png".into());
+    let smooth = arg(args, "--content").as_deref() != Some("noise");
+    let pid = arg(args, "--pid");
+    let make = move |seed: u32, w: u32, h: u32| {
+        if smooth {
+            smooth_tile(seed, w, h)
+        } else {
+            noise_tile(seed, (w * h) as usize)
+        }
+    };
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async move {
         let channel = Channel::from_shared(url.clone())
@@ -119,12 +154,9 @@ fn ingest(args: &[String]) {
             .into_inner()
             .hash;
         // Ready tiles, made before the clock starts.
-        let full: Arc<Vec<Vec<u8>>> = Arc::new(
-            (0..16)
-                .map(|s| noise_tile(s, (tile * tile) as usize))
-                .collect(),
-        );
+        let full: Arc<Vec<Vec<u8>>> = Arc::new((0..16).map(|s| make(s, tile, tile)).collect());
         let mut jobs = JobsClient::new(channel.clone());
+        let cpu0 = pid.as_deref().and_then(cpu_seconds);
         let start = Instant::now();
         let job = jobs
             .submit_job(pb::SubmitJobRequest {
@@ -141,6 +173,7 @@ fn ingest(args: &[String]) {
         for _ in 0..workers {
             let channel = Channel::from_shared(url.clone())
                 .unwrap()
+                .tcp_nodelay(true)
                 .connect()
                 .await
                 .unwrap();
@@ -169,7 +202,7 @@ fn ingest(args: &[String]) {
                     let pixels = if rect.w == tile && rect.h == tile {
                         full[(n % 16) as usize].clone()
                     } else {
-                        noise_tile(n as u32, rect.pixel_count())
+                        make(n as u32, rect.w, rect.h)
                     };
                     let msgs = vec![
                         pb::TileUpload {
@@ -203,14 +236,26 @@ fn ingest(args: &[String]) {
         let last = last.unwrap();
         assert_eq!(last.state(), pb::JobState::Done, "{last:?}");
         println!(
-            "ingest: {w}x{h} {format}, {} tiles of {tile}x{tile}, {workers} synthetic workers: \
+            "ingest: {w}x{h} {format} ({} tiles), {} tiles of {tile}x{tile}, {workers} synthetic workers: \
              {secs:.2} s, {:.0} tiles/s, {:.1} Mpixel/s",
+            if smooth { "smooth" } else { "noise" },
             last.tiles_total,
             last.tiles_total as f64 / secs,
             (w as f64 * h as f64) / secs / 1e6
         );
-        if let Some(pid) = arg(args, "--pid") {
-            match peak_rss_kib(&pid) {
+        if let (Some(a), Some(b)) = (cpu0, pid.as_deref().and_then(cpu_seconds)) {
+            println!(
+                "coordinator CPU: {:.2} s ({:.0} % of one core), {:.0} tiles per CPU-second",
+                b - a,
+                (b - a) / secs * 100.0,
+                last.tiles_total as f64 / (b - a).max(1e-9)
+            );
+        }
+        if let Some(me) = cpu_seconds("self") {
+            println!("bench client CPU: {me:.2} s ({:.0} % of one core)", me / secs * 100.0);
+        }
+        if let Some(pid) = &pid {
+            match peak_rss_kib(pid) {
                 Some(k) => println!("coordinator peak RSS (VmHWM): {:.1} MiB", k as f64 / 1024.0),
                 None => println!("cannot read /proc/{pid}/status"),
             }

@@ -11,6 +11,7 @@ use std::time::Duration;
 use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::{ReceiverStream, TcpListenerStream};
+use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status, Streaming};
 use trevi_proto::pb::{self, tile_upload::Part};
 use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
@@ -354,13 +355,19 @@ pub async fn serve(
         })
     };
 
+    // Small messages (leases, acks) must not wait for Nagle's algorithm.
+    let incoming = TcpListenerStream::new(listener).map(|conn| {
+        conn.inspect(|s| {
+            let _ = s.set_nodelay(true);
+        })
+    });
     let result = tonic::transport::Server::builder()
         .add_service(health_service)
         .add_service(reflection)
         .add_service(BundlesServer::new(BundlesService { farm: farm.clone() }))
         .add_service(JobsServer::new(JobsService { farm: farm.clone() }))
         .add_service(WorkersServer::new(WorkersService { farm }))
-        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), shutdown)
+        .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
     reaper.abort();
     result
