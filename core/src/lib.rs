@@ -35,6 +35,8 @@ pub mod output;
 pub mod sampling;
 pub mod scene;
 pub mod tile;
+#[cfg(test)]
+mod testing;
 pub mod world;
 
 pub use bundle::{Bundle, DirSource, FileSource};

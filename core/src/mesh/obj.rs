@@ -441,6 +441,7 @@ fn split_by_normal(mesh: &mut Mesh, corner_normals: &[[Vec3; 3]]) -> Result<(), 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::{apply_edits, assert_error_at, check_mesh_invariants, Edit};
     use proptest::prelude::*;
 
     fn ok(src: &str) -> Mesh {
@@ -452,35 +453,7 @@ mod tests {
 
     /// Parses `src`, expecting an error at `line:column` whose message contains `msg`.
     fn fails(src: &str, line: u32, column: u32, msg: &str) {
-        match parse("m.obj", src.as_bytes()) {
-            Ok(_) => panic!("expected an error for {src:?}"),
-            Err(e) => {
-                assert_eq!(
-                    (e.location.file.as_str(), e.location.line, e.location.column),
-                    ("m.obj", line, column),
-                    "wrong location for {src:?}: {e}"
-                );
-                assert!(
-                    e.message.contains(msg),
-                    "message {:?} lacks {msg:?}",
-                    e.message
-                );
-            }
-        }
-    }
-
-    /// Checks the invariants every loaded mesh must satisfy.
-    fn check_invariants(m: &Mesh) {
-        assert!(!m.triangles.is_empty());
-        assert!(m.normals.is_empty() || m.normals.len() == m.positions.len());
-        for t in &m.triangles {
-            for &i in t {
-                assert!((i as usize) < m.positions.len());
-            }
-        }
-        for p in m.positions.iter().chain(&m.normals) {
-            assert!(p.is_finite());
-        }
+        assert_error_at(parse("m.obj", src.as_bytes()), "m.obj", line, column, msg);
     }
 
     const CUBE: &str = "\
@@ -710,49 +683,13 @@ f 1//3 2//3 3//3
             assert_eq!(m.positions.len(), vertices, "{name}");
             assert_eq!(m.triangles.len(), triangles, "{name}");
             assert!(m.normals.is_empty(), "{name} has no vn");
-            check_invariants(&m);
+            check_mesh_invariants(&m);
         }
-    }
-
-    #[derive(Debug, Clone)]
-    enum Edit {
-        Flip(usize, u8),
-        Insert(usize, u8),
-        Delete(usize),
     }
 
     fn edit() -> impl Strategy<Value = Edit> {
         // Bytes that matter to the grammar, plus anything.
-        let byte = prop_oneof![
-            prop::sample::select(b"/-\\\n\r #.0123456789ef+vn".to_vec()),
-            any::<u8>(),
-        ];
-        prop_oneof![
-            (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Edit::Flip(i, b)),
-            (any::<usize>(), byte).prop_map(|(i, b)| Edit::Insert(i, b)),
-            any::<usize>().prop_map(Edit::Delete),
-        ]
-    }
-
-    fn apply(mut bytes: Vec<u8>, edits: &[Edit]) -> Vec<u8> {
-        for e in edits {
-            match *e {
-                Edit::Flip(i, b) if !bytes.is_empty() => {
-                    let i = i % bytes.len();
-                    bytes[i] ^= b;
-                }
-                Edit::Insert(i, b) => {
-                    let i = i % (bytes.len() + 1);
-                    bytes.insert(i, b);
-                }
-                Edit::Delete(i) if !bytes.is_empty() => {
-                    let i = i % bytes.len();
-                    bytes.remove(i);
-                }
-                _ => {}
-            }
-        }
-        bytes
+        crate::testing::edit(b"/-\\\n\r #.0123456789ef+vn")
     }
 
     const WITH_NORMALS: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 1\nvt 0 0\nvn 0 0 1\nvn 0 -1 1\n\
@@ -764,16 +701,16 @@ f 1//3 2//3 3//3
             base in prop::sample::select(vec![CUBE, WITH_NORMALS]),
             edits in prop::collection::vec(edit(), 1..12),
         ) {
-            let bytes = apply(base.as_bytes().to_vec(), &edits);
+            let bytes = apply_edits(base.as_bytes().to_vec(), &edits);
             if let Ok(m) = parse("m.obj", &bytes) {
-                check_invariants(&m);
+                check_mesh_invariants(&m);
             }
         }
 
         #[test]
         fn random_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
             if let Ok(m) = parse("m.obj", &bytes) {
-                check_invariants(&m);
+                check_mesh_invariants(&m);
             }
         }
 
@@ -797,7 +734,7 @@ f 1//3 2//3 3//3
                 .map(|(k, args)| format!("{k} {}\n", args.join(" ")))
                 .collect();
             if let Ok(m) = parse("m.obj", src.as_bytes()) {
-                check_invariants(&m);
+                check_mesh_invariants(&m);
             }
         }
     }

@@ -829,6 +829,7 @@ impl Body for BinaryBody<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::{apply_edits, assert_error_at, check_mesh_invariants, Edit};
     use proptest::prelude::*;
 
     /// A typed value to write into a test file.
@@ -929,34 +930,7 @@ mod tests {
 
     /// Parses `bytes`, expecting an error at `line:column` whose message contains `msg`.
     fn fails(bytes: &[u8], line: u32, column: u32, msg: &str) {
-        match parse("m.ply", bytes) {
-            Ok(_) => panic!("expected an error for {:?}", String::from_utf8_lossy(bytes)),
-            Err(e) => {
-                assert_eq!(
-                    (e.location.file.as_str(), e.location.line, e.location.column),
-                    ("m.ply", line, column),
-                    "wrong location: {e}"
-                );
-                assert!(
-                    e.message.contains(msg),
-                    "message {:?} lacks {msg:?}",
-                    e.message
-                );
-            }
-        }
-    }
-
-    fn check_invariants(m: &Mesh) {
-        assert!(!m.triangles.is_empty());
-        assert!(m.normals.is_empty() || m.normals.len() == m.positions.len());
-        for t in &m.triangles {
-            for &i in t {
-                assert!((i as usize) < m.positions.len());
-            }
-        }
-        for p in m.positions.iter().chain(&m.normals) {
-            assert!(p.is_finite());
-        }
+        assert_error_at(parse("m.ply", bytes), "m.ply", line, column, msg);
     }
 
     /// A square pyramid, built by hand.
@@ -1437,44 +1411,8 @@ property list int char bytes
         assert!(start.elapsed() < std::time::Duration::from_secs(1));
     }
 
-    #[derive(Debug, Clone)]
-    enum Edit {
-        Flip(usize, u8),
-        Insert(usize, u8),
-        Delete(usize),
-    }
-
     fn edit() -> impl Strategy<Value = Edit> {
-        let byte = prop_oneof![
-            prop::sample::select(b"\n \r0123456789-.e".to_vec()),
-            any::<u8>()
-        ];
-        prop_oneof![
-            (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Edit::Flip(i, b)),
-            (any::<usize>(), byte).prop_map(|(i, b)| Edit::Insert(i, b)),
-            any::<usize>().prop_map(Edit::Delete),
-        ]
-    }
-
-    fn apply(mut bytes: Vec<u8>, edits: &[Edit]) -> Vec<u8> {
-        for e in edits {
-            match *e {
-                Edit::Flip(i, b) if !bytes.is_empty() => {
-                    let i = i % bytes.len();
-                    bytes[i] ^= b;
-                }
-                Edit::Insert(i, b) => {
-                    let i = i % (bytes.len() + 1);
-                    bytes.insert(i, b);
-                }
-                Edit::Delete(i) if !bytes.is_empty() => {
-                    let i = i % bytes.len();
-                    bytes.remove(i);
-                }
-                _ => {}
-            }
-        }
-        bytes
+        crate::testing::edit(b"\n \r0123456789-.e")
     }
 
     fn count() -> impl Strategy<Value = u64> {
@@ -1493,9 +1431,9 @@ property list int char bytes
             format in prop::sample::select(FORMATS.to_vec()),
             edits in prop::collection::vec(edit(), 1..10),
         ) {
-            let bytes = apply(pyramid_file(format), &edits);
+            let bytes = apply_edits(pyramid_file(format), &edits);
             if let Ok(m) = parse("m.ply", &bytes) {
-                check_invariants(&m);
+                check_mesh_invariants(&m);
             }
         }
 
@@ -1522,7 +1460,7 @@ property list int char bytes
             let mut bytes = header.into_bytes();
             bytes.extend_from_slice(&body);
             if let Ok(m) = parse("m.ply", &bytes) {
-                check_invariants(&m);
+                check_mesh_invariants(&m);
             }
         }
 
