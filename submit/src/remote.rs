@@ -43,6 +43,7 @@ impl Client {
         let channel = Channel::from_shared(url.to_string())
             .with_context(|| format!("bad coordinator address \"{url}\""))?
             .connect_timeout(Duration::from_secs(10))
+            .tcp_nodelay(true)
             .connect()
             .await
             .with_context(|| format!("cannot reach the coordinator at {url}"))?;
