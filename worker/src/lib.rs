@@ -251,13 +251,16 @@ impl Session {
             let scene = match scene {
                 Ok(s) => s,
                 Err(e) => {
-                    // The lease runs out and the tile goes to someone else.
+                    // The lease runs out and the tile goes to someone else;
+                    // pause so a broken bundle is not fetched in a tight loop.
                     tracing::error!(bundle = %lease.bundle_hash, "cannot load the scene: {e}");
+                    tokio::time::sleep(Duration::from_secs(1)).await;
                     continue;
                 }
             };
             let Some(camera) = scene.camera_index(&lease.camera) else {
                 tracing::error!(camera = %lease.camera, "the scene has no such camera");
+                tokio::time::sleep(Duration::from_secs(1)).await;
                 continue;
             };
             match self.render(worker, &lease, scene, camera, rect, beat).await {
