@@ -3,6 +3,7 @@
 //! ```text
 //! cargo bench -p trevi-coordinator --bench farm_bench -- ingest --coordinator URL \
 //!     [--width 4096] [--height 4096] [--tile 64] [--workers 8] [--format png] [--pid PID]
+//! cargo bench -p trevi-coordinator --bench farm_bench -- farm [--width 4096] [--height 4096]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- direct SCENE.xml OUT.png [--tile 64]
 //! ```
 //!
@@ -10,6 +11,10 @@
 //! encoder gets no easy rows) as fast as the coordinator takes them, for one
 //! job of `width`×`height`. Reports tiles per second from the first lease to
 //! the output in place, and with `--pid` the coordinator's peak RSS (VmHWM).
+//!
+//! `farm`: the same replay without the network, through `Farm::put_tile` on
+//! this thread, into a discarding sink and into the real PNG writer: what
+//! validation and scheduling cost alone, and with the encoder.
 //!
 //! `direct`: renders a scene's first camera in this process with no farm at
 //! all (band by band, the tiles of a band in parallel on every core, straight
@@ -43,6 +48,7 @@ fn main() {
     match args.first().map(String::as_str) {
         Some("ingest") => ingest(&args),
         Some("direct") => direct(&args),
+        Some("farm") => farm(&args),
         _ => {
             // `cargo bench` with no arguments: nothing to do (the benchmarks
             // need a running coordinator or a scene).
@@ -290,4 +296,71 @@ fn direct(args: &[String]) {
     }
     fw.finish().unwrap();
     println!("direct: {w}x{h} in {:.3} s", start.elapsed().as_secs_f64());
+}
+
+struct NullSink;
+
+impl trevi_coordinator::TileSink for NullSink {
+    fn write_tile(&mut self, _: Rect, _: &[[f32; 3]]) -> Result<(), String> {
+        Ok(())
+    }
+    fn finish(self: Box<Self>) -> Result<(), String> {
+        Ok(())
+    }
+    fn rows_held(&self) -> usize {
+        0
+    }
+}
+
+fn farm(args: &[String]) {
+    use trevi_coordinator::{Farm, FarmConfig, JobSpec};
+    let (w, h) = (
+        num(args, "--width", 4096) as u32,
+        num(args, "--height", 4096) as u32,
+    );
+    let tile = num(args, "--tile", 64) as u32;
+    let ready: Vec<Vec<[f32; 3]>> = (0..16)
+        .map(|s| trevi_proto::pixels_from_bytes(&smooth_tile(s, tile, tile)).unwrap())
+        .collect();
+    for sink in ["discard", "png"] {
+        let dir = tempfile::tempdir().unwrap();
+        let farm = Farm::new(FarmConfig::new(dir.path())).unwrap();
+        let spec = JobSpec {
+            bundle_hash: "0".repeat(64),
+            camera: "bench".into(),
+            priority: 0,
+            width: w,
+            height: h,
+            tile_size: tile,
+            output_name: "bench.png".into(),
+        };
+        let start = Instant::now();
+        let job = if sink == "png" {
+            farm.submit(spec).unwrap().id
+        } else {
+            farm.submit_with_sink(spec, |_| Ok(Box::new(NullSink)))
+                .unwrap()
+                .id
+        };
+        let worker = farm.register_worker();
+        let mut n = 0usize;
+        while let Some(l) = farm.lease(worker).unwrap() {
+            let pixels = if l.rect.w == tile && l.rect.h == tile {
+                ready[n % 16].clone()
+            } else {
+                trevi_proto::pixels_from_bytes(&smooth_tile(n as u32, l.rect.w, l.rect.h)).unwrap()
+            };
+            n += 1;
+            farm.put_tile(l.id, job, l.rect, 1, &pixels).unwrap();
+        }
+        let secs = start.elapsed().as_secs_f64();
+        assert_eq!(
+            farm.info(job).unwrap().state,
+            trevi_coordinator::JobState::Done
+        );
+        println!(
+            "farm (no network), {w}x{h}, {n} tiles of {tile}x{tile} into {sink}: {secs:.2} s, {:.0} tiles/s",
+            n as f64 / secs
+        );
+    }
 }
