@@ -180,10 +180,12 @@ wait "$submit_pid" || {
 submit_pid=
 say "step 4: job complete: $(job_line | xargs)"
 [ -s "$work/farm.png" ] || fail "no output file"
-requeued=$(compose logs --no-color coordinator 2>&1 | grep 'leases expired; tiles re-queued' |
-    sed -nE 's/.*tiles=([0-9]+).*/\1/p' | awk '{n += $1} END {print n + 0}')
-[ "$requeued" -ge 1 ] || fail "the coordinator re-queued no tile: the disturbed workers held no lease"
-say "step 4: the coordinator re-queued $requeued tile(s) whose leases expired with the lost workers"
+# The disturbed workers stayed out of it to the end: one dead, one running
+# but cut off from the project's network.
+[ "$(docker inspect -f '{{.State.Running}}' "$victim")" = false ] || fail "the killed worker is running again"
+[ -z "$(docker inspect -f '{{range $k, $v := .NetworkSettings.Networks}}{{$k}}{{end}}' "$cut")" ] ||
+    fail "the cut-off worker is back on a network"
+say "step 4: the killed worker stayed dead, the cut-off worker stayed off the network"
 say "step 4: embedded render of the same scene (trevi-submit without --coordinator)"
 "$submit" "$work/scene.xml" -o "$work/embedded.png" --quiet >"$work/embedded.log" 2>&1 || {
     cat "$work/embedded.log"
