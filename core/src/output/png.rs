@@ -70,7 +70,7 @@ impl PngSink {
         encoder.set_color(::png::ColorType::Rgb);
         encoder.set_depth(::png::BitDepth::Eight);
         encoder.set_source_srgb(::png::SrgbRenderingIntent::Perceptual);
-        encoder.set_compression(::png::Compression::Default);
+        encoder.set_compression(::png::Compression::Fast);
         encoder.set_adaptive_filter(::png::AdaptiveFilterType::Adaptive);
         let stream = encoder
             .write_header()

@@ -1,14 +1,53 @@
 //! Linear light to 8-bit sRGB, as PNG output stores it.
 
+use std::sync::OnceLock;
+
 /// Converts one linear channel value to an 8-bit sRGB code value.
 ///
 /// The value is clamped to [0, 1] (NaN becomes 0, +inf 1, -inf 0), encoded with
 /// the sRGB transfer function (12.92·c for c ≤ 0.0031308, otherwise
 /// 1.055·c^(1/2.4) − 0.055) and rounded to nearest as ⌊s·255 + 0.5⌋.
 ///
-/// The arithmetic is done in `f64` so that the rounding matches the closed form
-/// for every `f32` input, not just approximately.
+/// Why a table: the closed form needs a `powf` per channel, which made PNG
+/// stitching the coordinator's bottleneck. The code is a step function of the
+/// input, so it is found by a binary search among the 255 smallest `f32`
+/// inputs of each code (computed once from the closed form in
+/// [`linear_to_srgb8_exact`]): the result is bit-identical to the closed form
+/// for every `f32`.
+#[inline]
 pub fn linear_to_srgb8(v: f32) -> u8 {
+    if !(v > 0.0) {
+        return 0; // NaN, negative, zero
+    }
+    thresholds().partition_point(|&t| t <= v) as u8
+}
+
+/// `thresholds()[k - 1]` is the smallest `f32` whose code is `k`.
+fn thresholds() -> &'static [f32; 255] {
+    static TABLE: OnceLock<[f32; 255]> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut t = [0f32; 255];
+        for (k, slot) in t.iter_mut().enumerate() {
+            let code = k as u8 + 1;
+            // Positive f32 order is bit-pattern order: binary search the bits.
+            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+            while lo < hi {
+                let mid = lo + (hi - lo) / 2;
+                if linear_to_srgb8_exact(f32::from_bits(mid)) >= code {
+                    hi = mid;
+                } else {
+                    lo = mid + 1;
+                }
+            }
+            *slot = f32::from_bits(lo);
+        }
+        t
+    })
+}
+
+/// The closed form, evaluated in `f64` so that the rounding is right for every
+/// `f32` input.
+pub fn linear_to_srgb8_exact(v: f32) -> u8 {
     // `f32::clamp` keeps NaN, so handle it first; infinities clamp normally.
     let c = if v.is_nan() {
         0.0
@@ -71,6 +110,25 @@ mod tests {
             prev = got;
         }
         assert_eq!(prev, 255);
+    }
+
+    #[test]
+    fn the_table_agrees_with_the_closed_form_at_every_step_and_between() {
+        for (k, &t) in thresholds().iter().enumerate() {
+            let code = k as u8 + 1;
+            let below = f32::from_bits(t.to_bits() - 1);
+            assert_eq!(linear_to_srgb8_exact(t), code);
+            assert_eq!(linear_to_srgb8(t), code);
+            assert_eq!(linear_to_srgb8(below), linear_to_srgb8_exact(below));
+            assert_eq!(linear_to_srgb8(below), code - 1);
+        }
+        // A dense sweep of bit patterns across [0, 1] (every 997th f32).
+        let mut bits = 0u32;
+        while bits <= 1.0f32.to_bits() {
+            let v = f32::from_bits(bits);
+            assert_eq!(linear_to_srgb8(v), linear_to_srgb8_exact(v), "v = {v:e}");
+            bits += 997;
+        }
     }
 
     #[test]
