@@ -1,0 +1,52 @@
+#!/bin/sh
+# Trevi's performance benchmark, side by side with Embree 3 (docs/performance.md).
+#
+#   bench/run.sh            # micro-benchmarks + both full-size frames
+#   bench/run.sh micro      # build and traversal only (a few minutes)
+#   bench/run.sh render     # the two 3000x2250 frames only
+#
+# Needs ../shared/meshes/nefertiti.obj beside the checkout. Installs Debian's
+# libembree-dev (Embree 3) with apt-get when it is missing. Environment:
+# REPS (default 5), THREADS (default 2), OUT (default a temporary directory),
+# MESHES (default ../shared/meshes), CARGO_TARGET_DIR as for cargo.
+set -eu
+cd "$(dirname "$0")/.."
+ROOT=$(pwd)
+MESHES=${MESHES:-"$ROOT/../shared/meshes"}
+REPS=${REPS:-5}
+THREADS=${THREADS:-2}
+OUT=${OUT:-$(mktemp -d /tmp/trevi-bench.XXXXXX)}
+WHAT=${1:-all}
+
+if [ ! -f /usr/include/embree3/rtcore.h ]; then
+    SUDO=""
+    [ "$(id -u)" -eq 0 ] || SUDO=sudo
+    $SUDO apt-get update
+    $SUDO apt-get install -y libembree-dev
+fi
+cc -O2 -std=c11 -Wall -o "$OUT/embree_bench" bench/embree/embree_bench.c -lembree3 -lpthread -lm
+cargo build --release -p trevi-bench
+BIN="$ROOT/target/release/trevi-bench"
+[ -n "${CARGO_TARGET_DIR:-}" ] && BIN="$CARGO_TARGET_DIR/release/trevi-bench"
+
+echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) CPUs: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')"
+REV=$(git rev-parse --short HEAD 2>/dev/null || echo "${TREVI_REV:-?}")
+echo "# trevi $REV, embree $(dpkg-query -W -f='${Version}' libembree-dev 2>/dev/null || echo '?'), load average $(cut -d' ' -f1-3 /proc/loadavg)"
+
+if [ "$WHAT" = all ] || [ "$WHAT" = micro ]; then
+    "$BIN" micro --out "$OUT" --meshes "$MESHES" --embree "$OUT/embree_bench" \
+        --reps "$REPS" --threads "$THREADS"
+fi
+
+if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
+    # A bundle may not reach outside its directory: copy scene and mesh.
+    mkdir -p "$OUT/bundle/meshes"
+    cp bench/cornell-nefertiti.xml "$OUT/bundle/"
+    cp "$MESHES/nefertiti.obj" "$OUT/bundle/meshes/"
+    for cam in whitted effects; do
+        /usr/bin/time -v "$BIN" render "$OUT/bundle/cornell-nefertiti.xml" "$cam" \
+            --threads "$THREADS" 2> "$OUT/time-$cam.txt"
+        grep -E "Elapsed|Maximum resident" "$OUT/time-$cam.txt"
+    done
+fi
+echo "# files in $OUT"
