@@ -755,13 +755,13 @@ fn find_split(
         right: Aabb::EMPTY,
         right_c: Aabb::EMPTY,
     };
-    for k in 0..BINS {
+    for (k, (b, c)) in bin_box.iter().zip(&stats.centroids).enumerate() {
         if k <= best.1 {
-            s.left = s.left.union(bin_box[k]);
-            s.left_c = s.left_c.union(stats.centroids[k]);
+            s.left = s.left.union(*b);
+            s.left_c = s.left_c.union(*c);
         } else {
-            s.right = s.right.union(bin_box[k]);
-            s.right_c = s.right_c.union(stats.centroids[k]);
+            s.right = s.right.union(*b);
+            s.right_c = s.right_c.union(*c);
         }
     }
     Some(s)
