@@ -3,14 +3,23 @@
 //! Frame: w = −d, u = normalize(up × w), v = w × u (the report's u = w × U
 //! would mirror the image). View plane: a = u, b = v·height/width,
 //! s = 0.5/tan(fov/2), c = −a/2 − b/2 − s·w. Row 0 is the top of the image.
+//!
+//! Rays come out relative to the camera: the renderer shifts the world so
+//! the camera sits at the origin (in f64, before anything is rounded to
+//! f32), so primary rays start at 0 (or on the lens around it) and `eye`
+//! holds where that is in the world (see docs/numerics.md).
 
 use crate::geometry::Ray;
 use crate::sampling::concentric_disk;
 use crate::scene::{CameraDesc, Lens};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 
 #[derive(Debug, Clone, Copy)]
 pub struct Camera {
+    /// The camera's position in the world, in f64: the origin of the
+    /// camera-relative coordinates its rays are expressed in.
+    pub eye: DVec3,
+    /// The pinhole in those coordinates: always zero.
     pub position: Vec3,
     pub d: Vec3,
     pub u: Vec3,
@@ -39,7 +48,8 @@ impl Camera {
         let b = v * (height / width);
         let c = -0.5 * a - 0.5 * b - s * w;
         Camera {
-            position: desc.position,
+            eye: desc.position,
+            position: Vec3::ZERO,
             d,
             u,
             v,
@@ -103,7 +113,7 @@ mod tests {
     pub(crate) fn desc(fov: f32, w: u32, h: u32) -> CameraDesc {
         CameraDesc {
             id: "c".into(),
-            position: Vec3::ZERO,
+            position: DVec3::ZERO,
             direction: -Vec3::Z,
             up: Vec3::Y,
             fov,

@@ -14,11 +14,10 @@
 //! function of its coordinates.
 
 use crate::camera::Camera;
-use crate::geometry::offset_ray_origin;
 use crate::lights::{incident, jittered_position};
 use crate::sampling::{cosine_hemisphere, hash2, pixel_seed, PixelSampler, SamplerKind};
 use crate::scene::CameraDesc;
-use crate::world::{Scene, SurfacePoint};
+use crate::world::{Scene, SurfacePoint, View};
 use glam::Vec3;
 
 // Stream tags (dimension pairs). Changing any of these changes every image.
@@ -31,6 +30,10 @@ const TAG_GATHER_SHADOW: u64 = 6;
 const TAG_REFLECT: u64 = 7;
 const TAG_REFRACT: u64 = 8;
 
+/// Reflection and refraction branches contributing less than this to the
+/// pixel are not traced (see `Integrator::radiance`).
+pub const MIN_BRANCH_WEIGHT: f32 = 1e-4;
+
 /// Options that are not part of the scene: how to sample.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct RenderOptions {
@@ -40,6 +43,9 @@ pub struct RenderOptions {
 /// Everything fixed for one camera's frame.
 pub struct Integrator<'a> {
     scene: &'a Scene,
+    /// The world relative to the camera: every ray below is in these
+    /// coordinates (see world.rs).
+    view: View<'a>,
     camera: &'a Camera,
     desc: &'a CameraDesc,
     camera_hash: u64,
@@ -60,6 +66,7 @@ impl<'a> Integrator<'a> {
     pub fn new(scene: &'a Scene, camera: usize, options: RenderOptions) -> Self {
         Integrator {
             scene,
+            view: scene.view(camera),
             camera: &scene.cameras[camera],
             desc: &scene.desc.cameras[camera],
             camera_hash: scene.camera_hash(camera),
@@ -100,7 +107,7 @@ impl<'a> Integrator<'a> {
                     };
                     sum += self.camera_sample(&mut ctx, x, y, s, sx, sy);
                 }
-                sum / (n * n) as f32
+                saturate(sum / (n * n) as f32)
             }
             Some(a) => {
                 // Sample until the standard error of the mean (largest over the
@@ -123,7 +130,7 @@ impl<'a> Integrator<'a> {
                         }
                     }
                 }
-                (sum / n as f64).as_vec3()
+                saturate((sum / n as f64).as_vec3())
             }
         };
         (value.to_array(), ctx.rays)
@@ -145,11 +152,21 @@ impl<'a> Integrator<'a> {
             [0.5, 0.5]
         };
         let ray = self.camera.ray(x, y, sx, sy, lens);
-        self.radiance(ctx, ray.origin, ray.dir, 0, 0)
+        self.radiance(ctx, ray.origin, ray.dir, 0, 0, 1.0)
     }
 
     /// The color seen along a ray at recursion `depth`; `node` names the ray's
-    /// place in the reflection/refraction tree (for sample streams).
+    /// place in the reflection/refraction tree (for sample streams);
+    /// `weight` is the factor its color gets in the pixel (the product of
+    /// the blend weights above it).
+    ///
+    /// A branch whose weight falls below [`MIN_BRANCH_WEIGHT`] is not traced
+    /// (its term of the blend keeps the local color instead). Without this a
+    /// surface that both reflects and refracts doubles the rays at every
+    /// level, and two such panes facing each other at max-depth 64 are 2⁶⁴
+    /// rays per sample: the render never ends. A pruned branch changes the
+    /// pixel by at most 10⁻⁴ times its radiance, under a 40th of an 8-bit
+    /// level for radiance up to 1.
     fn radiance(
         &self,
         ctx: &mut PixelContext,
@@ -157,28 +174,40 @@ impl<'a> Integrator<'a> {
         dir: Vec3,
         depth: u32,
         node: u64,
+        weight: f32,
     ) -> Vec3 {
         ctx.rays += 1;
-        let Some(hit) = self.scene.intersect(origin, dir, f32::INFINITY) else {
+        let Some(hit) = self.view.intersect(origin, dir, f32::INFINITY) else {
             return self.background;
         };
-        let sp = self.scene.surface_point(origin, dir, &hit);
+        let sp = self.view.surface_point(origin, dir, &hit);
         let v = -dir.normalize();
         let surf = sp.surface;
-        let mut c = self.local(ctx, &sp, v, node);
+        let mut c = saturate(self.local(ctx, &sp, v, node));
         let max_depth = self.desc.render.max_depth;
-        if surf.opacity < 1.0 && depth < max_depth {
+        // The refracted color is blended in with 1 − α, then the whole with
+        // 1 − r by the reflection below.
+        let w_refract = weight * (1.0 - surf.opacity) * (1.0 - surf.reflectivity);
+        if surf.opacity < 1.0 && depth < max_depth && w_refract >= MIN_BRANCH_WEIGHT {
             let eta = if sp.front { 1.0 / surf.ior } else { surf.ior };
             let t = refract(v, sp.ns, eta);
-            let o = offset_ray_origin(sp.p, if t.dot(sp.ng) > 0.0 { sp.ng } else { -sp.ng });
-            let l = self.radiance(ctx, o, t, depth + 1, hash2(node, TAG_REFRACT));
-            c = surf.opacity * c + (1.0 - surf.opacity) * l;
+            let o = sp.spawn(t);
+            let l = self.radiance(ctx, o, t, depth + 1, hash2(node, TAG_REFRACT), w_refract);
+            c = saturate(surf.opacity * c + (1.0 - surf.opacity) * l);
         }
-        if surf.reflectivity > 0.0 && depth < max_depth {
-            let r = reflect(-v, sp.ns);
-            let o = offset_ray_origin(sp.p, if r.dot(sp.ng) > 0.0 { sp.ng } else { -sp.ng });
-            let l = self.radiance(ctx, o, r, depth + 1, hash2(node, TAG_REFLECT));
-            c = (1.0 - surf.reflectivity) * c + surf.reflectivity * l;
+        let w_reflect = weight * surf.reflectivity;
+        if surf.reflectivity > 0.0 && depth < max_depth && w_reflect >= MIN_BRANCH_WEIGHT {
+            let mut r = reflect(-v, sp.ns);
+            // A smooth normal can tilt the mirror direction into the
+            // surface; mirrored back out in the geometric plane it cannot
+            // start on the far side of a thin wall (a light leak).
+            let r_ng = r.dot(sp.ng);
+            if r_ng < 0.0 {
+                r -= 2.0 * r_ng * sp.ng;
+            }
+            let o = sp.spawn(r);
+            let l = self.radiance(ctx, o, r, depth + 1, hash2(node, TAG_REFLECT), w_reflect);
+            c = saturate((1.0 - surf.reflectivity) * c + surf.reflectivity * l);
         }
         c
     }
@@ -188,7 +217,7 @@ impl<'a> Integrator<'a> {
         let surf = sp.surface;
         let r = &self.desc.render;
         let mut c = Vec3::ZERO;
-        let ka_ambient = surf.ambient * self.ambient;
+        let ka_ambient = saturate(surf.ambient * self.ambient);
         if ka_ambient != Vec3::ZERO {
             let a = if r.ao_samples > 0 {
                 self.ambient_occlusion(ctx, sp, hash2(node, TAG_AO))
@@ -209,7 +238,7 @@ impl<'a> Integrator<'a> {
             );
             c += surf.diffuse * g;
         }
-        c
+        saturate(c)
     }
 
     /// Σ over lights of vis·E⊙(kd·max(0,N·L) + ks·max(0,R·V)^n), the
@@ -244,15 +273,19 @@ impl<'a> Integrator<'a> {
                     let u = ctx
                         .sampler
                         .get2(light_stream, index.wrapping_mul(samples).wrapping_add(k));
-                    jittered_position(light, sp.p, u)
+                    jittered_position(light, self.view.light_position(j), sp.p, u)
                 } else {
-                    light.position
+                    self.view.light_position(j)
                 };
                 let Some(inc) = incident(light, pos, sp.p) else {
                     continue;
                 };
                 let n_dot_l = sp.ns.dot(inc.l);
-                if n_dot_l <= 0.0 {
+                // The light must also be in front of the geometric surface:
+                // a smooth normal can face a light behind the surface, and
+                // the shadow ray would then start on the wall's far side
+                // (light leaking through touching or thin geometry).
+                if n_dot_l <= 0.0 || sp.ng.dot(inc.l) <= 0.0 {
                     continue;
                 }
                 let vis = self.visibility(ctx, sp, pos);
@@ -267,24 +300,19 @@ impl<'a> Integrator<'a> {
                         term += surf.specular * rv.powf(surf.shininess);
                     }
                 }
-                sum += inc.e * term * vis;
+                sum += inc.e * saturate(term) * vis;
             }
             total += sum / samples as f32;
         }
-        total
+        saturate(total)
     }
 
     /// Transmittance from a surface point to a light position.
     fn visibility(&self, ctx: &mut PixelContext, sp: &SurfacePoint, light_pos: Vec3) -> f32 {
-        let side = if (light_pos - sp.p).dot(sp.ng) >= 0.0 {
-            sp.ng
-        } else {
-            -sp.ng
-        };
-        let o = offset_ray_origin(sp.p, side);
+        let o = sp.spawn(light_pos - sp.p);
         ctx.rays += 1;
         // dir spans the whole segment, so t < 1 is "before the light".
-        self.scene.transmittance(o, light_pos - o, 1.0 - 1e-6)
+        self.view.transmittance(o, light_pos - o, 1.0 - 1e-6)
     }
 
     /// A(p): mean over cosine-distributed directions of min(1, s_k/s_max),
@@ -297,9 +325,14 @@ impl<'a> Integrator<'a> {
                 .sampler
                 .get2(stream, ctx.sample.wrapping_mul(n).wrapping_add(k));
             let d = cosine_hemisphere(sp.ns, u);
-            let o = offset_ray_origin(sp.p, if d.dot(sp.ng) >= 0.0 { sp.ng } else { -sp.ng });
+            if d.dot(sp.ng) <= 0.0 {
+                // Into the surface itself (a smooth normal's hemisphere dips
+                // below the geometric one): occluded at distance 0.
+                continue;
+            }
+            let o = sp.spawn(d);
             ctx.rays += 1;
-            sum += match self.scene.intersect(o, d, self.s_max) {
+            sum += match self.view.intersect(o, d, self.s_max) {
                 Some(h) => (h.t / self.s_max).min(1.0),
                 None => 1.0,
             };
@@ -327,16 +360,20 @@ impl<'a> Integrator<'a> {
             let idx = index.wrapping_mul(count).wrapping_add(k);
             let u = ctx.sampler.get2(hash2(stream, level as u64), idx);
             let d = cosine_hemisphere(sp.ns, u);
-            let o = offset_ray_origin(sp.p, if d.dot(sp.ng) >= 0.0 { sp.ng } else { -sp.ng });
+            if d.dot(sp.ng) <= 0.0 {
+                // Into the surface itself: nothing gathered (see AO).
+                continue;
+            }
+            let o = sp.spawn(d);
             ctx.rays += 1;
-            let Some(hit) = self.scene.intersect(o, d, self.s_max) else {
+            let Some(hit) = self.view.intersect(o, d, self.s_max) else {
                 continue;
             };
             let f = (1.0 - hit.t / self.s_max).max(0.0);
             if f <= 0.0 {
                 continue;
             }
-            let q = self.scene.surface_point(o, d, &hit);
+            let q = self.view.surface_point(o, d, &hit);
             if q.surface.diffuse == Vec3::ZERO {
                 continue;
             }
@@ -348,7 +385,21 @@ impl<'a> Integrator<'a> {
             }
             sum += d_q * f;
         }
-        sum / count as f32
+        saturate(sum / count as f32)
+    }
+}
+
+/// Overflow guard: +∞ components become `f32::MAX`. Radiance can overflow
+/// f32 (a light of intensity 10³⁸ with attenuation 10⁻³⁰ is a valid scene),
+/// and an infinity turns into NaN as soon as a blend multiplies it by 0, so
+/// every sum that feeds a blend is saturated. A NaN is left as it is (it
+/// would be a bug, and the tests look for it). One comparison when finite.
+#[inline(always)]
+fn saturate(v: Vec3) -> Vec3 {
+    if v.is_finite() {
+        v
+    } else {
+        v.map(|c| if c == f32::INFINITY { f32::MAX } else { c })
     }
 }
 

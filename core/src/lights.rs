@@ -27,7 +27,10 @@ pub fn incident(light: &Light, from: Vec3, p: Vec3) -> Option<Incident> {
     if !(denom > 0.0) {
         return None;
     }
-    let mut e = light.color * (light.intensity / denom);
+    // Saturated: intensity / denom may overflow (both are valid f32s), and
+    // an infinite scalar times a zero color component would be NaN.
+    let s = (light.intensity / denom).min(f32::MAX);
+    let mut e = (light.color * s).min(Vec3::splat(f32::MAX));
     if let LightKind::Spot {
         direction,
         cos_inner,
@@ -57,15 +60,17 @@ pub fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
 /// The light position jittered over the square of side 2·radius
 /// perpendicular to the light-to-point direction (the report's soft
 /// shadows): w = normalize(light − p), u = normalize(up × w) with up = y
-/// (x when w is parallel to y), v = w × u.
+/// (x when w is parallel to y), v = w × u. `center` is the light's position
+/// in the coordinates of `p` (the renderer works relative to the camera, so
+/// it is not `light.position`, which is in world space).
 #[inline]
-pub fn jittered_position(light: &Light, p: Vec3, u: [f32; 2]) -> Vec3 {
+pub fn jittered_position(light: &Light, center: Vec3, p: Vec3, u: [f32; 2]) -> Vec3 {
     if light.radius <= 0.0 {
-        return light.position;
+        return center;
     }
-    let w = (light.position - p).normalize_or_zero();
+    let w = (center - p).normalize_or_zero();
     if w == Vec3::ZERO {
-        return light.position;
+        return center;
     }
     let mut uu = Vec3::Y.cross(w);
     if uu.length_squared() < 1e-12 {
@@ -74,7 +79,7 @@ pub fn jittered_position(light: &Light, p: Vec3, u: [f32; 2]) -> Vec3 {
     let uu = uu.normalize();
     let vv = w.cross(uu);
     let r = light.radius;
-    light.position + uu * ((2.0 * u[0] - 1.0) * r) + vv * ((2.0 * u[1] - 1.0) * r)
+    center + uu * ((2.0 * u[0] - 1.0) * r) + vv * ((2.0 * u[1] - 1.0) * r)
 }
 
 #[cfg(test)]
@@ -84,7 +89,7 @@ mod tests {
     fn point(att: Vec3) -> Light {
         Light {
             kind: LightKind::Point,
-            position: Vec3::new(0.0, 4.0, 0.0),
+            position: glam::DVec3::new(0.0, 4.0, 0.0),
             color: Vec3::new(1.0, 0.5, 0.25),
             intensity: 2.0,
             radius: 0.0,
@@ -95,12 +100,13 @@ mod tests {
     #[test]
     fn attenuation_follows_the_spec_formula() {
         let l = point(Vec3::new(1.0, 0.5, 0.25));
-        let inc = incident(&l, l.position, Vec3::ZERO).unwrap();
+        let pos = l.position.as_vec3();
+        let inc = incident(&l, pos, Vec3::ZERO).unwrap();
         let expect = 2.0 / (1.0 + 0.5 * 4.0 + 0.25 * 16.0);
         assert!((inc.e - Vec3::new(1.0, 0.5, 0.25) * expect).length() < 1e-6);
         assert!((inc.l - Vec3::Y).length() < 1e-6);
         assert_eq!(inc.dist, 4.0);
-        assert!(incident(&l, l.position, l.position).is_none());
+        assert!(incident(&l, pos, pos).is_none());
     }
 
     #[test]
@@ -113,8 +119,9 @@ mod tests {
         };
         let at = |deg: f32| {
             let a = deg.to_radians();
-            let p = l.position + Vec3::new(a.sin(), -a.cos(), 0.0) * 4.0;
-            incident(&l, l.position, p).map_or(0.0, |i| i.e.x / 2.0)
+            let pos = l.position.as_vec3();
+            let p = pos + Vec3::new(a.sin(), -a.cos(), 0.0) * 4.0;
+            incident(&l, pos, p).map_or(0.0, |i| i.e.x / 2.0)
         };
         assert!((at(0.0) - 1.0).abs() < 1e-6);
         assert!((at(19.9) - 1.0).abs() < 1e-6);
@@ -129,14 +136,15 @@ mod tests {
     fn jitter_stays_on_the_square_perpendicular_to_the_light_direction() {
         let mut l = point(Vec3::new(1.0, 0.0, 0.0));
         l.radius = 0.5;
+        let pos = l.position.as_vec3();
         for p in [Vec3::new(3.0, 0.0, 1.0), Vec3::ZERO] {
-            let w = (l.position - p).normalize();
+            let w = (pos - p).normalize();
             for u in [[0.0, 0.0], [1.0, 1.0], [0.3, 0.8]] {
-                let q = jittered_position(&l, p, u) - l.position;
+                let q = jittered_position(&l, pos, p, u) - pos;
                 assert!(q.dot(w).abs() < 1e-5);
                 assert!(q.x.abs().max(q.y.abs()).max(q.z.abs()) <= 0.5 * 2f32.sqrt() + 1e-5);
             }
-            let corner = jittered_position(&l, p, [1.0, 1.0]) - l.position;
+            let corner = jittered_position(&l, pos, p, [1.0, 1.0]) - pos;
             assert!((corner.length() - 0.5 * 2f32.sqrt()).abs() < 1e-5);
         }
     }

@@ -6,28 +6,72 @@
 //! instances and spheres in world space; a ray entering an instance is moved
 //! into the instance's object space. Infinite planes sit outside both trees
 //! and are tested directly.
+//!
+//! Camera-relative coordinates: the description keeps positions in f64, and
+//! each camera renders a [`View`] of the world shifted (in f64) so that the
+//! camera sits at the origin; only then is everything rounded to f32. The
+//! f32 precision that matters is then relative to the distance from the
+//! camera, not from the world's origin, so a scene a million units out
+//! renders like the same scene at the origin. The bottom-level BVHs are in
+//! object space and shared by every view; a view holds its own top-level
+//! BVH, instance transforms, sphere centres, plane points and light
+//! positions (cameras at the same position share one view). The world-space
+//! queries [`Scene::intersect`] and friends use a view whose origin is the
+//! world's. See docs/numerics.md.
 
 use crate::bundle::{Bundle, FileSource};
 use crate::bvh::{Bvh, Visit};
 use crate::camera::Camera;
 use crate::error::SceneError;
-use crate::geometry::{plane, sphere, triangle, Aabb};
+use crate::geometry::{offset_from_surface, plane, sphere, triangle, Aabb};
 use crate::sampling::hash_str;
 use crate::scene::{aisxml, AoDistance, SceneDesc, Sided, Surface};
-use glam::{Affine3A, Mat3, Vec3};
+use glam::{Affine3A, DMat4, DVec3, Mat3, Vec3};
+use std::sync::OnceLock;
 
 /// A model instance as the traversal sees it.
 #[derive(Debug, Clone)]
 struct Instance {
     mesh: u32,
     model: u32,
+    /// Object space to the view's (camera-relative) space.
     to_world: Affine3A,
     to_object: Affine3A,
     normal_matrix: Mat3,
+    /// Largest row sum of |linear part|: bounds how much the transform
+    /// magnifies object-space coordinates (and so their rounding errors).
+    lin_norm: f32,
+    /// Largest |translation| component in the view's space.
+    trans_mag: f32,
     /// The transform mirrors (negative determinant): world winding flips.
     mirrored: bool,
     /// Some triangle of this model uses `sided="front"`.
     any_front_only: bool,
+}
+
+/// The world as seen from `eye`: everything instance- or world-positioned,
+/// shifted by −eye in f64 and then rounded to f32.
+struct Frame {
+    eye: DVec3,
+    instances: Vec<Instance>,
+    /// Top-level primitives `0..instances.len()` are instances, the rest spheres.
+    tlas: Bvh,
+    sphere_centers: Vec<Vec3>,
+    /// Per plane, its point nearest the eye (the smallest numbers that
+    /// describe it, so the plane is as precise as the view allows).
+    plane_points: Vec<Vec3>,
+    light_positions: Vec<Vec3>,
+    /// Bounds of the finite geometry (planes excluded).
+    bounds: Aabb,
+}
+
+/// A view of the scene in coordinates relative to `eye()`: what a camera
+/// renders with. Hits, surface points and ray origins are all in these
+/// coordinates.
+#[derive(Clone, Copy)]
+pub struct View<'a> {
+    scene: &'a Scene,
+    frame: &'a Frame,
 }
 
 /// What a closest-hit query found.
@@ -60,16 +104,38 @@ pub struct SurfacePoint<'a> {
     pub ns: Vec3,
     pub front: bool,
     pub surface: &'a Surface,
+    /// Magnitude of the coordinates `p` was computed from (its rounding
+    /// error is a few ULPs of this); scales the ray-origin offset.
+    pub scale: f32,
+}
+
+impl SurfacePoint<'_> {
+    /// The origin for a new ray leaving this point in direction `dir`: the
+    /// point moved off the surface, to the side `dir` goes to (see
+    /// [`offset_from_surface`]).
+    #[inline]
+    pub fn spawn(&self, dir: Vec3) -> Vec3 {
+        let side = if dir.dot(self.ng) >= 0.0 {
+            self.ng
+        } else {
+            -self.ng
+        };
+        offset_from_surface(self.p, side, self.scale)
+    }
 }
 
 /// A scene ready to render.
 pub struct Scene {
     pub desc: SceneDesc,
     blas: Vec<Bvh>,
-    instances: Vec<Instance>,
-    /// Top-level primitives `0..instances.len()` are instances, the rest spheres.
-    tlas: Bvh,
-    /// Bounds of the finite geometry (planes excluded).
+    /// One view per distinct camera position.
+    frames: Vec<Frame>,
+    /// Per camera, its index in `frames`.
+    camera_frame: Vec<usize>,
+    /// The view from the world's origin, built on first use unless a camera
+    /// sits there.
+    world: OnceLock<Frame>,
+    /// World-space bounds of the finite geometry (planes excluded).
     pub bounds: Aabb,
     /// Some surface has opacity < 1: shadow rays must gather every occluder.
     pub has_translucency: bool,
@@ -102,35 +168,30 @@ impl Scene {
                 Bvh::build(&boxes, 4)
             })
             .collect();
-        let instances: Vec<Instance> = desc
-            .models
-            .iter()
-            .enumerate()
-            .map(|(i, model)| {
-                let to_world = Affine3A::from_mat4(model.transform.as_mat4());
-                let to_object = Affine3A::from_mat4(model.transform.inverse().as_mat4());
-                let lin = model.transform.inverse().transpose().as_mat4();
-                Instance {
-                    mesh: model.mesh as u32,
-                    model: i as u32,
-                    to_world,
-                    to_object,
-                    normal_matrix: Mat3::from_mat4(lin),
-                    mirrored: model.transform.determinant() < 0.0,
-                    any_front_only: model.surfaces.iter().any(|s| s.sided == Sided::Front),
+        let mut frames: Vec<Frame> = Vec::new();
+        let mut camera_frame = Vec::with_capacity(desc.cameras.len());
+        for c in &desc.cameras {
+            let i = match frames.iter().position(|f| f.eye == c.position) {
+                Some(i) => i,
+                None => {
+                    frames.push(build_frame(&desc, &blas, c.position));
+                    frames.len() - 1
                 }
-            })
-            .collect();
-        let mut boxes: Vec<Aabb> = instances
-            .iter()
-            .map(|inst| transform_box(blas[inst.mesh as usize].bounds(), &inst.to_world))
-            .collect();
-        boxes.extend(desc.spheres.iter().map(|s| Aabb {
-            min: s.center - Vec3::splat(s.radius),
-            max: s.center + Vec3::splat(s.radius),
-        }));
-        let tlas = Bvh::build(&boxes, 2);
-        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, &b| a.union(b));
+            };
+            camera_frame.push(i);
+        }
+        let mut bounds = Aabb::EMPTY;
+        for model in &desc.models {
+            let b = world_box(blas[model.mesh].bounds(), &model.transform);
+            bounds = bounds.union(b);
+        }
+        for s in &desc.spheres {
+            let r = DVec3::splat(s.radius as f64);
+            bounds = bounds.union(Aabb {
+                min: (s.center - r).as_vec3(),
+                max: (s.center + r).as_vec3(),
+            });
+        }
         let has_translucency = desc
             .models
             .iter()
@@ -143,13 +204,34 @@ impl Scene {
         Scene {
             desc,
             blas,
-            instances,
-            tlas,
+            frames,
+            camera_frame,
+            world: OnceLock::new(),
             bounds,
             has_translucency,
             cameras,
             camera_hashes,
         }
+    }
+
+    /// The view camera `camera` renders with: the world relative to the
+    /// camera's position.
+    pub fn view(&self, camera: usize) -> View<'_> {
+        View {
+            scene: self,
+            frame: &self.frames[self.camera_frame[camera]],
+        }
+    }
+
+    /// The view in world coordinates (origin at the world's origin).
+    pub fn world_view(&self) -> View<'_> {
+        let frame = match self.frames.iter().find(|f| f.eye == DVec3::ZERO) {
+            Some(f) => f,
+            None => self
+                .world
+                .get_or_init(|| build_frame(&self.desc, &self.blas, DVec3::ZERO)),
+        };
+        View { scene: self, frame }
     }
 
     pub fn camera_index(&self, id: &str) -> Option<usize> {
@@ -167,13 +249,16 @@ impl Scene {
         match self.desc.cameras[camera].render.ao_distance {
             AoDistance::Fixed(d) => d,
             AoDistance::Auto => {
-                let mut b = self.bounds;
+                // Measured in the camera's view: the same box, without the
+                // rounding of world coordinates far from the origin.
+                let frame = &self.frames[self.camera_frame[camera]];
+                let mut b = frame.bounds;
                 if b.diagonal() <= 0.0 {
-                    for l in &self.desc.lights {
-                        b = b.grow(l.position);
+                    for &l in &frame.light_positions {
+                        b = b.grow(l);
                     }
                     for c in &self.desc.cameras {
-                        b = b.grow(c.position);
+                        b = b.grow((c.position - frame.eye).as_vec3());
                     }
                 }
                 let half = 0.5 * b.diagonal();
@@ -186,12 +271,42 @@ impl Scene {
         }
     }
 
-    fn surface_of(&self, kind: HitKind) -> &Surface {
+    /// The nearest hit along the world-space ray within `(0, t_max)`
+    /// (see [`View::intersect`]; this is the world view's).
+    pub fn intersect(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
+        self.world_view().intersect(origin, dir, t_max)
+    }
+
+    /// [`View::transmittance`] in world space.
+    pub fn transmittance(&self, origin: Vec3, dir: Vec3, t_max: f32) -> f32 {
+        self.world_view().transmittance(origin, dir, t_max)
+    }
+
+    /// [`View::surface_point`] in world space, for a hit from [`Scene::intersect`].
+    pub fn surface_point(&self, origin: Vec3, dir: Vec3, hit: &Hit) -> SurfacePoint<'_> {
+        self.world_view().surface_point(origin, dir, hit)
+    }
+}
+
+impl<'a> View<'a> {
+    /// Where this view's origin is in the world.
+    pub fn eye(&self) -> DVec3 {
+        self.frame.eye
+    }
+
+    /// Light `i`'s position in this view's coordinates.
+    #[inline]
+    pub fn light_position(&self, i: usize) -> Vec3 {
+        self.frame.light_positions[i]
+    }
+
+    fn surface_of(&self, kind: HitKind) -> &'a Surface {
+        let scene = self.scene;
         match kind {
             HitKind::Triangle {
                 instance, triangle, ..
             } => {
-                let m = &self.desc.models[self.instances[instance as usize].model as usize];
+                let m = &scene.desc.models[self.frame.instances[instance as usize].model as usize];
                 let s = if m.triangle_surface.is_empty() {
                     0
                 } else {
@@ -199,8 +314,8 @@ impl Scene {
                 };
                 &m.surfaces[s]
             }
-            HitKind::Sphere(i) => &self.desc.spheres[i as usize].surface,
-            HitKind::Plane(i) => &self.desc.planes[i as usize].surface,
+            HitKind::Sphere(i) => &scene.desc.spheres[i as usize].surface,
+            HitKind::Plane(i) => &scene.desc.planes[i as usize].surface,
         }
     }
 
@@ -215,17 +330,18 @@ impl Scene {
         t_max: f32,
         mut f: F,
     ) -> (f32, bool) {
-        let n_inst = self.instances.len() as u32;
-        let (t_max, hit_a) = self.tlas.traverse(origin, dir, t_max, |prim, t_max| {
+        let (scene, frame) = (self.scene, self.frame);
+        let n_inst = frame.instances.len() as u32;
+        let (t_max, hit_a) = frame.tlas.traverse(origin, dir, t_max, |prim, t_max| {
             if prim < n_inst {
-                let inst = &self.instances[prim as usize];
+                let inst = &frame.instances[prim as usize];
                 let o = inst.to_object.transform_point3(origin);
                 let d = inst.to_object.transform_vector3(dir);
                 let sheared = triangle::ShearedRay::new(o, d);
-                let mesh = &self.desc.meshes[inst.mesh as usize];
-                let model = &self.desc.models[inst.model as usize];
+                let mesh = &scene.desc.meshes[inst.mesh as usize];
+                let model = &scene.desc.models[inst.model as usize];
                 let mut result = Visit::Miss;
-                let (_, _) = self.blas[inst.mesh as usize].traverse(o, d, t_max, |tri, t_max| {
+                let (_, _) = scene.blas[inst.mesh as usize].traverse(o, d, t_max, |tri, t_max| {
                     let [i0, i1, i2] = mesh.triangles[tri as usize];
                     let p = &mesh.positions;
                     let Some(h) = triangle::intersect(
@@ -272,8 +388,9 @@ impl Scene {
                 result
             } else {
                 let i = prim - n_inst;
-                let s = &self.desc.spheres[i as usize];
-                match sphere::intersect(origin, dir, s.center, s.radius, t_max) {
+                let s = &scene.desc.spheres[i as usize];
+                let center = frame.sphere_centers[i as usize];
+                match sphere::intersect(origin, dir, center, s.radius, t_max) {
                     Some((t, front)) if front || s.surface.sided == Sided::Two => f(Hit {
                         t,
                         kind: HitKind::Sphere(i),
@@ -285,8 +402,9 @@ impl Scene {
         });
         let mut t_max = t_max;
         let mut hit = hit_a;
-        for (i, pl) in self.desc.planes.iter().enumerate() {
-            if let Some((t, front)) = plane::intersect(origin, dir, pl.point, pl.normal, t_max) {
+        for (i, pl) in scene.desc.planes.iter().enumerate() {
+            let point = frame.plane_points[i];
+            if let Some((t, front)) = plane::intersect(origin, dir, point, pl.normal, t_max) {
                 if !front && pl.surface.sided == Sided::Front {
                     continue;
                 }
@@ -324,7 +442,7 @@ impl Scene {
     /// opaque one is found). Without translucent surfaces in the scene this is
     /// a plain any-hit query.
     pub fn transmittance(&self, origin: Vec3, dir: Vec3, t_max: f32) -> f32 {
-        if !self.has_translucency {
+        if !self.scene.has_translucency {
             let (_, hit) = self.for_each_hit(origin, dir, t_max, |_| Visit::Stop);
             return if hit { 0.0 } else { 1.0 };
         }
@@ -341,45 +459,51 @@ impl Scene {
     }
 
     /// Position, normals and surface at a hit of ray `origin + t·dir`.
-    pub fn surface_point(&self, origin: Vec3, dir: Vec3, hit: &Hit) -> SurfacePoint<'_> {
+    pub fn surface_point(&self, origin: Vec3, dir: Vec3, hit: &Hit) -> SurfacePoint<'a> {
+        let (scene, frame) = (self.scene, self.frame);
         let surface = self.surface_of(hit.kind);
-        let (p, ng, ns) = match hit.kind {
+        let (p, ng, ns, scale) = match hit.kind {
             HitKind::Triangle {
                 instance,
                 triangle,
                 bary,
             } => {
-                let inst = &self.instances[instance as usize];
-                let mesh = &self.desc.meshes[inst.mesh as usize];
+                let inst = &frame.instances[instance as usize];
+                let mesh = &scene.desc.meshes[inst.mesh as usize];
                 let [i0, i1, i2] = mesh.triangles[triangle as usize].map(|i| i as usize);
                 let (a, b, c) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+                let obj_mag = a.abs().max(b.abs()).max(c.abs()).max_element();
+                let scale = inst.trans_mag.max(inst.lin_norm * obj_mag);
                 // Barycentric interpolation is more accurate than o + t·d.
                 let p_obj = a * bary[0] + b * bary[1] + c * bary[2];
                 let p = inst.to_world.transform_point3(p_obj);
-                let ng = (inst.normal_matrix * (b - a).cross(c - a)).normalize_or_zero();
+                let ng = unit(inst.normal_matrix * unit(unit(b - a).cross(unit(c - a))));
                 let ns = if surface.smooth {
                     let n = mesh.normals[i0] * bary[0]
                         + mesh.normals[i1] * bary[1]
                         + mesh.normals[i2] * bary[2];
-                    (inst.normal_matrix * n).normalize_or_zero()
+                    unit(inst.normal_matrix * unit(n))
                 } else {
                     ng
                 };
-                (p, ng, if ns == Vec3::ZERO { ng } else { ns })
+                (p, ng, if ns == Vec3::ZERO { ng } else { ns }, scale)
             }
             HitKind::Sphere(i) => {
-                let s = &self.desc.spheres[i as usize];
+                let s = &scene.desc.spheres[i as usize];
+                let center = frame.sphere_centers[i as usize];
                 let p = origin + dir * hit.t;
-                let n = ((p - s.center) / s.radius).normalize_or_zero();
+                let n = ((p - center) / s.radius).normalize_or_zero();
                 // Project onto the surface to remove the error of o + t·d.
-                (s.center + n * s.radius, n, n)
+                let scale = center.abs().max_element() + s.radius;
+                (center + n * s.radius, n, n, scale)
             }
             HitKind::Plane(i) => {
-                let pl = &self.desc.planes[i as usize];
+                let pl = &scene.desc.planes[i as usize];
+                let point = frame.plane_points[i as usize];
                 let p = origin + dir * hit.t;
                 // Project onto the plane.
-                let p = p - pl.normal * (p - pl.point).dot(pl.normal);
-                (p, pl.normal, pl.normal)
+                let p = p - pl.normal * (p - point).dot(pl.normal);
+                (p, pl.normal, pl.normal, point.abs().max_element())
             }
         };
         let ng = if ng.dot(dir) > 0.0 { -ng } else { ng };
@@ -390,22 +514,129 @@ impl Scene {
             ns,
             front: hit.front,
             surface,
+            scale,
         }
     }
 }
 
-fn transform_box(b: Aabb, m: &Affine3A) -> Aabb {
+/// The world seen from `eye`: instance transforms composed with the shift
+/// by −eye in f64 before rounding, and every position likewise.
+fn build_frame(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> Frame {
+    let shift = DMat4::from_translation(-eye);
+    let instances: Vec<Instance> = desc
+        .models
+        .iter()
+        .enumerate()
+        .map(|(i, model)| {
+            let m = shift * model.transform;
+            let lin = model.transform.inverse().transpose().as_mat4();
+            let l = Mat3::from_mat4(m.as_mat4());
+            let lin_norm = (0..3)
+                .map(|r| l.row(r).abs().element_sum())
+                .fold(0.0f32, f32::max);
+            Instance {
+                mesh: model.mesh as u32,
+                model: i as u32,
+                to_world: Affine3A::from_mat4(m.as_mat4()),
+                to_object: Affine3A::from_mat4(m.inverse().as_mat4()),
+                normal_matrix: Mat3::from_mat4(lin),
+                lin_norm,
+                trans_mag: m.w_axis.truncate().abs().max_element() as f32,
+                mirrored: model.transform.determinant() < 0.0,
+                any_front_only: model.surfaces.iter().any(|s| s.sided == Sided::Front),
+            }
+        })
+        .collect();
+    let mut boxes: Vec<Aabb> = desc
+        .models
+        .iter()
+        .map(|model| world_box(blas[model.mesh].bounds(), &(shift * model.transform)))
+        .collect();
+    let sphere_centers: Vec<Vec3> = desc
+        .spheres
+        .iter()
+        .map(|s| (s.center - eye).as_vec3())
+        .collect();
+    boxes.extend(desc.spheres.iter().zip(&sphere_centers).map(|(s, &c)| {
+        let r = Vec3::splat(s.radius);
+        pad(Aabb {
+            min: c - r,
+            max: c + r,
+        })
+    }));
+    let tlas = Bvh::build(&boxes, 2);
+    let bounds = boxes.iter().fold(Aabb::EMPTY, |a, &b| a.union(b));
+    let plane_points = desc
+        .planes
+        .iter()
+        .map(|pl| {
+            let n = pl.normal.as_dvec3();
+            let n = n / n.length();
+            (n * (pl.point - eye).dot(n)).as_vec3()
+        })
+        .collect();
+    let light_positions = desc
+        .lights
+        .iter()
+        .map(|l| (l.position - eye).as_vec3())
+        .collect();
+    Frame {
+        eye,
+        instances,
+        tlas,
+        sphere_centers,
+        plane_points,
+        light_positions,
+        bounds,
+    }
+}
+
+/// `v` normalised whatever its magnitude (zero for zero or non-finite
+/// input). Plain normalisation squares the length: a triangle 10¹⁰ units
+/// across has a cross product of 10²⁰ whose square overflows f32, one of
+/// 10⁻¹² a square that underflows, and either way the normal came out zero.
+#[inline]
+fn unit(v: Vec3) -> Vec3 {
+    let m = v.abs().max_element();
+    if m > 0.0 && m.is_finite() {
+        (v / m).normalize_or_zero()
+    } else {
+        Vec3::ZERO
+    }
+}
+
+/// Grows a box by a few ULPs of its coordinates, so that rounding its
+/// corners (or the primitive inside) to f32 cannot leave a sliver outside.
+fn pad(b: Aabb) -> Aabb {
     if b.is_empty() {
         return b;
     }
-    let mut out = Aabb::EMPTY;
-    for i in 0..8 {
-        let c = Vec3::new(
-            if i & 1 == 0 { b.min.x } else { b.max.x },
-            if i & 2 == 0 { b.min.y } else { b.max.y },
-            if i & 4 == 0 { b.min.z } else { b.max.z },
-        );
-        out = out.grow(m.transform_point3(c));
+    let e = b.min.abs().max(b.max.abs()) * 4.0 * f32::EPSILON;
+    Aabb {
+        min: b.min - e,
+        max: b.max + e,
     }
-    out
+}
+
+/// The box around object-space box `b` under `m`, computed in f64 and
+/// rounded outwards to f32.
+fn world_box(b: Aabb, m: &DMat4) -> Aabb {
+    if b.is_empty() {
+        return b;
+    }
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for i in 0..8 {
+        let c = DVec3::new(
+            if i & 1 == 0 { b.min.x } else { b.max.x } as f64,
+            if i & 2 == 0 { b.min.y } else { b.max.y } as f64,
+            if i & 4 == 0 { b.min.z } else { b.max.z } as f64,
+        );
+        let p = m.transform_point3(c);
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    pad(Aabb {
+        min: lo.as_vec3(),
+        max: hi.as_vec3(),
+    })
 }

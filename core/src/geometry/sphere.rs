@@ -24,7 +24,10 @@ pub fn intersect(
         return None;
     }
     let c = f.dot(f) - r2;
-    let q = b + b.signum() * (a * disc).sqrt();
+    // √a·√disc rather than √(a·disc): a shadow ray's direction spans the
+    // whole segment to the light, and a·disc would overflow f32 for
+    // scenes 10¹⁰ units across.
+    let q = b + b.signum() * (a.sqrt() * disc.sqrt());
     let (mut t0, mut t1) = (c / q, q / a);
     if q == 0.0 {
         t0 = 0.0;
@@ -58,6 +61,15 @@ mod tests {
         // Tangent ray at distance r: hits (disc = 0) or misses, but no NaN.
         let r = intersect(Vec3::new(1.0, 0.0, 0.0), -Vec3::Z, c, 1.0, f32::INFINITY);
         assert!(r.map_or(true, |(t, _)| t.is_finite()));
+    }
+
+    #[test]
+    fn huge_spheres_and_long_directions_do_not_overflow() {
+        let c = Vec3::new(0.0, 0.0, -5.0e10);
+        let o = Vec3::ZERO;
+        let d = Vec3::new(0.0, 0.0, -1.0e11);
+        let (t, front) = intersect(o, d, c, 1.0e10, f32::INFINITY).unwrap();
+        assert!(front && (t - 0.4).abs() < 1e-6, "{t}");
     }
 
     #[test]

@@ -67,6 +67,7 @@ pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Resu
         desc: SceneDesc::default(),
         files: BTreeSet::new(),
         mesh_ids: HashMap::new(),
+        mesh_offsets: Vec::new(),
         object_ids: HashMap::new(),
         light_ids: HashMap::new(),
         camera_ids: HashMap::new(),
@@ -89,6 +90,8 @@ struct Resolver<'a> {
     files: BTreeSet<String>,
     /// Mesh id → (index in `desc.meshes`, offset of its `<mesh>`).
     mesh_ids: HashMap<String, (usize, usize)>,
+    /// Per mesh, where its object-space origin was moved to (see [`recentre`]).
+    mesh_offsets: Vec<DVec3>,
     /// Models, spheres and planes share one namespace.
     object_ids: HashMap<String, Claim>,
     light_ids: HashMap<String, Claim>,
@@ -223,7 +226,7 @@ impl<'a> Resolver<'a> {
             ));
         }
         let invert = el.boolean("invert")?.unwrap_or(false);
-        let mut mesh = match el.get("file") {
+        let (mut mesh, offset) = match el.get("file") {
             Some(f) => {
                 if let Some(c) = e.children.first() {
                     return Err(self.src.err(
@@ -234,7 +237,14 @@ impl<'a> Resolver<'a> {
                         ),
                     ));
                 }
-                self.mesh_file(&el, f)?
+                let mut mesh = self.mesh_file(&el, f)?;
+                let offset = recentre(mesh.positions.iter().map(|p| p.as_dvec3()));
+                if offset != DVec3::ZERO {
+                    for p in &mut mesh.positions {
+                        *p = (p.as_dvec3() - offset).as_vec3();
+                    }
+                }
+                (mesh, offset)
             }
             None => inline_mesh(&el, &id)?,
         };
@@ -246,6 +256,7 @@ impl<'a> Resolver<'a> {
         }
         self.mesh_ids.insert(id, (self.desc.meshes.len(), e.pos));
         self.desc.meshes.push(mesh);
+        self.mesh_offsets.push(offset);
         Ok(())
     }
 
@@ -385,7 +396,12 @@ impl<'a> Resolver<'a> {
         self.desc.models.push(Model {
             id,
             mesh,
-            transform: transform.unwrap_or(DMat4::IDENTITY),
+            transform: match self.mesh_offsets.get(mesh) {
+                Some(&o) if o != DVec3::ZERO => {
+                    transform.unwrap_or(DMat4::IDENTITY) * DMat4::from_translation(o)
+                }
+                _ => transform.unwrap_or(DMat4::IDENTITY),
+            },
             surfaces,
             triangle_surface,
         });
@@ -560,7 +576,7 @@ impl<'a> Resolver<'a> {
         let surface = self.single_surface(e)?;
         self.desc.spheres.push(Sphere {
             id,
-            center: center.as_vec3(),
+            center,
             radius: radius as f32,
             surface,
         });
@@ -578,7 +594,7 @@ impl<'a> Resolver<'a> {
         let surface = self.single_surface(e)?;
         self.desc.planes.push(Plane {
             id,
-            point: point.as_vec3(),
+            point,
             normal: normal.as_vec3().normalize_or(Vec3::Y),
             surface,
         });
@@ -659,7 +675,7 @@ impl<'a> Resolver<'a> {
         };
         self.desc.lights.push(Light {
             kind,
-            position: position.as_vec3(),
+            position,
             color,
             intensity: intensity as f32,
             radius: radius as f32,
@@ -767,7 +783,7 @@ impl<'a> Resolver<'a> {
         let render = self.render(render, &el, id_attr, &id)?;
         self.desc.cameras.push(CameraDesc {
             id,
-            position: position.as_vec3(),
+            position,
             direction: direction.as_vec3().normalize_or(Vec3::NEG_Z),
             up: up.as_vec3().normalize_or(Vec3::Y),
             fov: fov as f32,
@@ -983,8 +999,33 @@ fn surface(el: &El, allow_triangles: bool) -> Result<Surface> {
     })
 }
 
-/// An inline mesh: `<vertices>`, optional `<normals>`, `<triangles>`.
-fn inline_mesh(el: &El, id: &str) -> Result<Mesh> {
+/// Where to put a mesh's object-space origin: the centre of its bounding box
+/// when the mesh lies far from the origin compared with its size (more than
+/// 8 half-extents away), else the origin itself. Vertices are stored in f32
+/// relative to it, so a mesh a million units out keeps the precision it has
+/// at the origin; the model's f64 transform takes the offset back (the
+/// renderer composes it with the camera-relative shift in f64).
+fn recentre(points: impl Iterator<Item = DVec3>) -> DVec3 {
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for p in points {
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    if !(lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()) {
+        return DVec3::ZERO;
+    }
+    let centre = (lo + hi) * 0.5;
+    let half = ((hi - lo) * 0.5).max_element();
+    if centre.abs().max_element() > 8.0 * half {
+        centre
+    } else {
+        DVec3::ZERO
+    }
+}
+
+/// An inline mesh: `<vertices>`, optional `<normals>`, `<triangles>`; and
+/// the offset its vertices were stored relative to (see [`recentre`]).
+fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
     let mut parts: [Option<&Elem>; 3] = [None, None, None];
     for c in &el.e.children {
         let slot = match c.name.as_str() {
@@ -1028,12 +1069,13 @@ fn inline_mesh(el: &El, id: &str) -> Result<Mesh> {
             v.len()
         )));
     }
-    let to_vecs = |v: &[f64]| -> Vec<Vec3> {
+    let to_vecs = |v: &[f64], o: DVec3| -> Vec<Vec3> {
         v.chunks_exact(3)
-            .map(|c| Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32))
+            .map(|c| (DVec3::new(c[0], c[1], c[2]) - o).as_vec3())
             .collect()
     };
-    let positions = to_vecs(&v);
+    let offset = recentre(v.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2])));
+    let positions = to_vecs(&v, offset);
     let normals = match ne {
         None => Vec::new(),
         Some(ne) => {
@@ -1048,7 +1090,7 @@ fn inline_mesh(el: &El, id: &str) -> Result<Mesh> {
                     n.len()
                 )));
             }
-            to_vecs(&n)
+            to_vecs(&n, DVec3::ZERO)
         }
     };
     let tel = El::new(el.src, te);
@@ -1088,9 +1130,12 @@ fn inline_mesh(el: &El, id: &str) -> Result<Mesh> {
             idx.len()
         )));
     }
-    Ok(Mesh {
-        positions,
-        normals,
-        triangles: idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-    })
+    Ok((
+        Mesh {
+            positions,
+            normals,
+            triangles: idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        },
+        offset,
+    ))
 }

@@ -8,7 +8,7 @@
 pub mod aisxml;
 
 use crate::mesh::Mesh;
-use glam::{DMat4, Vec3};
+use glam::{DMat4, DVec3, Vec3};
 
 /// `<settings>`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -74,6 +74,8 @@ pub struct Model {
     /// Index into [`SceneDesc::meshes`].
     pub mesh: usize,
     /// Object to world, composed in document order (first child applied first).
+    /// When the parser recentred a mesh that lies far from its origin (see
+    /// `aisxml`), the recentring translation is folded in on the right.
     pub transform: DMat4,
     /// The surfaces of this model; `surfaces[0]` is the default one.
     pub surfaces: Vec<Surface>,
@@ -86,7 +88,9 @@ pub struct Model {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sphere {
     pub id: String,
-    pub center: Vec3,
+    /// In f64, like every position: the renderer moves the world next to
+    /// each camera before going to f32 (see docs/numerics.md).
+    pub center: DVec3,
     pub radius: f32,
     pub surface: Surface,
 }
@@ -95,7 +99,7 @@ pub struct Sphere {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plane {
     pub id: String,
-    pub point: Vec3,
+    pub point: DVec3,
     /// Normalised.
     pub normal: Vec3,
     pub surface: Surface,
@@ -116,7 +120,7 @@ pub enum LightKind {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Light {
     pub kind: LightKind,
-    pub position: Vec3,
+    pub position: DVec3,
     pub color: Vec3,
     pub intensity: f32,
     pub radius: f32,
@@ -170,7 +174,7 @@ pub struct RenderSettings {
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraDesc {
     pub id: String,
-    pub position: Vec3,
+    pub position: DVec3,
     /// Normalised view direction d.
     pub direction: Vec3,
     pub up: Vec3,
