@@ -35,7 +35,19 @@ impl BundleStore {
 
     /// Checks and stores an uploaded bundle encoding; returns its hash.
     pub fn put(&self, bytes: &[u8]) -> Result<String, FarmError> {
+        self.put_limited(bytes, usize::MAX)
+    }
+
+    /// [`BundleStore::put`] refusing bundles of more than `max_files` files.
+    pub fn put_limited(&self, bytes: &[u8], max_files: usize) -> Result<String, FarmError> {
         let bundle = Bundle::decode(bytes).map_err(FarmError::BadBundle)?;
+        if bundle.files.len() > max_files {
+            return Err(FarmError::Limit(format!(
+                "the bundle holds {} files, more than the coordinator's limit of {max_files} \
+                 (--max-bundle-files)",
+                bundle.files.len()
+            )));
+        }
         let hash = trevi_core::bundle::sha256_hex(bytes);
         debug_assert_eq!(hash, bundle.hash());
         let path = self.path(&hash)?;
@@ -52,9 +64,18 @@ impl BundleStore {
         Ok(hash)
     }
 
-    /// The encoded bundle with this hash.
+    /// The encoded bundle with this hash, checked against it (a file
+    /// damaged on disk is an error, never served or rendered).
     pub fn get_bytes(&self, hash: &str) -> Result<Vec<u8>, FarmError> {
-        std::fs::read(self.path(hash)?).map_err(|_| FarmError::UnknownBundle(hash.to_string()))
+        let bytes = std::fs::read(self.path(hash)?)
+            .map_err(|_| FarmError::UnknownBundle(hash.to_string()))?;
+        let got = trevi_core::bundle::sha256_hex(&bytes);
+        if got != hash {
+            return Err(FarmError::BadBundle(format!(
+                "the stored bundle {hash} is damaged (its content hashes to {got})"
+            )));
+        }
+        Ok(bytes)
     }
 
     pub fn get(&self, hash: &str) -> Result<Bundle, FarmError> {

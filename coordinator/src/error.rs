@@ -16,6 +16,12 @@ pub enum FarmError {
     BadScene(String),
     #[error("tile rejected: {0}")]
     BadTile(String),
+    #[error("tile refused: {0}")]
+    NotYourLease(String),
+    #[error("{0}")]
+    Limit(String),
+    #[error("{0}")]
+    Invalid(String),
     #[error("job {0} has no output: {1}")]
     NoOutput(u64, String),
     #[error("{0}")]
@@ -28,6 +34,7 @@ impl From<SchedError> for FarmError {
             SchedError::UnknownJob(j) => FarmError::UnknownJob(j),
             SchedError::UnknownWorker(w) => FarmError::UnknownWorker(w),
             e @ SchedError::NotATile(..) => FarmError::BadTile(e.to_string()),
+            e @ SchedError::NotYourLease(..) => FarmError::NotYourLease(e.to_string()),
         }
     }
 }
@@ -43,6 +50,9 @@ impl FarmError {
                 Code::InvalidArgument
             }
             FarmError::NoOutput(..) => Code::FailedPrecondition,
+            FarmError::NotYourLease(_) => Code::PermissionDenied,
+            FarmError::Limit(_) => Code::ResourceExhausted,
+            FarmError::Invalid(_) => Code::InvalidArgument,
             FarmError::Io(_) => Code::Internal,
         }
     }
@@ -70,6 +80,8 @@ mod tests {
             (FarmError::BadTile("x".into()), Code::InvalidArgument),
             (FarmError::NoOutput(1, "x".into()), Code::FailedPrecondition),
             (FarmError::Io("x".into()), Code::Internal),
+            (FarmError::NotYourLease("x".into()), Code::PermissionDenied),
+            (FarmError::Limit("x".into()), Code::ResourceExhausted),
         ];
         for (e, code) in cases {
             let msg = e.to_string();

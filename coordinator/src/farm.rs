@@ -12,9 +12,10 @@
 use crate::bundles::BundleStore;
 use crate::error::FarmError;
 use crate::scheduler::{
-    Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, Scheduler, SchedulerConfig,
-    WorkerId,
+    Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, Restored, Scheduler,
+    SchedulerConfig, WorkerId,
 };
+use crate::store::{wall_ms, Store, StoredJob};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -44,6 +45,35 @@ impl TileSink for FrameWriter {
     }
 }
 
+/// What the coordinator accepts at most. Exceeding a limit is a clear error
+/// (`RESOURCE_EXHAUSTED`), never a crash.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    /// Size of an uploaded bundle (the scene and every file it references).
+    pub max_bundle_bytes: u64,
+    /// Files in a bundle.
+    pub max_bundle_files: usize,
+    /// Size of one gRPC message the coordinator decodes.
+    pub max_message_bytes: usize,
+    /// width × height × samples per pixel (supersample²) of a job's frame.
+    pub max_image_samples: u64,
+    /// Unfinished jobs one submitter (one client address) may have queued.
+    pub max_jobs_per_submitter: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_bundle_bytes: crate::grpc::MAX_BUNDLE_BYTES as u64,
+            max_bundle_files: 10_000,
+            max_message_bytes: trevi_proto::MAX_MESSAGE_SIZE,
+            // A 16384×16384 frame at supersample 8.
+            max_image_samples: 16384 * 16384 * 64,
+            max_jobs_per_submitter: 1000,
+        }
+    }
+}
+
 /// Coordinator settings.
 #[derive(Debug, Clone)]
 pub struct FarmConfig {
@@ -51,6 +81,10 @@ pub struct FarmConfig {
     pub sched: SchedulerConfig,
     /// Tile edge used when a submission does not ask for one.
     pub default_tile: u32,
+    /// Keep jobs and accepted tiles in `data_dir/state.db`, and pick up the
+    /// unfinished jobs found there on start (see [`crate::store`]).
+    pub durable: bool,
+    pub limits: Limits,
 }
 
 impl FarmConfig {
@@ -59,6 +93,8 @@ impl FarmConfig {
             data_dir: data_dir.into(),
             sched: SchedulerConfig::default(),
             default_tile: 64,
+            durable: true,
+            limits: Limits::default(),
         }
     }
 }
@@ -82,6 +118,8 @@ struct State {
     sched: Scheduler,
     outputs: HashMap<JobId, Arc<Mutex<Output>>>,
     watchers: HashMap<JobId, watch::Sender<JobInfo>>,
+    /// Who submitted each unfinished job.
+    submitters: HashMap<JobId, String>,
 }
 
 impl State {
@@ -102,6 +140,7 @@ pub struct Farm {
     /// Woken when there may be new tiles to lease.
     work: Notify,
     bundles: BundleStore,
+    store: Option<Store>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -141,15 +180,141 @@ impl Farm {
             .map(|d| d.as_millis() as u64)
             .unwrap_or(1)
             << 12;
-        Ok(Farm {
+        let store = if cfg.durable {
+            Some(Store::open(&cfg.data_dir)?)
+        } else {
+            None
+        };
+        let farm = Farm {
             state: Mutex::new(State {
                 sched: Scheduler::new(cfg.sched, base),
                 outputs: HashMap::new(),
                 watchers: HashMap::new(),
+                submitters: HashMap::new(),
             }),
             work: Notify::new(),
             bundles,
+            store,
             cfg,
+        };
+        farm.restore()?;
+        Ok(farm)
+    }
+
+    /// Picks up the jobs in the database: finished ones for status and
+    /// download, unfinished ones by rebuilding their output from the stored
+    /// tiles and queueing the rest.
+    fn restore(&self) -> Result<(), FarmError> {
+        let Some(store) = &self.store else {
+            return Ok(());
+        };
+        let (now, wall) = (Instant::now(), wall_ms());
+        for j in store.jobs()? {
+            let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
+            let submitted = now.checked_sub(ago).unwrap_or(now);
+            let done_tiles = if j.state.is_final() {
+                Vec::new()
+            } else {
+                store.tile_list(j.id)?
+            };
+            let rays = if j.state.is_final() {
+                j.rays
+            } else {
+                done_tiles.iter().map(|t| t.1).sum()
+            };
+            let id = j.id;
+            let mut st = lock(&self.state);
+            st.sched.restore(
+                Restored {
+                    id,
+                    spec: j.spec.clone(),
+                    state: j.state,
+                    submitted,
+                    elapsed: j.elapsed,
+                    error: j.error.clone(),
+                    finish_order: j.finish_order,
+                    tiles_done: j.tiles_done,
+                    rays,
+                    done_tiles: done_tiles.iter().map(|t| t.0).collect(),
+                },
+                now,
+            );
+            let info = st.sched.info(id, now).expect("just restored");
+            st.watchers.insert(id, watch::channel(info.clone()).0);
+            if !j.state.is_final() {
+                st.submitters.insert(id, j.submitter.clone());
+            }
+            drop(st);
+            if j.state.is_final() {
+                continue;
+            }
+            tracing::info!(
+                job = id,
+                tiles_stored = done_tiles.len(),
+                tiles_total = info.tiles_total,
+                "resuming job"
+            );
+            let rects: HashMap<u32, Rect> = {
+                let st = lock(&self.state);
+                done_tiles
+                    .iter()
+                    .filter_map(|t| Some((t.0, st.sched.tile_rect(id, t.0)?)))
+                    .collect()
+            };
+            match self.rebuild_output(store, &info, &rects) {
+                Ok(out) => {
+                    let complete = out.written == out.total;
+                    let out = Arc::new(Mutex::new(out));
+                    lock(&self.state).outputs.insert(id, out.clone());
+                    if complete {
+                        let sink = lock(&out).sink.take().expect("just made");
+                        let result = sink.finish();
+                        self.end_job(id, result.map_err(|e| format!("finishing the output: {e}")));
+                    }
+                }
+                Err(e) => self.end_job(id, Err(format!("resuming after a restart: {e}"))),
+            }
+        }
+        Ok(())
+    }
+
+    /// A fresh output for a resumed job with its stored tiles written into it
+    /// in band order.
+    fn rebuild_output(
+        &self,
+        store: &Store,
+        info: &JobInfo,
+        rects: &HashMap<u32, Rect>,
+    ) -> Result<Output, FarmError> {
+        let job = info.id;
+        let path = self.output_path(job, &info.spec.output_name);
+        // Temporary files of the writer that died with the last run.
+        if let Ok(entries) = std::fs::read_dir(path.parent().expect("jobs/<id>/name")) {
+            for e in entries.flatten() {
+                let name = e.file_name();
+                let name = name.to_string_lossy();
+                if name.starts_with('.') && name.contains(".trevi-tmp-") {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+        let mut writer = FrameWriter::create(&path, info.spec.width, info.spec.height)
+            .map_err(|e| FarmError::Io(format!("cannot create the output: {e}")))?;
+        store.replay_tiles(job, |idx, bytes| {
+            let rect = *rects
+                .get(&idx)
+                .ok_or_else(|| FarmError::Io(format!("stored tile {idx} is not in the frame")))?;
+            let pixels = pixels_from_le_bytes(bytes);
+            validate_pixels(rect, &pixels)?;
+            writer
+                .write_tile(rect, &pixels)
+                .map_err(|e| FarmError::Io(format!("writing the output: {e}")))
+        })?;
+        Ok(Output {
+            max_rows_held: writer.rows_held(),
+            sink: Some(Box::new(writer)),
+            written: rects.len() as u64,
+            total: info.tiles_total,
         })
     }
 
@@ -187,6 +352,16 @@ impl Farm {
             })
         })?;
         let output_name = output_name(&cam.render.output)?;
+        let r = &cam.render;
+        let samples = r.width as u64 * r.height as u64 * (r.supersample.max(1) as u64).pow(2);
+        let max = self.cfg.limits.max_image_samples;
+        if samples > max {
+            return Err(FarmError::Limit(format!(
+                "camera \"{}\": {}x{} at supersample {} is {samples} samples, more than the \
+                 coordinator's limit of {max} (--max-image-samples)",
+                cam.id, r.width, r.height, r.supersample
+            )));
+        }
         Ok(JobSpec {
             bundle_hash: bundle_hash.to_string(),
             camera: cam.id.clone(),
@@ -213,9 +388,15 @@ impl Farm {
 
     /// Queues a job whose output goes to [`Farm::output_path`].
     pub fn submit(&self, spec: JobSpec) -> Result<JobInfo, FarmError> {
+        self.submit_as(spec, "")
+    }
+
+    /// [`Farm::submit`] on behalf of `who`, who may have at most
+    /// [`Limits::max_jobs_per_submitter`] unfinished jobs.
+    pub fn submit_as(&self, spec: JobSpec, who: &str) -> Result<JobInfo, FarmError> {
         let name = spec.output_name.clone();
         let (w, h) = (spec.width, spec.height);
-        self.submit_with_sink(spec, |id| {
+        self.submit_inner(spec, who, |id| {
             let path = self.output_path(id, &name);
             let writer = FrameWriter::create(&path, w, h)
                 .map_err(|e| FarmError::Io(format!("cannot create the output: {e}")))?;
@@ -229,10 +410,32 @@ impl Farm {
         spec: JobSpec,
         make: impl FnOnce(JobId) -> Result<Box<dyn TileSink>, FarmError>,
     ) -> Result<JobInfo, FarmError> {
+        self.submit_inner(spec, "", make)
+    }
+
+    fn submit_inner(
+        &self,
+        spec: JobSpec,
+        who: &str,
+        make: impl FnOnce(JobId) -> Result<Box<dyn TileSink>, FarmError>,
+    ) -> Result<JobInfo, FarmError> {
         if spec.width == 0 || spec.height == 0 {
             return Err(FarmError::BadScene("the frame is empty".into()));
         }
         let mut st = lock(&self.state);
+        let max = self.cfg.limits.max_jobs_per_submitter;
+        let mine = st.submitters.values().filter(|s| s.as_str() == who).count();
+        if mine >= max {
+            let who = if who.is_empty() {
+                "this submitter"
+            } else {
+                who
+            };
+            return Err(FarmError::Limit(format!(
+                "{who} already has {mine} unfinished jobs, the coordinator's limit \
+                 (--max-jobs-per-submitter)"
+            )));
+        }
         let now = Instant::now();
         let id = st.sched.submit(spec, now);
         let sink = match make(id) {
@@ -243,6 +446,24 @@ impl Farm {
             }
         };
         let info = st.sched.info(id, now).expect("just submitted");
+        if let Some(store) = &self.store {
+            let stored = StoredJob {
+                id,
+                spec: info.spec.clone(),
+                submitter: who.to_string(),
+                state: info.state,
+                submitted_ms: wall_ms(),
+                elapsed: None,
+                error: None,
+                finish_order: 0,
+                tiles_done: 0,
+                rays: 0,
+            };
+            if let Err(e) = store.insert_job(&stored) {
+                st.sched.finish(id, Err(e.to_string()), now);
+                return Err(e);
+            }
+        }
         st.outputs.insert(
             id,
             Arc::new(Mutex::new(Output {
@@ -253,6 +474,7 @@ impl Farm {
             })),
         );
         st.watchers.insert(id, watch::channel(info.clone()).0);
+        st.submitters.insert(id, who.to_string());
         drop(st);
         tracing::info!(job = id, camera = %info.spec.camera, width = info.spec.width,
             height = info.spec.height, priority = info.spec.priority, "job queued");
@@ -288,6 +510,11 @@ impl Farm {
         }
     }
 
+    /// Checks that `rect` is one of `job`'s tiles (before reading a result).
+    pub fn check_tile(&self, job: JobId, rect: Rect) -> Result<(), FarmError> {
+        Ok(lock(&self.state).sched.check_tile(job, rect)?)
+    }
+
     pub fn heartbeat(
         &self,
         worker: WorkerId,
@@ -300,12 +527,24 @@ impl Farm {
 
     /// Re-queues tiles whose leases ran out.
     pub fn expire(&self) -> usize {
-        let n = lock(&self.state).sched.expire(Instant::now());
+        let (n, failed) = {
+            let mut st = lock(&self.state);
+            let n = st.sched.expire(Instant::now());
+            (n, st.sched.take_failed())
+        };
         if n > 0 {
             tracing::warn!(tiles = n, "leases expired; tiles re-queued");
             self.work.notify_waiters();
         }
+        self.fail_jobs(failed);
         n
+    }
+
+    /// Ends jobs whose tiles failed too often.
+    fn fail_jobs(&self, failed: Vec<(JobId, String)>) {
+        for (job, why) in failed {
+            self.end_job(job, Err(why));
+        }
     }
 
     /// Takes a tile result: validates it, and writes it if it is the first
@@ -318,26 +557,58 @@ impl Farm {
         rays: u64,
         pixels: &[[f32; 3]],
     ) -> Result<TileOutcome, FarmError> {
+        self.put_tile_from(None, lease, job, rect, rays, pixels)
+    }
+
+    /// Like [`Farm::put_tile`], checking that `lease` is `worker`'s lease on
+    /// that tile (when `worker` is given): a result under someone else's
+    /// lease, or a made-up one, is refused and changes nothing.
+    pub fn put_tile_from(
+        &self,
+        worker: Option<WorkerId>,
+        lease: LeaseId,
+        job: JobId,
+        rect: Rect,
+        rays: u64,
+        pixels: &[[f32; 3]],
+    ) -> Result<TileOutcome, FarmError> {
         let valid = validate_pixels(rect, pixels);
         let mut st = lock(&self.state);
+        st.sched.check_lease(job, rect, lease, worker)?;
         let valid = valid.and_then(|()| Ok(st.sched.check_tile(job, rect)?));
         if let Err(e) = valid {
-            st.sched.reject_tile(lease);
+            st.sched.reject_tile(lease, &format!("invalid result: {e}"));
+            let failed = st.sched.take_failed();
             drop(st);
             tracing::warn!(job, lease, error = %e, "tile rejected and re-queued");
             self.work.notify_waiters();
+            self.fail_jobs(failed);
             return Err(e);
         }
         match st.sched.accept_tile(job, rect, rays)? {
             Accepted::Ignored => return Ok(TileOutcome::Ignored),
             Accepted::New { .. } => {}
         }
+        let idx = st
+            .sched
+            .tile_index(job, rect)
+            .expect("accepted tiles are tiles");
         st.publish(job);
         let Some(out) = st.outputs.get(&job).cloned() else {
             return Ok(TileOutcome::Ignored);
         };
         drop(st);
         self.work.notify_waiters();
+
+        // Committed before it is acknowledged: after a crash the tile is
+        // replayed, not rendered again.
+        if let Some(store) = &self.store {
+            if let Err(e) = store.put_tile(job, idx, rays, &pixels_to_le_bytes(pixels)) {
+                lock(&out).sink = None;
+                self.end_job(job, Err(format!("storing tile {idx}: {e}")));
+                return Err(e);
+            }
+        }
 
         let mut guard = lock(&out);
         let o = &mut *guard;
@@ -370,7 +641,33 @@ impl Farm {
         let mut st = lock(&self.state);
         st.sched.finish(job, result, Instant::now());
         st.outputs.remove(&job);
+        st.submitters.remove(&job);
         st.publish(job);
+        let info = st.sched.info(job, Instant::now());
+        drop(st);
+        self.persist_end(info);
+    }
+
+    /// Records a finished job in the database (and drops its tiles there).
+    fn persist_end(&self, info: Option<JobInfo>) {
+        let (Some(store), Some(info)) = (&self.store, info) else {
+            return;
+        };
+        let j = StoredJob {
+            id: info.id,
+            spec: info.spec.clone(),
+            submitter: String::new(),
+            state: info.state,
+            submitted_ms: 0,
+            elapsed: Some(info.elapsed),
+            error: info.error.clone(),
+            finish_order: info.finish_order,
+            tiles_done: info.tiles_done,
+            rays: info.rays,
+        };
+        if let Err(e) = store.finish_job(&j) {
+            tracing::error!(job = info.id, error = %e, "cannot record the end of the job");
+        }
     }
 
     /// Cancels a job: no more leases, workers drop theirs at the next
@@ -378,6 +675,7 @@ impl Farm {
     pub fn cancel(&self, job: JobId) -> Result<JobInfo, FarmError> {
         let mut st = lock(&self.state);
         let state = st.sched.cancel(job, Instant::now())?;
+        st.submitters.remove(&job);
         let out = if state == JobState::Cancelled {
             st.outputs.remove(&job)
         } else {
@@ -391,6 +689,7 @@ impl Farm {
             let dir = self.cfg.data_dir.join("jobs").join(job.to_string());
             let _ = std::fs::remove_dir(dir);
             tracing::info!(job, "job cancelled");
+            self.persist_end(self.info(job).ok());
         }
         self.info(job)
     }
@@ -433,6 +732,29 @@ impl Farm {
         let m = lock(&out).max_rows_held;
         Some(m)
     }
+}
+
+/// Pixels as little-endian f32 RGB triples (how the database keeps them).
+fn pixels_to_le_bytes(pixels: &[[f32; 3]]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(pixels.len() * 12);
+    for p in pixels {
+        for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// The inverse of [`pixels_to_le_bytes`] (a ragged tail is dropped, and the
+/// pixel count check then refuses the tile).
+fn pixels_from_le_bytes(bytes: &[u8]) -> Vec<[f32; 3]> {
+    bytes
+        .chunks_exact(12)
+        .map(|c| {
+            let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+            [f(0), f(4), f(8)]
+        })
+        .collect()
 }
 
 /// The file name of a camera's `output`, checked to be PNG or EXR.

@@ -2,6 +2,7 @@
 //! per service holding it behind an `Arc`. Server streams are a task feeding
 //! a channel wrapped in `ReceiverStream`.
 
+use crate::auth::{self, Auth, Need, Tokens};
 use crate::farm::{Farm, TileOutcome};
 use crate::scheduler::{JobInfo, JobState};
 use crate::FarmError;
@@ -16,8 +17,9 @@ use tonic::{Request, Response, Status, Streaming};
 use trevi_proto::pb::{self, tile_upload::Part};
 use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
 
-/// Largest bundle the coordinator takes.
-pub const MAX_BUNDLE_BYTES: usize = 2 << 30;
+/// Largest bundle the coordinator takes by default (see
+/// [`crate::farm::Limits`]).
+pub const MAX_BUNDLE_BYTES: usize = 256 << 20;
 
 /// How long a `LeaseTile` call waits for work before answering "none".
 const LEASE_WAIT: Duration = Duration::from_secs(2);
@@ -89,17 +91,26 @@ impl pb::bundles_server::Bundles for BundlesService {
         &self,
         req: Request<Streaming<pb::BundleChunk>>,
     ) -> Result<Response<pb::BundleRef>, Status> {
+        auth::granted(&req).need_submitter("uploading a bundle")?;
+        let max = self.farm.config().limits.max_bundle_bytes;
         let mut s = req.into_inner();
         let mut buf = Vec::new();
         while let Some(c) = s.message().await? {
-            if buf.len() + c.data.len() > MAX_BUNDLE_BYTES {
-                return Err(Status::resource_exhausted("the bundle is too large"));
+            if (buf.len() + c.data.len()) as u64 > max {
+                return Err(Status::resource_exhausted(format!(
+                    "the bundle is larger than the coordinator's limit of {max} bytes \
+                     (--max-bundle-mib)"
+                )));
             }
             buf.extend_from_slice(&c.data);
         }
         let size = buf.len() as u64;
         let farm = self.farm.clone();
-        let hash = blocking(move || farm.bundles().put(&buf)).await?;
+        let hash = blocking(move || {
+            let max_files = farm.config().limits.max_bundle_files;
+            farm.bundles().put_limited(&buf, max_files)
+        })
+        .await?;
         tracing::info!(%hash, size, "bundle stored");
         Ok(Response::new(pb::BundleRef { hash, size }))
     }
@@ -130,11 +141,16 @@ impl pb::jobs_server::Jobs for JobsService {
         &self,
         req: Request<pb::SubmitJobRequest>,
     ) -> Result<Response<pb::JobStatus>, Status> {
+        // Submitters are told apart by their address (see Limits).
+        let who = req
+            .remote_addr()
+            .map(|a| a.ip().to_string())
+            .unwrap_or_default();
         let r = req.into_inner();
         let farm = self.farm.clone();
         let info = blocking(move || {
             let spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
-            farm.submit(spec)
+            farm.submit_as(spec, &who)
         })
         .await?;
         Ok(Response::new(job_status(&info)))
@@ -291,20 +307,22 @@ impl pb::workers_server::Workers for WorkersService {
             }
         };
         let rect = rect_from(header.rect).map_err(|e| Status::invalid_argument(e.to_string()))?;
-        let expected = rect.pixel_count() * 12;
+        // A rectangle that is not one of the job's tiles is refused before
+        // any pixel is read (so a huge one cannot make us allocate).
+        self.farm.check_tile(header.job_id, rect)?;
+        let expected = rect.pixel_count().saturating_mul(12);
         let mut bytes = Vec::with_capacity(expected.min(64 << 20));
         let mut oversized = false;
         while let Some(m) = s.message().await? {
             match m.part {
-                Some(Part::Pixels(p)) if !oversized => {
+                Some(Part::Pixels(p)) => {
                     if bytes.len() + p.len() > expected {
-                        // Keep reading to the end; the size check rejects it.
+                        // Stop reading: the size check rejects it.
                         oversized = true;
-                    } else {
-                        bytes.extend_from_slice(&p);
+                        break;
                     }
+                    bytes.extend_from_slice(&p);
                 }
-                Some(Part::Pixels(_)) => {}
                 _ => return Err(Status::invalid_argument("a tile upload has one header")),
             }
         }
@@ -313,21 +331,45 @@ impl pb::workers_server::Workers for WorkersService {
             _ => Vec::new(), // Wrong size: validation rejects and re-queues.
         };
         let farm = self.farm.clone();
-        let (lease, job, rays) = (header.lease_id, header.job_id, header.rays);
-        let outcome = blocking(move || farm.put_tile(lease, job, rect, rays, &pixels)).await?;
+        let (worker, lease, job, rays) = (
+            header.worker_id,
+            header.lease_id,
+            header.job_id,
+            header.rays,
+        );
+        let outcome =
+            blocking(move || farm.put_tile_from(Some(worker), lease, job, rect, rays, &pixels))
+                .await?;
         Ok(Response::new(pb::TileAck {
             accepted: outcome == TileOutcome::Accepted,
         }))
     }
 }
 
+/// How the services are guarded.
+#[derive(Clone, Default)]
+pub struct ServeOptions {
+    /// Tokens for submitters and workers (none: an open farm).
+    pub tokens: Tokens,
+}
+
 /// Serves the coordinator on `listener` until `shutdown` resolves: the three
 /// `trevi.v1` services, `grpc.health.v1` and server reflection; plus a task
-/// that re-queues expired leases.
+/// that re-queues expired leases. No tokens, no TLS.
 pub async fn serve(
     farm: Arc<Farm>,
     listener: TcpListener,
     shutdown: impl Future<Output = ()> + Send,
+) -> Result<(), tonic::transport::Error> {
+    serve_with(farm, listener, shutdown, ServeOptions::default()).await
+}
+
+/// [`serve`] with tokens and TLS.
+pub async fn serve_with(
+    farm: Arc<Farm>,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send,
+    opts: ServeOptions,
 ) -> Result<(), tonic::transport::Error> {
     use pb::{
         bundles_server::BundlesServer, jobs_server::JobsServer, workers_server::WorkersServer,
@@ -361,12 +403,33 @@ pub async fn serve(
             let _ = s.set_nodelay(true);
         })
     });
+    let tokens = Arc::new(opts.tokens);
+    let guard = |need, service| Auth {
+        tokens: tokens.clone(),
+        need,
+        service,
+    };
+    let max_msg = farm.config().limits.max_message_bytes;
+    let bundles = BundlesServer::new(BundlesService { farm: farm.clone() })
+        .max_decoding_message_size(max_msg);
+    let jobs =
+        JobsServer::new(JobsService { farm: farm.clone() }).max_decoding_message_size(max_msg);
+    let workers = WorkersServer::new(WorkersService { farm }).max_decoding_message_size(max_msg);
     let result = tonic::transport::Server::builder()
         .add_service(health_service)
         .add_service(reflection)
-        .add_service(BundlesServer::new(BundlesService { farm: farm.clone() }))
-        .add_service(JobsServer::new(JobsService { farm: farm.clone() }))
-        .add_service(WorkersServer::new(WorkersService { farm }))
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            bundles,
+            guard(Need::Either, "trevi.v1.Bundles"),
+        ))
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            jobs,
+            guard(Need::Submitter, "trevi.v1.Jobs"),
+        ))
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            workers,
+            guard(Need::Worker, "trevi.v1.Workers"),
+        ))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
     reaper.abort();

@@ -13,12 +13,14 @@
 //! bounded by the window (see [`scheduler::SchedulerConfig::window_bytes`]),
 //! not by the image height.
 
+pub mod auth;
 pub mod bundles;
 pub mod error;
 pub mod farm;
 pub mod grpc;
 pub mod scheduler;
+pub mod store;
 
 pub use error::FarmError;
-pub use farm::{Farm, FarmConfig, TileOutcome, TileSink};
+pub use farm::{Farm, FarmConfig, Limits, TileOutcome, TileSink};
 pub use scheduler::{JobId, JobInfo, JobSpec, JobState, SchedulerConfig};

@@ -5,7 +5,9 @@ use clap::Parser;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
-use trevi_coordinator::{Farm, FarmConfig, SchedulerConfig};
+use trevi_coordinator::auth::{token_from, Tokens};
+use trevi_coordinator::grpc::ServeOptions;
+use trevi_coordinator::{Farm, FarmConfig, Limits, SchedulerConfig};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -30,6 +32,42 @@ struct Args {
     /// Budget for the rows each job's writer may hold, in MiB.
     #[arg(long, env = "TREVI_WINDOW_MIB", default_value_t = 16)]
     window_mib: u64,
+    /// A tile failing this many times (lease expired, invalid result) fails
+    /// its job.
+    #[arg(long, env = "TREVI_MAX_TILE_FAILURES", default_value_t = 5)]
+    max_tile_failures: u32,
+    /// A worker failing this many tiles of a job gets no more of its tiles.
+    #[arg(long, env = "TREVI_MAX_WORKER_FAILURES", default_value_t = 3)]
+    max_worker_failures: u32,
+    /// Token submitters must present (`trevi-submit --token`); without it
+    /// anyone who reaches the coordinator may submit and read jobs.
+    #[arg(long, env = "TREVI_SUBMIT_TOKEN", hide_env_values = true)]
+    submit_token: Option<String>,
+    /// Read the submit token from this file.
+    #[arg(long, env = "TREVI_SUBMIT_TOKEN_FILE")]
+    submit_token_file: Option<PathBuf>,
+    /// Token workers must present (`trevi-worker --token`); without it
+    /// anyone who reaches the coordinator may take tiles.
+    #[arg(long, env = "TREVI_WORKER_TOKEN", hide_env_values = true)]
+    worker_token: Option<String>,
+    /// Read the worker token from this file.
+    #[arg(long, env = "TREVI_WORKER_TOKEN_FILE")]
+    worker_token_file: Option<PathBuf>,
+    /// Largest scene bundle accepted, in MiB.
+    #[arg(long, env = "TREVI_MAX_BUNDLE_MIB", default_value_t = 256)]
+    max_bundle_mib: u64,
+    /// Most files in a bundle.
+    #[arg(long, env = "TREVI_MAX_BUNDLE_FILES", default_value_t = 10_000)]
+    max_bundle_files: usize,
+    /// Largest gRPC message decoded, in KiB.
+    #[arg(long, env = "TREVI_MAX_MESSAGE_KIB", default_value_t = 4096)]
+    max_message_kib: usize,
+    /// Most samples in a frame: width × height × supersample².
+    #[arg(long, env = "TREVI_MAX_IMAGE_SAMPLES", default_value_t = Limits::default().max_image_samples)]
+    max_image_samples: u64,
+    /// Most unfinished jobs per submitter (per client address).
+    #[arg(long, env = "TREVI_MAX_JOBS_PER_SUBMITTER", default_value_t = 1000)]
+    max_jobs_per_submitter: usize,
 }
 
 #[tokio::main]
@@ -49,9 +87,33 @@ async fn main() -> Result<()> {
         sched: SchedulerConfig {
             lease_ttl: Duration::from_millis(args.lease_ttl_ms),
             window_bytes: args.window_mib.max(1) << 20,
+            max_tile_failures: args.max_tile_failures.max(1),
+            max_worker_failures: args.max_worker_failures.max(1),
         },
         default_tile: args.tile_size,
+        durable: true,
+        limits: Limits {
+            max_bundle_bytes: args.max_bundle_mib.max(1) << 20,
+            max_bundle_files: args.max_bundle_files.max(1),
+            // A pixel chunk (1 MiB) plus framing must fit.
+            max_message_bytes: (args.max_message_kib << 10).max(trevi_proto::CHUNK_SIZE + 4096),
+            max_image_samples: args.max_image_samples,
+            max_jobs_per_submitter: args.max_jobs_per_submitter,
+        },
     };
+    let submit_token = token_from(args.submit_token.clone(), args.submit_token_file.as_deref())
+        .map_err(|e| anyhow::anyhow!("submit token: {e}"))?;
+    let worker_token = token_from(args.worker_token.clone(), args.worker_token_file.as_deref())
+        .map_err(|e| anyhow::anyhow!("worker token: {e}"))?;
+    if submit_token.is_some() && submit_token == worker_token {
+        anyhow::bail!("the submit and worker tokens must differ");
+    }
+    let tokens = Tokens::new(submit_token.as_deref(), worker_token.as_deref())
+        .map_err(|e| anyhow::anyhow!(e))?;
+    if tokens.is_open() {
+        tracing::warn!("no tokens: anyone who can reach this coordinator may submit and take work");
+    }
+    let opts = ServeOptions { tokens };
     let farm =
         Arc::new(Farm::new(cfg).with_context(|| {
             format!("cannot use the data directory {}", args.data_dir.display())
@@ -62,7 +124,7 @@ async fn main() -> Result<()> {
     let addr = listener.local_addr()?;
     println!("listening on {addr}");
     tracing::info!(%addr, data_dir = %args.data_dir.display(), "coordinator up");
-    trevi_coordinator::grpc::serve(farm, listener, shutdown_signal())
+    trevi_coordinator::grpc::serve_with(farm, listener, shutdown_signal(), opts)
         .await
         .context("the gRPC server failed")?;
     tracing::info!("coordinator stopped");

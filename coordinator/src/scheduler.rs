@@ -88,6 +88,24 @@ pub enum Accepted {
     Ignored,
 }
 
+/// A job of an earlier run, as the coordinator's database kept it.
+#[derive(Debug, Clone)]
+pub struct Restored {
+    pub id: JobId,
+    pub spec: JobSpec,
+    pub state: JobState,
+    pub submitted: Instant,
+    /// For a finished job: how long it took.
+    pub elapsed: Option<Duration>,
+    pub error: Option<String>,
+    pub finish_order: u64,
+    /// For a finished job: how many tiles it had done.
+    pub tiles_done: u64,
+    pub rays: u64,
+    /// For an unfinished job: the tiles already stored (not leased again).
+    pub done_tiles: Vec<u32>,
+}
+
 /// Why the scheduler refused something.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SchedError {
@@ -97,6 +115,8 @@ pub enum SchedError {
     UnknownWorker(WorkerId),
     #[error("{0:?} is not a tile of job {1}")]
     NotATile(Rect, JobId),
+    #[error("lease {0} is not worker {1}'s lease on tile {2:?} of job {3}")]
+    NotYourLease(LeaseId, WorkerId, Rect, JobId),
 }
 
 /// Tunables.
@@ -107,6 +127,11 @@ pub struct SchedulerConfig {
     /// Budget for rows held by the stitcher per job, in bytes (counted at 12
     /// bytes a pixel); sets how many bands may be in flight.
     pub window_bytes: u64,
+    /// A tile that fails this many times (its lease runs out, or its result
+    /// is invalid) fails its job.
+    pub max_tile_failures: u32,
+    /// A worker that fails this many tiles of a job takes no more of them.
+    pub max_worker_failures: u32,
 }
 
 impl Default for SchedulerConfig {
@@ -114,6 +139,8 @@ impl Default for SchedulerConfig {
         SchedulerConfig {
             lease_ttl: Duration::from_secs(10),
             window_bytes: 16 << 20,
+            max_tile_failures: 5,
+            max_worker_failures: 3,
         }
     }
 }
@@ -149,6 +176,13 @@ struct Job {
     finished: Option<Instant>,
     error: Option<String>,
     finish_order: u64,
+    /// Failures of tiles not done yet: how many, and the last cause.
+    failures: HashMap<u32, (u32, String)>,
+    /// Failures per worker on this job.
+    worker_failures: HashMap<WorkerId, u32>,
+    /// Leases that ran out or were refused while their tile is not done
+    /// yet: a late result under one of them still counts.
+    past_leases: HashMap<LeaseId, (u32, WorkerId)>,
 }
 
 impl Job {
@@ -206,6 +240,8 @@ impl Job {
     /// Marks a tile done and moves `first_undone` past the done prefix.
     fn set_done(&mut self, idx: u32) {
         self.requeued.remove(&idx);
+        self.failures.remove(&idx);
+        self.past_leases.retain(|_, (t, _)| *t != idx);
         self.active.insert(idx, TileState::Done);
         while self.first_undone < self.next_fresh
             && self.active.get(&self.first_undone) == Some(&TileState::Done)
@@ -219,6 +255,9 @@ impl Job {
     fn retire(&mut self) {
         self.active = BTreeMap::new();
         self.requeued = BTreeSet::new();
+        self.failures = HashMap::new();
+        self.worker_failures = HashMap::new();
+        self.past_leases = HashMap::new();
     }
 }
 
@@ -241,6 +280,8 @@ pub struct Scheduler {
     next_lease: LeaseId,
     next_worker: WorkerId,
     finished: u64,
+    /// Jobs failed by their tiles' failures, for the caller to wind up.
+    failed: Vec<(JobId, String)>,
 }
 
 impl Scheduler {
@@ -254,9 +295,12 @@ impl Scheduler {
             leases: HashMap::new(),
             workers: HashMap::new(),
             next_job: 1,
-            next_lease: 1,
+            // Like worker ids: a result under a lease of an earlier run
+            // never matches a lease of this one.
+            next_lease: worker_id_base.max(1),
             next_worker: worker_id_base.max(1),
             finished: 0,
+            failed: Vec::new(),
         }
     }
 
@@ -275,6 +319,53 @@ impl Scheduler {
     pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
         let id = self.next_job;
         self.next_job += 1;
+        let job = self.new_job(spec, now);
+        self.queue.insert((Reverse(job.spec.priority), id));
+        self.jobs.insert(id, job);
+        id
+    }
+
+    /// Puts back a job of an earlier run (see [`Restored`]).
+    pub fn restore(&mut self, r: Restored, now: Instant) {
+        let mut job = self.new_job(r.spec, r.submitted.min(now));
+        self.next_job = self.next_job.max(r.id + 1);
+        if r.state.is_final() {
+            self.finished = self.finished.max(r.finish_order);
+            job.state = r.state;
+            job.done = r.tiles_done;
+            job.rays = r.rays;
+            job.error = r.error;
+            job.finish_order = r.finish_order;
+            job.finished = Some(job.submitted + r.elapsed.unwrap_or_default());
+            job.retire();
+            self.jobs.insert(r.id, job);
+            return;
+        }
+        let mut done: Vec<u32> = r
+            .done_tiles
+            .into_iter()
+            .filter(|&i| i < job.tiles_total)
+            .collect();
+        done.sort_unstable();
+        done.dedup();
+        if let Some(&last) = done.last() {
+            job.next_fresh = last + 1;
+            for i in 0..job.next_fresh {
+                job.active.insert(i, TileState::Pending);
+                job.requeued.insert(i);
+            }
+            for &i in &done {
+                job.set_done(i);
+            }
+            job.state = JobState::Running;
+        }
+        job.done = done.len() as u64;
+        job.rays = r.rays;
+        self.queue.insert((Reverse(job.spec.priority), r.id));
+        self.jobs.insert(r.id, job);
+    }
+
+    fn new_job(&self, spec: JobSpec, now: Instant) -> Job {
         let tile = spec.tile_size.max(1);
         let spec = JobSpec {
             tile_size: tile,
@@ -284,7 +375,7 @@ impl Scheduler {
         let rows = spec.height.div_ceil(tile);
         let band_bytes = spec.width as u64 * tile as u64 * 12;
         let window_bands = (self.cfg.window_bytes / band_bytes.max(1)).clamp(2, u32::MAX as u64);
-        let job = Job {
+        Job {
             state: JobState::Queued,
             cols,
             tiles_total: u32::try_from(cols as u64 * rows as u64).unwrap_or(u32::MAX),
@@ -299,19 +390,38 @@ impl Scheduler {
             finished: None,
             error: None,
             finish_order: 0,
+            failures: HashMap::new(),
+            worker_failures: HashMap::new(),
+            past_leases: HashMap::new(),
             spec,
-        };
-        self.queue.insert((Reverse(job.spec.priority), id));
-        self.jobs.insert(id, job);
-        id
+        }
+    }
+
+    /// The index of `rect` among `job`'s tiles (band order), if it is one.
+    pub fn tile_index(&self, job: JobId, rect: Rect) -> Option<u32> {
+        self.jobs.get(&job)?.tile_index(rect)
+    }
+
+    /// The rectangle of tile `idx` of `job`.
+    pub fn tile_rect(&self, job: JobId, idx: u32) -> Option<Rect> {
+        let j = self.jobs.get(&job)?;
+        (idx < j.tiles_total).then(|| j.rect(idx))
     }
 
     /// The next tile for `worker`, if any job has one it may hand out now.
     pub fn lease(&mut self, worker: WorkerId, now: Instant) -> Result<Option<Lease>, SchedError> {
         self.touch(worker, now)?;
         self.expire(now);
+        let max_fail = self.cfg.max_worker_failures.max(1);
         for &(_, id) in &self.queue {
             let job = self.jobs.get_mut(&id).expect("queued jobs exist");
+            if job
+                .worker_failures
+                .get(&worker)
+                .is_some_and(|&n| n >= max_fail)
+            {
+                continue;
+            }
             let Some(idx) = job.next_tile() else {
                 continue;
             };
@@ -369,21 +479,84 @@ impl Scheduler {
             .map(|(&id, _)| id)
             .collect();
         for &id in &expired {
-            self.release(id);
+            let worker = self.leases[&id].worker;
+            self.release(id, &format!("lease expired (worker {worker} went silent)"));
         }
         expired.len()
     }
 
-    /// Removes a lease and puts its tile back in the queue if it is not done.
-    fn release(&mut self, lease: LeaseId) {
+    /// Removes a lease, counts a failure of its tile and worker, and puts the
+    /// tile back in the queue if it is not done. A tile failing too often
+    /// fails its job (see [`Scheduler::take_failed`]).
+    fn release(&mut self, lease: LeaseId, cause: &str) {
         let Some(e) = self.leases.remove(&lease) else {
             return;
         };
-        if let Some(job) = self.jobs.get_mut(&e.job) {
-            if !job.state.is_final() && job.tile_state(e.tile) == TileState::Leased(lease) {
-                job.active.insert(e.tile, TileState::Pending);
-                job.requeued.insert(e.tile);
-            }
+        let Some(job) = self.jobs.get_mut(&e.job) else {
+            return;
+        };
+        if job.state.is_final() || job.tile_state(e.tile) != TileState::Leased(lease) {
+            return;
+        }
+        job.active.insert(e.tile, TileState::Pending);
+        job.requeued.insert(e.tile);
+        job.past_leases.insert(lease, (e.tile, e.worker));
+        *job.worker_failures.entry(e.worker).or_default() += 1;
+        let r = job.rect(e.tile);
+        let f = job.failures.entry(e.tile).or_insert((0, String::new()));
+        f.0 += 1;
+        f.1 = cause.to_string();
+        if f.0 >= self.cfg.max_tile_failures.max(1) {
+            let msg = format!(
+                "tile {} ({}x{} at ({}, {})) failed {} times; last: {}",
+                e.tile, r.w, r.h, r.x, r.y, f.0, f.1
+            );
+            self.failed.push((e.job, msg));
+        }
+    }
+
+    /// Jobs that failed because a tile failed too often, with the reason;
+    /// the caller ends them with [`Scheduler::finish`].
+    pub fn take_failed(&mut self) -> Vec<(JobId, String)> {
+        std::mem::take(&mut self.failed)
+    }
+
+    /// Checks that a result for `rect` of `job` comes under a lease that was
+    /// given to `worker` (any worker when `None`) for that tile. A result for
+    /// a tile already done, or of a job that is over, passes (and is
+    /// ignored later).
+    pub fn check_lease(
+        &self,
+        job: JobId,
+        rect: Rect,
+        lease: LeaseId,
+        worker: Option<WorkerId>,
+    ) -> Result<(), SchedError> {
+        let j = self.jobs.get(&job).ok_or(SchedError::UnknownJob(job))?;
+        if j.state.is_final() {
+            return Ok(());
+        }
+        let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
+        if j.tile_state(idx) == TileState::Done {
+            return Ok(());
+        }
+        let holder = match self.leases.get(&lease) {
+            Some(e) if e.job == job && e.tile == idx => Some(e.worker),
+            _ => j
+                .past_leases
+                .get(&lease)
+                .filter(|(t, _)| *t == idx)
+                .map(|&(_, w)| w),
+        };
+        match (holder, worker) {
+            (Some(h), Some(w)) if h == w => Ok(()),
+            (Some(_), None) => Ok(()),
+            _ => Err(SchedError::NotYourLease(
+                lease,
+                worker.unwrap_or_default(),
+                rect,
+                job,
+            )),
         }
     }
 
@@ -429,8 +602,8 @@ impl Scheduler {
 
     /// An invalid result arrived under `lease`: put the tile back at once
     /// (unless someone else holds it or it is done).
-    pub fn reject_tile(&mut self, lease: LeaseId) {
-        self.release(lease);
+    pub fn reject_tile(&mut self, lease: LeaseId, cause: &str) {
+        self.release(lease, cause);
     }
 
     /// Ends a job: `Ok` when its output is in place, `Err` when it failed.
@@ -538,6 +711,7 @@ mod tests {
             SchedulerConfig {
                 lease_ttl: Duration::from_secs(5),
                 window_bytes: 1 << 30,
+                ..SchedulerConfig::default()
             },
             100,
         );
@@ -583,6 +757,7 @@ mod tests {
             SchedulerConfig {
                 lease_ttl: Duration::from_secs(5),
                 window_bytes: 2 * 16 * 4 * 12,
+                ..SchedulerConfig::default()
             },
             1,
         );
@@ -652,11 +827,11 @@ mod tests {
         let w2 = s.register_worker(t0);
         s.submit(spec(0, 4, 4, 4), t0);
         let l1 = s.lease(w, t0).unwrap().unwrap();
-        s.reject_tile(l1.id);
+        s.reject_tile(l1.id, "bad");
         let l2 = s.lease(w2, t0).unwrap().unwrap();
         assert_eq!(l2.rect, l1.rect);
         // A second bad result under the dead lease does not touch w2's.
-        s.reject_tile(l1.id);
+        s.reject_tile(l1.id, "bad");
         assert_eq!(s.lease(w, t0).unwrap(), None);
         assert_eq!(s.lease_count(), 1);
     }
@@ -693,6 +868,7 @@ mod tests {
             SchedulerConfig {
                 lease_ttl: Duration::from_secs(5),
                 window_bytes: 2 * 16 * 4 * 12,
+                ..SchedulerConfig::default()
             },
             1,
         );

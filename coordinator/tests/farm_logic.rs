@@ -29,8 +29,10 @@ fn farm(dir: &Path, ttl: Duration, window_bytes: u64) -> Farm {
         sched: SchedulerConfig {
             lease_ttl: ttl,
             window_bytes,
+            ..SchedulerConfig::default()
         },
         default_tile: 16,
+        ..FarmConfig::new(dir)
     })
     .unwrap()
 }
@@ -270,4 +272,117 @@ fn rows_held_do_not_grow_with_the_image_height() {
         peaks[0], peaks[1],
         "rows held depend on the height: {peaks:?}"
     );
+}
+
+#[test]
+fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
+    for name in ["r.png", "r.exr"] {
+        let dir = tempfile::tempdir().unwrap();
+        let job;
+        let first_half;
+        {
+            let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+            job = f.submit(spec(50, 37, 16, name, 0)).unwrap().id;
+            let w = f.register_worker();
+            let leases = lease_all(&f, w);
+            first_half = leases.len() / 2;
+            // Out of order, so rows are pending in the writer at the "crash".
+            for l in leases[..first_half].iter().rev() {
+                f.put_tile(l.id, job, l.rect, 10, &pixels(l.rect)).unwrap();
+            }
+            // Dropped with leases out and the output half written.
+        }
+        let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+        let info = f.info(job).unwrap();
+        assert_eq!(info.tiles_done, first_half as u64);
+        assert_eq!(info.rays, 10 * first_half as u64);
+        let w = f.register_worker();
+        let rest = lease_all(&f, w);
+        assert_eq!(
+            rest.len(),
+            12 - first_half,
+            "stored tiles are not leased again"
+        );
+        for l in &rest {
+            f.put_tile(l.id, job, l.rect, 10, &pixels(l.rect)).unwrap();
+        }
+        assert_eq!(f.info(job).unwrap().state, JobState::Done);
+        assert_eq!(
+            std::fs::read(f.output_file(job).unwrap()).unwrap(),
+            reference(dir.path(), 50, 37, name)
+        );
+        drop(f);
+        // Finished jobs stay listed, and new ids follow the old ones.
+        let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+        assert_eq!(f.info(job).unwrap().state, JobState::Done);
+        assert!(f.output_file(job).unwrap().exists());
+        assert_eq!(f.submit(spec(16, 16, 16, "n.png", 0)).unwrap().id, job + 1);
+    }
+}
+
+#[test]
+fn a_tile_failing_too_often_fails_its_job_and_a_failing_worker_is_benched() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = Farm::new(FarmConfig {
+        sched: SchedulerConfig {
+            lease_ttl: Duration::from_secs(60),
+            window_bytes: 1 << 30,
+            max_tile_failures: 3,
+            max_worker_failures: 2,
+        },
+        ..FarmConfig::new(dir.path())
+    })
+    .unwrap();
+    let job = f.submit(spec(32, 16, 16, "o.png", 0)).unwrap().id;
+    let bad: Vec<u64> = (0..3).map(|_| f.register_worker()).collect();
+    let mut nan = pixels(Rect::new(0, 0, 16, 16));
+    nan[0][0] = f32::NAN;
+    // bad[0] fails the first tile twice and is then kept off the job.
+    for _ in 0..2 {
+        let l = f.lease(bad[0]).unwrap().unwrap();
+        assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
+        assert!(f.put_tile(l.id, job, l.rect, 1, &nan).is_err());
+    }
+    assert_eq!(f.lease(bad[0]).unwrap(), None, "benched");
+    let l = f.lease(bad[1]).unwrap().unwrap();
+    assert!(f.put_tile(l.id, job, l.rect, 1, &nan).is_err());
+    let info = f.info(job).unwrap();
+    assert_eq!(info.state, JobState::Failed);
+    let e = info.error.unwrap();
+    assert!(
+        e.contains("tile 0") && e.contains("3 times") && e.contains("not finite"),
+        "{e}"
+    );
+    assert!(!f.output_path(job, "o.png").exists());
+    assert_eq!(f.lease(bad[2]).unwrap(), None);
+}
+
+#[test]
+fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+    let job = f.submit(spec(32, 16, 16, "o.png", 0)).unwrap().id;
+    let (a, b) = (f.register_worker(), f.register_worker());
+    let la = f.lease(a).unwrap().unwrap();
+    let lb = f.lease(b).unwrap().unwrap();
+    // b sends a tile under a's lease, then under a lease that never was.
+    let e = f
+        .put_tile_from(Some(b), la.id, job, la.rect, 1, &pixels(la.rect))
+        .unwrap_err();
+    assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
+    let e = f
+        .put_tile_from(Some(b), 987_654, job, lb.rect, 1, &pixels(lb.rect))
+        .unwrap_err();
+    assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
+    // a bad result under a's lease from b does not re-queue a's tile.
+    assert!(f
+        .put_tile_from(Some(b), la.id, job, la.rect, 1, &[])
+        .is_err());
+    assert!(f.heartbeat(a, &[la.id]).unwrap().is_empty());
+    assert_eq!(f.info(job).unwrap().tiles_done, 0);
+    f.put_tile_from(Some(a), la.id, job, la.rect, 1, &pixels(la.rect))
+        .unwrap();
+    f.put_tile_from(Some(b), lb.id, job, lb.rect, 1, &pixels(lb.rect))
+        .unwrap();
+    assert_eq!(f.info(job).unwrap().state, JobState::Done);
 }

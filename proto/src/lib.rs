@@ -24,6 +24,40 @@ pub const CHUNK_SIZE: usize = 1 << 20;
 /// Largest gRPC message either side accepts (a chunk plus framing).
 pub const MAX_MESSAGE_SIZE: usize = 4 << 20;
 
+/// Client side of the farm's tokens: adds `authorization: Bearer TOKEN` to
+/// every call (nothing when there is no token).
+#[derive(Clone, Default)]
+pub struct Bearer(Option<tonic::metadata::MetadataValue<tonic::metadata::Ascii>>);
+
+impl Bearer {
+    /// `None`: no header. A token must be printable ASCII without spaces.
+    pub fn new(token: Option<&str>) -> Result<Bearer, String> {
+        match token {
+            None => Ok(Bearer(None)),
+            Some(t) if t.is_empty() || t.chars().any(|c| !c.is_ascii_graphic()) => {
+                Err("a token must be printable ASCII without spaces".into())
+            }
+            Some(t) => format!("Bearer {t}")
+                .parse()
+                .map(|v| Bearer(Some(v)))
+                .map_err(|e| format!("bad token: {e}")),
+        }
+    }
+}
+
+impl tonic::service::Interceptor for Bearer {
+    fn call(&mut self, mut req: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        if let Some(v) = &self.0 {
+            req.metadata_mut().insert("authorization", v.clone());
+        }
+        Ok(req)
+    }
+}
+
+/// A channel whose calls carry the token.
+pub type AuthChannel =
+    tonic::service::interceptor::InterceptedService<tonic::transport::Channel, Bearer>;
+
 /// A message from the wire that does not make sense.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum WireError {

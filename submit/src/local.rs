@@ -29,6 +29,8 @@ impl Embedded {
             .context("cannot create a temporary directory")?;
         let mut cfg = FarmConfig::new(data.path());
         cfg.default_tile = tile;
+        // The data directory dies with this process: nothing to resume.
+        cfg.durable = false;
         let farm = Arc::new(Farm::new(cfg).context("cannot start the embedded coordinator")?);
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await

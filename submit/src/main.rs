@@ -30,6 +30,9 @@ struct Args {
     /// this machine).
     #[arg(long, env = "TREVI_COORDINATOR", global = true)]
     coordinator: Option<String>,
+    /// The coordinator's submit token (sent as `authorization: Bearer`).
+    #[arg(long, env = "TREVI_TOKEN", global = true, hide_env_values = true)]
+    token: Option<String>,
     /// Job priority on the farm: higher runs first.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     priority: i32,
@@ -80,7 +83,7 @@ fn run(args: Args) -> Result<()> {
             .as_deref()
             .context("status, list and cancel need --coordinator URL (or TREVI_COORDINATOR)")?;
         return runtime.block_on(async {
-            let mut client = remote::Client::connect(url).await?;
+            let mut client = remote::Client::connect(url, args.token.as_deref()).await?;
             match cmd {
                 Command::Status { id } => {
                     println!("{}", remote::describe(&client.status(*id).await?))
@@ -154,7 +157,7 @@ fn run(args: Args) -> Result<()> {
     runtime.block_on(async {
         match &args.coordinator {
             Some(url) => {
-                let mut client = remote::Client::connect(url).await?;
+                let mut client = remote::Client::connect(url, args.token.as_deref()).await?;
                 client
                     .render(
                         &bundle,
@@ -169,7 +172,7 @@ fn run(args: Args) -> Result<()> {
             None => {
                 let farm = local::Embedded::start(args.threads.unwrap_or(0), args.tile).await?;
                 let result = async {
-                    let mut client = remote::Client::connect(&farm.url).await?;
+                    let mut client = remote::Client::connect(&farm.url, None).await?;
                     client.announce = false;
                     client
                         .render(&bundle, &targets, args.priority, args.tile, false, progress)

@@ -11,7 +11,7 @@ use std::time::Duration;
 use tonic::transport::Channel;
 use trevi_core::Bundle;
 use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient, JobState};
-use trevi_proto::{CHUNK_SIZE, MAX_MESSAGE_SIZE};
+use trevi_proto::{AuthChannel, Bearer, CHUNK_SIZE, MAX_MESSAGE_SIZE};
 
 /// How progress is shown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -28,8 +28,8 @@ pub struct Client {
     url: String,
     /// Say which jobs were queued where (off for the embedded farm).
     pub announce: bool,
-    jobs: JobsClient<Channel>,
-    bundles: BundlesClient<Channel>,
+    jobs: JobsClient<AuthChannel>,
+    bundles: BundlesClient<AuthChannel>,
 }
 
 /// One camera to render and where its image goes.
@@ -39,7 +39,10 @@ pub struct Target {
 }
 
 impl Client {
-    pub async fn connect(url: &str) -> Result<Client> {
+    /// Connects to `url`, sending `token` (the coordinator's submit token)
+    /// with every call.
+    pub async fn connect(url: &str, token: Option<&str>) -> Result<Client> {
+        let bearer = Bearer::new(token).map_err(|e| anyhow::anyhow!("--token: {e}"))?;
         let channel = Channel::from_shared(url.to_string())
             .with_context(|| format!("bad coordinator address \"{url}\""))?
             .connect_timeout(Duration::from_secs(10))
@@ -50,8 +53,10 @@ impl Client {
         Ok(Client {
             url: url.to_string(),
             announce: true,
-            jobs: JobsClient::new(channel.clone()).max_decoding_message_size(MAX_MESSAGE_SIZE),
-            bundles: BundlesClient::new(channel).max_decoding_message_size(MAX_MESSAGE_SIZE),
+            jobs: JobsClient::with_interceptor(channel.clone(), bearer.clone())
+                .max_decoding_message_size(MAX_MESSAGE_SIZE),
+            bundles: BundlesClient::with_interceptor(channel, bearer)
+                .max_decoding_message_size(MAX_MESSAGE_SIZE),
         })
     }
 
@@ -101,28 +106,65 @@ impl Client {
     }
 
     /// Follows a job until it ends, showing progress; returns its last status.
+    ///
+    /// When the coordinator goes away (it keeps its jobs across a restart),
+    /// keeps asking again with backoff for up to [`RECONNECT_FOR`].
     pub async fn watch(&mut self, id: u64, progress: Progress) -> Result<pb::JobStatus> {
-        let mut stream = self
-            .jobs
-            .watch_job(pb::JobId { id })
-            .await
-            .map_err(status_error)?
-            .into_inner();
         let mut view = ProgressView::new(progress);
-        let mut last = None;
-        while let Some(s) = stream.message().await.map_err(status_error)? {
-            view.show(&s);
-            last = Some(s);
+        let mut last: Option<pb::JobStatus> = None;
+        let mut backoff = Duration::from_millis(100);
+        let mut lost_since: Option<std::time::Instant> = None;
+        loop {
+            let why = match self.jobs.watch_job(pb::JobId { id }).await {
+                Ok(r) => {
+                    let mut stream = r.into_inner();
+                    loop {
+                        match stream.message().await {
+                            Ok(Some(s)) => {
+                                lost_since = None;
+                                backoff = Duration::from_millis(100);
+                                view.show(&s);
+                                last = Some(s);
+                            }
+                            Ok(None) => break "the progress stream ended".to_string(),
+                            Err(s) if reconnectable(&s) => break s.message().to_string(),
+                            Err(s) => {
+                                view.done();
+                                return Err(status_error(s));
+                            }
+                        }
+                    }
+                }
+                Err(s) if reconnectable(&s) => s.message().to_string(),
+                Err(s) => {
+                    view.done();
+                    return Err(status_error(s));
+                }
+            };
+            if let Some(l) = &last {
+                if l.state().is_final() {
+                    break;
+                }
+            }
+            let since = *lost_since.get_or_insert_with(std::time::Instant::now);
+            if since.elapsed() > RECONNECT_FOR {
+                view.done();
+                match &last {
+                    Some(l) => bail!(
+                        "lost the coordinator while job {id} was {}: {why}",
+                        l.state().label()
+                    ),
+                    None => bail!("lost the coordinator watching job {id}: {why}"),
+                }
+            }
+            if progress != Progress::Quiet && backoff == Duration::from_millis(100) {
+                eprintln!("lost the coordinator ({why}); reconnecting");
+            }
+            tokio::time::sleep(backoff).await;
+            backoff = (backoff * 2).min(Duration::from_secs(2));
         }
         view.done();
-        let last = last.context("the coordinator ended the progress stream at once")?;
-        if !last.state().is_final() {
-            bail!(
-                "lost the coordinator while job {id} was {}",
-                last.state().label()
-            );
-        }
-        Ok(last)
+        Ok(last.expect("checked above"))
     }
 
     /// Downloads a finished job's image to `out` (through a temporary file
@@ -242,7 +284,18 @@ impl Client {
                     s.error
                 ),
             }
-            self.download(id, &t.out).await?;
+            // The coordinator may restart between the end and the download.
+            let mut tries = 0;
+            while let Err(e) = self.download(id, &t.out).await {
+                tries += 1;
+                let again = e
+                    .downcast_ref::<StatusError>()
+                    .is_some_and(|s| reconnectable(&s.0));
+                if !again || tries >= 20 {
+                    return Err(e);
+                }
+                tokio::time::sleep(Duration::from_millis(250 * tries)).await;
+            }
             if progress != Progress::Quiet {
                 let secs = s.elapsed_ms as f64 / 1e3;
                 eprintln!(
@@ -261,10 +314,37 @@ impl Client {
     }
 }
 
+/// How long `watch` keeps trying to reach a coordinator that went away.
+pub const RECONNECT_FOR: Duration = Duration::from_secs(300);
+
+/// Whether a failed call may succeed once the coordinator is back.
+fn reconnectable(s: &tonic::Status) -> bool {
+    matches!(
+        s.code(),
+        tonic::Code::Unavailable
+            | tonic::Code::Unknown
+            | tonic::Code::Internal
+            | tonic::Code::Cancelled
+    )
+}
+
 /// A gRPC status as an error that reads well.
 fn status_error(s: tonic::Status) -> anyhow::Error {
-    anyhow::anyhow!("{} ({:?})", s.message(), s.code())
+    anyhow::Error::new(StatusError(s))
 }
+
+/// A gRPC status kept inside an `anyhow::Error`, so callers can still look
+/// at its code.
+#[derive(Debug)]
+struct StatusError(tonic::Status);
+
+impl std::fmt::Display for StatusError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ({:?})", self.0.message(), self.0.code())
+    }
+}
+
+impl std::error::Error for StatusError {}
 
 /// One line about a job, for `status` and `list`.
 pub fn describe(s: &pb::JobStatus) -> String {

@@ -16,7 +16,7 @@ use tonic::transport::Channel;
 use tonic::Code;
 use trevi_core::{Bundle, Rect, Scene};
 use trevi_proto::pb::{self, bundles_client::BundlesClient, workers_client::WorkersClient};
-use trevi_proto::{pixels_to_bytes, rect_from, CHUNK_SIZE, MAX_MESSAGE_SIZE};
+use trevi_proto::{pixels_to_bytes, rect_from, AuthChannel, Bearer, CHUNK_SIZE, MAX_MESSAGE_SIZE};
 
 /// Worker settings.
 #[derive(Debug, Clone)]
@@ -33,6 +33,8 @@ pub struct WorkerConfig {
     /// loop, all sharing the render threads), so the threads stay busy
     /// while a result travels and the next lease arrives.
     pub tiles_in_flight: usize,
+    /// The coordinator's worker token, if it has one.
+    pub token: Option<String>,
 }
 
 impl WorkerConfig {
@@ -43,6 +45,7 @@ impl WorkerConfig {
             name: default_name(),
             cache_size: 4,
             tiles_in_flight: 2,
+            token: None,
         }
     }
 }
@@ -63,6 +66,8 @@ pub enum WorkerError {
     BadAddress(String, String),
     #[error("cannot start {0} render threads: {1}")]
     Pool(usize, String),
+    #[error("{0}")]
+    Token(String),
 }
 
 /// Why a session with the coordinator ended.
@@ -103,6 +108,7 @@ pub async fn run(
         .map_err(|e| WorkerError::BadAddress(cfg.coordinator.clone(), e.to_string()))?
         .connect_timeout(Duration::from_secs(5))
         .tcp_nodelay(true);
+    let bearer = Bearer::new(cfg.token.as_deref()).map_err(WorkerError::Token)?;
     let threads = if cfg.threads == 0 {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     } else {
@@ -131,9 +137,9 @@ pub async fn run(
         let end = match channel {
             Ok(channel) => {
                 let mut s = Session {
-                    workers: WorkersClient::new(channel.clone())
+                    workers: WorkersClient::with_interceptor(channel.clone(), bearer.clone())
                         .max_decoding_message_size(MAX_MESSAGE_SIZE),
-                    bundles: BundlesClient::new(channel)
+                    bundles: BundlesClient::with_interceptor(channel, bearer.clone())
                         .max_decoding_message_size(MAX_MESSAGE_SIZE),
                     pool: pool.clone(),
                     threads,
@@ -158,8 +164,8 @@ pub async fn run(
 
 #[derive(Clone)]
 struct Session {
-    workers: WorkersClient<Channel>,
-    bundles: BundlesClient<Channel>,
+    workers: WorkersClient<AuthChannel>,
+    bundles: BundlesClient<AuthChannel>,
     pool: Arc<rayon::ThreadPool>,
     threads: usize,
 }
@@ -265,6 +271,13 @@ impl Session {
             };
             match self.render(worker, &lease, scene, camera, rect, beat).await {
                 Ok(Some((pixels, rays))) => {
+                    tracing::debug!(
+                        lease = lease.lease_id,
+                        job = lease.job_id,
+                        x = rect.x,
+                        y = rect.y,
+                        "tile rendered"
+                    );
                     if let Err(s) = self.send(worker, &lease, rect, rays, &pixels).await {
                         if s.code() == Code::InvalidArgument {
                             tracing::error!(
@@ -278,6 +291,13 @@ impl Session {
                     }
                 }
                 Ok(None) => {
+                    tracing::debug!(
+                        lease = lease.lease_id,
+                        job = lease.job_id,
+                        x = rect.x,
+                        y = rect.y,
+                        "tile rendered"
+                    );
                     tracing::info!(lease = lease.lease_id, "lease dropped by the coordinator")
                 }
                 Err(end) => return end,

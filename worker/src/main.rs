@@ -22,6 +22,12 @@ struct Args {
     /// Name shown in the coordinator's logs (default: host-pid).
     #[arg(long, env = "TREVI_WORKER_NAME")]
     name: Option<String>,
+    /// The coordinator's worker token (sent as `authorization: Bearer`).
+    #[arg(long, env = "TREVI_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// Read the token from this file instead.
+    #[arg(long, env = "TREVI_TOKEN_FILE", conflicts_with = "token")]
+    token_file: Option<std::path::PathBuf>,
 }
 
 #[tokio::main]
@@ -41,6 +47,15 @@ async fn main() -> Result<()> {
     if let Some(n) = args.name {
         cfg.name = n;
     }
+    cfg.token = match &args.token_file {
+        Some(f) => Some(
+            std::fs::read_to_string(f)
+                .with_context(|| format!("cannot read {}", f.display()))?
+                .trim_end_matches(['\n', '\r'])
+                .to_string(),
+        ),
+        None => args.token,
+    };
     let (tx, rx) = tokio::sync::watch::channel(false);
     tokio::spawn(async move {
         wait_for_signal().await;

@@ -1,0 +1,249 @@
+//! Who may call what: a secret token for submitters and another for
+//! workers, presented as gRPC metadata `authorization: Bearer TOKEN`.
+//!
+//! - `trevi.v1.Jobs` needs the submit token; `trevi.v1.Workers` the worker
+//!   token; `trevi.v1.Bundles` either (uploading needs the submit token,
+//!   workers only download).
+//! - A role without a configured token is open: with neither token the farm
+//!   is open to anyone who can reach it, as it was before tokens existed.
+//! - No token, or one matching neither role, is `UNAUTHENTICATED`; the other
+//!   role's token is `PERMISSION_DENIED`.
+//! - Health and reflection are always open (probes and `grpcurl list`).
+//!
+//! Tokens are compared through their SHA-256 digests with a comparison that
+//! looks at every byte, so the time taken does not tell how much of a guess
+//! was right.
+
+use sha2::{Digest, Sha256};
+use std::sync::Arc;
+use tonic::{Request, Status};
+
+/// The configured tokens (digests only).
+#[derive(Clone, Default)]
+pub struct Tokens {
+    submit: Option<[u8; 32]>,
+    worker: Option<[u8; 32]>,
+}
+
+fn digest(token: &str) -> [u8; 32] {
+    Sha256::digest(token.as_bytes()).into()
+}
+
+/// Equality that reads both arrays whole, whatever their contents.
+fn same(a: &[u8; 32], b: &[u8; 32]) -> bool {
+    let diff = a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y));
+    std::hint::black_box(diff) == 0
+}
+
+impl Tokens {
+    /// `None` leaves that role open. Empty tokens are refused.
+    pub fn new(submit: Option<&str>, worker: Option<&str>) -> Result<Tokens, String> {
+        for (name, t) in [("submit", submit), ("worker", worker)] {
+            if let Some(t) = t {
+                if t.trim().is_empty() {
+                    return Err(format!("the {name} token is empty"));
+                }
+                if t.chars().any(|c| !c.is_ascii_graphic()) {
+                    return Err(format!(
+                        "the {name} token must be printable ASCII without spaces"
+                    ));
+                }
+            }
+        }
+        Ok(Tokens {
+            submit: submit.map(digest),
+            worker: worker.map(digest),
+        })
+    }
+
+    pub fn is_open(&self) -> bool {
+        self.submit.is_none() && self.worker.is_none()
+    }
+
+    /// What the presented token (if any) lets its bearer do.
+    pub fn grant(&self, presented: Option<&str>) -> Granted {
+        let d = presented.map(digest);
+        let ok = |want: &Option<[u8; 32]>| match (want, &d) {
+            (None, _) => true,
+            (Some(w), Some(d)) => same(w, d),
+            (Some(_), None) => false,
+        };
+        Granted {
+            submitter: ok(&self.submit),
+            worker: ok(&self.worker),
+            presented: presented.is_some(),
+        }
+    }
+}
+
+/// The roles a request's token grants; put in the request's extensions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Granted {
+    pub submitter: bool,
+    pub worker: bool,
+    presented: bool,
+}
+
+impl Granted {
+    /// Everything (no tokens configured, or in-process callers).
+    pub const ALL: Granted = Granted {
+        submitter: true,
+        worker: true,
+        presented: false,
+    };
+
+    fn refuse(&self, what: &str, needs: &str) -> Status {
+        if !self.presented {
+            Status::unauthenticated(format!(
+                "{what} needs the {needs} token (authorization: Bearer TOKEN; --token or \
+                 TREVI_TOKEN)"
+            ))
+        } else if self.submitter || self.worker {
+            Status::permission_denied(format!("{what} needs the {needs} token"))
+        } else {
+            Status::unauthenticated(format!("{what}: the token is not valid"))
+        }
+    }
+
+    /// Checks the submitter role.
+    pub fn need_submitter(&self, what: &str) -> Result<(), Status> {
+        if self.submitter {
+            Ok(())
+        } else {
+            Err(self.refuse(what, "submit"))
+        }
+    }
+}
+
+/// The roles granted to `req` (everything when no interceptor ran).
+pub fn granted<T>(req: &Request<T>) -> Granted {
+    req.extensions()
+        .get::<Granted>()
+        .copied()
+        .unwrap_or(Granted::ALL)
+}
+
+/// Which roles a service admits.
+#[derive(Debug, Clone, Copy)]
+pub enum Need {
+    Submitter,
+    Worker,
+    Either,
+}
+
+/// A tonic interceptor checking the token for one service.
+#[derive(Clone)]
+pub struct Auth {
+    pub tokens: Arc<Tokens>,
+    pub need: Need,
+    pub service: &'static str,
+}
+
+impl tonic::service::Interceptor for Auth {
+    fn call(&mut self, mut req: Request<()>) -> Result<Request<()>, Status> {
+        let presented = match req.metadata().get("authorization") {
+            None => None,
+            Some(v) => {
+                let v = v
+                    .to_str()
+                    .map_err(|_| Status::unauthenticated("the authorization header is not text"))?;
+                Some(v.strip_prefix("Bearer ").map(str::trim).ok_or_else(|| {
+                    Status::unauthenticated("authorization must be \"Bearer TOKEN\"")
+                })?)
+            }
+        };
+        let g = self.tokens.grant(presented);
+        let ok = match self.need {
+            Need::Submitter => g.submitter,
+            Need::Worker => g.worker,
+            Need::Either => g.submitter || g.worker,
+        };
+        if !ok {
+            let needs = match self.need {
+                Need::Submitter => "submit",
+                Need::Worker => "worker",
+                Need::Either => "submit or worker",
+            };
+            return Err(g.refuse(self.service, needs));
+        }
+        req.extensions_mut().insert(g);
+        Ok(req)
+    }
+}
+
+/// Reads a token from a flag's value or a file (trailing newline dropped).
+pub fn token_from(
+    value: Option<String>,
+    file: Option<&std::path::Path>,
+) -> Result<Option<String>, String> {
+    match (value, file) {
+        (Some(_), Some(f)) => Err(format!("give the token or {}, not both", f.display())),
+        (Some(v), None) => Ok(Some(v)),
+        (None, Some(f)) => std::fs::read_to_string(f)
+            .map(|s| Some(s.trim_end_matches(['\n', '\r']).to_string()))
+            .map_err(|e| format!("cannot read {}: {e}", f.display())),
+        (None, None) => Ok(None),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tonic::service::Interceptor;
+    use tonic::Code;
+
+    fn call(tokens: &Tokens, need: Need, header: Option<&str>) -> Result<Granted, Code> {
+        let mut a = Auth {
+            tokens: Arc::new(tokens.clone()),
+            need,
+            service: "svc",
+        };
+        let mut req = Request::new(());
+        if let Some(h) = header {
+            req.metadata_mut()
+                .insert("authorization", h.parse().unwrap());
+        }
+        a.call(req)
+            .map(|r| *r.extensions().get::<Granted>().unwrap())
+            .map_err(|s| s.code())
+    }
+
+    #[test]
+    fn roles_and_codes() {
+        let t = Tokens::new(Some("sub-secret"), Some("work-secret")).unwrap();
+        assert!(call(&t, Need::Submitter, Some("Bearer sub-secret")).is_ok());
+        assert!(call(&t, Need::Worker, Some("Bearer work-secret")).is_ok());
+        assert_eq!(
+            call(&t, Need::Submitter, Some("Bearer work-secret")),
+            Err(Code::PermissionDenied)
+        );
+        assert_eq!(
+            call(&t, Need::Worker, Some("Bearer sub-secret")),
+            Err(Code::PermissionDenied)
+        );
+        assert_eq!(call(&t, Need::Worker, None), Err(Code::Unauthenticated));
+        assert_eq!(
+            call(&t, Need::Either, Some("Bearer nope")),
+            Err(Code::Unauthenticated)
+        );
+        assert_eq!(
+            call(&t, Need::Either, Some("sub-secret")),
+            Err(Code::Unauthenticated)
+        );
+        let g = call(&t, Need::Either, Some("Bearer work-secret")).unwrap();
+        assert!(g.worker && !g.submitter);
+        assert_eq!(
+            g.need_submitter("upload").unwrap_err().code(),
+            Code::PermissionDenied
+        );
+        // No tokens: open.
+        let open = Tokens::default();
+        assert!(open.is_open());
+        assert!(call(&open, Need::Submitter, None).is_ok());
+        // Only a worker token: submitting stays open.
+        let w = Tokens::new(None, Some("w")).unwrap();
+        assert!(call(&w, Need::Submitter, None).is_ok());
+        assert_eq!(call(&w, Need::Worker, None), Err(Code::Unauthenticated));
+        assert!(Tokens::new(Some(" "), None).is_err());
+    }
+}

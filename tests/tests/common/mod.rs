@@ -1,0 +1,271 @@
+//! Helpers shared by the farm tests that start real processes: binaries,
+//! working directories with logs, children killed on drop, polling.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// A scene whose tiles take tens of milliseconds each on one thread.
+pub const SLOW_SCENE: &str = r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
+  <sphere id="ball" center="0 1 0" radius="1">
+    <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" reflectivity="0.2"/>
+  </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="96" height="64" supersample="6" shadow-samples="8" ao-samples="16" output="slow.png"/>
+  </camera>
+</scene>
+"#;
+
+/// A tiny scene: a 16×16 frame, one tile of 16, quick to render.
+pub fn tiny_scene(seed: u32) -> String {
+    format!(
+        r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.1 0.1 0.1"/>
+  <sphere id="ball" center="0 1 0" radius="{r}">
+    <surface diffuse="0.8 0.3 0.2"/>
+  </sphere>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="24" height="20" output="tiny.png"/>
+  </camera>
+</scene>
+"#,
+        r = 0.5 + (seed % 10) as f32 * 0.1
+    )
+}
+
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("current_exe");
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("the test runs from target/<profile>/deps");
+    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        path.exists(),
+        "{} is missing: run the tests with `cargo test --workspace`",
+        path.display()
+    );
+    path
+}
+
+/// A test's working directory; its logs are shown when an assertion fails.
+pub struct Dir {
+    tmp: tempfile::TempDir,
+}
+
+impl Dir {
+    pub fn new() -> Dir {
+        Dir {
+            tmp: tempfile::Builder::new()
+                .prefix("trevi-e2e-")
+                .tempdir()
+                .unwrap(),
+        }
+    }
+
+    pub fn path(&self) -> &Path {
+        self.tmp.path()
+    }
+
+    pub fn write(&self, rel: &str, text: &str) -> PathBuf {
+        let p = self.path().join(rel);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    pub fn log(&self, name: &str) -> std::fs::File {
+        std::fs::File::create(self.path().join(format!("{name}.log"))).unwrap()
+    }
+
+    pub fn read_log(&self, name: &str) -> String {
+        std::fs::read_to_string(self.path().join(format!("{name}.log"))).unwrap_or_default()
+    }
+
+    /// The tail of every log, for failure messages.
+    pub fn logs(&self) -> String {
+        let mut out = format!("working directory {}\n", self.path().display());
+        let mut entries: Vec<_> = std::fs::read_dir(self.path())
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e == "log"))
+            .collect();
+        entries.sort();
+        for p in entries {
+            let text = std::fs::read_to_string(&p).unwrap_or_default();
+            let tail: Vec<&str> = text.lines().rev().take(30).collect();
+            out.push_str(&format!("--- {}\n", p.display()));
+            for l in tail.into_iter().rev() {
+                out.push_str(l);
+                out.push('\n');
+            }
+        }
+        out
+    }
+}
+
+/// A child process killed (SIGKILL) when dropped.
+pub struct Proc(pub Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+pub struct Coordinator {
+    pub proc: Proc,
+    /// `http://127.0.0.1:PORT` (or `https://localhost:PORT`).
+    pub url: String,
+    pub addr: String,
+    pub data: PathBuf,
+}
+
+/// Starts `trevi-coordinator` on `listen` with `args` and `envs`; its data
+/// directory is `dir/data`.
+pub fn coordinator_with(
+    dir: &Dir,
+    listen: &str,
+    name: &str,
+    args: &[&str],
+    envs: &[(&str, &str)],
+) -> Coordinator {
+    let data = dir.path().join("data");
+    let mut cmd = Command::new(bin("trevi-coordinator"));
+    cmd.args(["--listen", listen, "--tile-size", "16"])
+        .arg("--data-dir")
+        .arg(&data)
+        .args(args)
+        .env("RUST_LOG", "info")
+        .env_remove("TREVI_SUBMIT_TOKEN")
+        .env_remove("TREVI_WORKER_TOKEN")
+        .stdout(Stdio::piped())
+        .stderr(dir.log(name));
+    for (k, v) in envs {
+        cmd.env(k, v);
+    }
+    let mut child = cmd.spawn().expect("start trevi-coordinator");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("coordinator said {line:?}\n{}", dir.logs()))
+        .to_string();
+    Coordinator {
+        proc: Proc(child),
+        url: format!("http://{addr}"),
+        addr,
+        data,
+    }
+}
+
+pub fn worker_with(dir: &Dir, url: &str, name: &str, args: &[&str], envs: &[(&str, &str)]) -> Proc {
+    let mut cmd = Command::new(bin("trevi-worker"));
+    cmd.args(["--coordinator", url, "--threads", "1", "--name", name])
+        .args(args)
+        .env("RUST_LOG", "info,trevi_worker=debug")
+        .env_remove("TREVI_TOKEN")
+        .stdout(Stdio::null())
+        .stderr(dir.log(name));
+    for (k, v) in envs {
+        cmd.env(k, v);
+    }
+    Proc(cmd.spawn().expect("start trevi-worker"))
+}
+
+pub fn submit_cmd(args: &[&str]) -> Command {
+    let mut c = Command::new(bin("trevi-submit"));
+    c.args(args)
+        .env_remove("TREVI_COORDINATOR")
+        .env_remove("TREVI_TOKEN");
+    c
+}
+
+/// Runs `trevi-submit` to the end, keeping its output as a log.
+pub fn submit(dir: &Dir, args: &[&str]) -> Output {
+    submit_env(dir, args, &[])
+}
+
+pub fn submit_env(dir: &Dir, args: &[&str], envs: &[(&str, &str)]) -> Output {
+    static RUNS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let mut cmd = submit_cmd(args);
+    for (k, v) in envs {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().expect("run trevi-submit");
+    std::fs::write(
+        dir.path().join(format!("submit-{n:03}.log")),
+        [&out.stdout[..], &out.stderr[..]].concat(),
+    )
+    .unwrap();
+    out
+}
+
+/// The embedded (one-process) render of a scene.
+pub fn embedded(dir: &Dir, scene: &Path, out: &str) -> Vec<u8> {
+    let out = dir.path().join(out);
+    let o = submit(
+        dir,
+        &[
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--tile",
+            "16",
+            "--quiet",
+        ],
+    );
+    assert!(
+        o.status.success(),
+        "embedded render failed\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    std::fs::read(out).unwrap()
+}
+
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// Polls `cond` until it holds; fails with the logs after `secs` seconds.
+pub fn wait_for(dir: &Dir, what: &str, secs: u64, mut cond: impl FnMut() -> bool) {
+    let end = Instant::now() + Duration::from_secs(secs);
+    while !cond() {
+        assert!(
+            Instant::now() < end,
+            "timed out waiting for {what}\n{}",
+            dir.logs()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+pub fn wait_child(dir: &Dir, child: &mut Child, secs: u64) -> std::process::ExitStatus {
+    let end = Instant::now() + Duration::from_secs(secs);
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        assert!(
+            Instant::now() < end,
+            "a process did not finish\n{}",
+            dir.logs()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}

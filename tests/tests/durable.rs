@@ -1,0 +1,248 @@
+//! The coordinator keeps its work: `kill -9` at several points of a job,
+//! restart on the same address and data directory, and the job finishes with
+//! the same bytes as an undisturbed render, without rendering finished tiles
+//! again. Workers and the waiting `trevi-submit` reconnect by themselves.
+
+mod common;
+
+use common::*;
+use trevi_proto::pb::{self, jobs_client::JobsClient};
+
+const TILES_IN_FLIGHT: usize = 2;
+const WORKERS: usize = 2;
+
+fn tiles_done(rt: &tokio::runtime::Runtime, url: &str, id: u64) -> Option<pb::JobStatus> {
+    rt.block_on(async {
+        let mut c = JobsClient::connect(url.to_string()).await.ok()?;
+        c.get_job(pb::JobId { id })
+            .await
+            .ok()
+            .map(|r| r.into_inner())
+    })
+}
+
+/// Tiles the workers rendered, from their logs.
+fn rendered(dir: &Dir) -> usize {
+    (0..WORKERS)
+        .map(|i| {
+            dir.read_log(&format!("worker{i}"))
+                .matches("tile rendered")
+                .count()
+        })
+        .sum()
+}
+
+#[test]
+fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
+    let dir = Dir::new();
+    let scene = dir.write("s.xml", SLOW_SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let mut c = coordinator_with(&dir, "127.0.0.1:0", "coordinator0", &[], &[]);
+    let (url, addr) = (c.url.clone(), c.addr.clone());
+    let workers: Vec<Proc> = (0..WORKERS)
+        .map(|i| {
+            worker_with(
+                &dir,
+                &url,
+                &format!("worker{i}"),
+                &["--tiles-in-flight", &TILES_IN_FLIGHT.to_string()],
+                &[],
+            )
+        })
+        .collect();
+    let out = dir.path().join("farm.png");
+    let mut sub = submit_cmd(&[
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &url,
+        "-o",
+        out.to_str().unwrap(),
+        "--tile",
+        "16",
+    ])
+    .stderr(dir.log("submit"))
+    .spawn()
+    .unwrap();
+    let rt = runtime();
+    let total = 6 * 4;
+    let mut kills = 0;
+    // Kill after a few tiles, in the middle, and at once after a restart
+    // (while it is resuming or has just resumed).
+    for (i, at) in [3u64, 12, 0].into_iter().enumerate() {
+        if at > 0 {
+            wait_for(&dir, &format!("{at} tiles done"), 120, || {
+                tiles_done(&rt, &url, 1).is_some_and(|s| s.tiles_done >= at)
+            });
+        }
+        let s = tiles_done(&rt, &url, 1);
+        if let Some(s) = &s {
+            assert_eq!(s.tiles_total, total);
+            assert!(
+                s.tiles_done < s.tiles_total,
+                "the job ended before kill {i}; make the scene slower\n{}",
+                dir.logs()
+            );
+        }
+        drop(c); // SIGKILL
+        kills += 1;
+        c = coordinator_with(&dir, &addr, &format!("coordinator{}", i + 1), &[], &[]);
+        // What the restarted coordinator found.
+        if at > 0 {
+            let s = tiles_done(&rt, &url, 1).expect("the job survived the restart");
+            assert!(s.tiles_done >= at, "{s:?}\n{}", dir.logs());
+        }
+    }
+    let status = wait_child(&dir, &mut sub, 180);
+    assert!(status.success(), "submit failed\n{}", dir.logs());
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "output differs from the undisturbed render\n{}",
+        dir.logs()
+    );
+    let s = tiles_done(&rt, &url, 1).unwrap();
+    assert_eq!(s.state, pb::JobState::Done as i32);
+    assert_eq!(s.tiles_done, total);
+    let n = rendered(&dir);
+    let bound = total as usize + kills * WORKERS * TILES_IN_FLIGHT;
+    assert!(
+        n <= bound,
+        "rendered {n} tiles for {total}, more than {bound}\n{}",
+        dir.logs()
+    );
+    assert!(n >= total as usize, "the worker logs count {n} tiles");
+    // The finished job and its output survive one more restart.
+    drop(c);
+    let c = coordinator_with(&dir, &addr, "coordinator-last", &[], &[]);
+    let again = dir.path().join("again.png");
+    let o = submit(&dir, &["status", "1", "--coordinator", &c.url]);
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("done"),
+        "{}",
+        dir.logs()
+    );
+    rt.block_on(async {
+        let mut j = JobsClient::connect(c.url.clone()).await.unwrap();
+        let mut s = j
+            .download_output(pb::JobId { id: 1 })
+            .await
+            .unwrap()
+            .into_inner();
+        let mut bytes = Vec::new();
+        while let Some(chunk) = s.message().await.unwrap() {
+            bytes.extend_from_slice(&chunk.data);
+        }
+        std::fs::write(&again, &bytes).unwrap();
+    });
+    assert!(std::fs::read(&again).unwrap() == expected);
+    drop(workers);
+}
+
+/// A scene with `cams` cameras, each writing its own small PNG.
+fn many_camera_scene(seed: u32, cams: u32) -> String {
+    let mut s = format!(
+        r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.1 0.1 0.1"/>
+  <sphere id="ball" center="0 1 0" radius="{}">
+    <surface diffuse="0.8 0.3 0.2"/>
+  </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1"/>
+"#,
+        0.6 + seed as f32 * 0.1
+    );
+    for c in 0..cams {
+        s.push_str(&format!(
+            r#"  <camera id="c{c}" position="{} 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="40" height="24" output="c{c}.png"/>
+  </camera>
+"#,
+            c as f32 * 0.3 - 1.5
+        ));
+    }
+    s.push_str("</scene>\n");
+    s
+}
+
+#[test]
+fn five_submitters_fifty_jobs_four_workers() {
+    let dir = Dir::new();
+    const SUBMITTERS: u32 = 5;
+    const CAMS: u32 = 10;
+    let scenes: Vec<std::path::PathBuf> = (0..SUBMITTERS)
+        .map(|i| dir.write(&format!("s{i}/scene.xml"), &many_camera_scene(i, CAMS)))
+        .collect();
+    // The expected images: each scene rendered by the embedded farm.
+    for (i, s) in scenes.iter().enumerate() {
+        let o = submit(&dir, &[s.to_str().unwrap(), "--tile", "16", "--quiet"]);
+        assert!(
+            o.status.success(),
+            "embedded render {i} failed\n{}",
+            dir.logs()
+        );
+        for c in 0..CAMS {
+            let p = s.parent().unwrap().join(format!("c{c}.png"));
+            std::fs::rename(&p, p.with_extension("expected.png")).unwrap();
+        }
+    }
+    let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
+    let workers: Vec<Proc> = (0..4)
+        .map(|i| worker_with(&dir, &c.url, &format!("worker{i}"), &[], &[]))
+        .collect();
+    let mut subs: Vec<std::process::Child> = scenes
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            submit_cmd(&[
+                s.to_str().unwrap(),
+                "--coordinator",
+                &c.url,
+                "--tile",
+                "16",
+                "--priority",
+                &(i as i32 % 3).to_string(),
+            ])
+            .stderr(dir.log(&format!("submitter{i}")))
+            .spawn()
+            .unwrap()
+        })
+        .collect();
+    for s in &mut subs {
+        let st = wait_child(&dir, s, 120);
+        assert!(st.success(), "a submitter failed\n{}", dir.logs());
+    }
+    for s in &scenes {
+        for cam in 0..CAMS {
+            let p = s.parent().unwrap().join(format!("c{cam}.png"));
+            let got = std::fs::read(&p).unwrap();
+            let want = std::fs::read(p.with_extension("expected.png")).unwrap();
+            assert!(got == want, "{} differs\n{}", p.display(), dir.logs());
+        }
+    }
+    let rt = runtime();
+    let list = rt.block_on(async {
+        JobsClient::connect(c.url.clone())
+            .await
+            .unwrap()
+            .list_jobs(pb::ListJobsRequest {})
+            .await
+            .unwrap()
+            .into_inner()
+            .jobs
+    });
+    assert_eq!(list.len(), (SUBMITTERS * CAMS) as usize);
+    let tiles: u64 = list.iter().map(|s| s.tiles_total).sum();
+    for s in &list {
+        assert_eq!(s.state, pb::JobState::Done as i32, "{s:?}");
+        assert_eq!(s.tiles_done, s.tiles_total, "{s:?}");
+    }
+    // Every tile rendered once: none lost, none done twice.
+    let rendered: usize = (0..4)
+        .map(|i| {
+            dir.read_log(&format!("worker{i}"))
+                .matches("tile rendered")
+                .count()
+        })
+        .sum();
+    assert_eq!(rendered as u64, tiles, "{}", dir.logs());
+    drop(workers);
+}

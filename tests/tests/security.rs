@@ -1,0 +1,534 @@
+//! Tokens, limits and hostile input against a real coordinator: every
+//! refusal has its gRPC code and a clear message, and the coordinator keeps
+//! serving honest clients afterwards.
+
+mod common;
+
+use common::*;
+use tonic::transport::Channel;
+use tonic::Code;
+use trevi_core::Bundle;
+use trevi_proto::pb::{
+    self, bundles_client::BundlesClient, jobs_client::JobsClient, workers_client::WorkersClient,
+};
+use trevi_proto::{AuthChannel, Bearer};
+
+const SUBMIT: &str = "submit-secret-1234";
+const WORK: &str = "worker-secret-5678";
+
+async fn channel(url: &str) -> Channel {
+    Channel::from_shared(url.to_string())
+        .unwrap()
+        .connect()
+        .await
+        .unwrap()
+}
+
+async fn jobs(url: &str, token: Option<&str>) -> JobsClient<AuthChannel> {
+    JobsClient::with_interceptor(channel(url).await, Bearer::new(token).unwrap())
+}
+
+async fn workers(url: &str, token: Option<&str>) -> WorkersClient<AuthChannel> {
+    WorkersClient::with_interceptor(channel(url).await, Bearer::new(token).unwrap())
+}
+
+async fn bundles(url: &str, token: Option<&str>) -> BundlesClient<AuthChannel> {
+    BundlesClient::with_interceptor(channel(url).await, Bearer::new(token).unwrap())
+        .max_encoding_message_size(64 << 20)
+}
+
+fn bundle_of(scene: &str) -> Bundle {
+    let mut files = std::collections::BTreeMap::new();
+    files.insert("s.xml".to_string(), scene.as_bytes().to_vec());
+    Bundle {
+        scene: "s.xml".into(),
+        files,
+    }
+}
+
+async fn upload(
+    b: &mut BundlesClient<AuthChannel>,
+    chunks: Vec<Vec<u8>>,
+) -> Result<String, tonic::Status> {
+    let msgs: Vec<pb::BundleChunk> = chunks
+        .into_iter()
+        .map(|data| pb::BundleChunk { data })
+        .collect();
+    Ok(b.upload_bundle(tokio_stream::iter(msgs))
+        .await?
+        .into_inner()
+        .hash)
+}
+
+fn code<T: std::fmt::Debug>(r: Result<T, tonic::Status>) -> Code {
+    match r {
+        Ok(v) => panic!("expected an error, got {v:?}"),
+        Err(s) => s.code(),
+    }
+}
+
+#[test]
+fn each_token_and_role_combination() {
+    let dir = Dir::new();
+    let scene = dir.write("s.xml", &tiny_scene(1));
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let token_file = dir.write("worker.token", &format!("{WORK}\n"));
+    let c = coordinator_with(
+        &dir,
+        "127.0.0.1:0",
+        "coordinator",
+        &["--worker-token-file", token_file.to_str().unwrap()],
+        &[("TREVI_SUBMIT_TOKEN", SUBMIT)],
+    );
+    let rt = runtime();
+    rt.block_on(async {
+        let list = |t: Option<&'static str>| {
+            let url = c.url.clone();
+            async move {
+                jobs(&url, t)
+                    .await
+                    .list_jobs(pb::ListJobsRequest {})
+                    .await
+                    .map(|r| r.into_inner().jobs.len())
+            }
+        };
+        let register = |t: Option<&'static str>| {
+            let url = c.url.clone();
+            async move {
+                workers(&url, t)
+                    .await
+                    .register(pb::RegisterRequest {
+                        name: "t".into(),
+                        threads: 1,
+                    })
+                    .await
+                    .map(|r| r.into_inner().worker_id)
+            }
+        };
+        // Jobs: the submit token only.
+        assert_eq!(list(Some(SUBMIT)).await.unwrap(), 0);
+        assert_eq!(code(list(None).await), Code::Unauthenticated);
+        assert_eq!(code(list(Some("guess")).await), Code::Unauthenticated);
+        let e = list(Some(WORK)).await.unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        assert!(e.message().contains("submit token"), "{}", e.message());
+        // Workers: the worker token only.
+        assert!(register(Some(WORK)).await.is_ok());
+        assert_eq!(code(register(None).await), Code::Unauthenticated);
+        assert_eq!(code(register(Some("guess")).await), Code::Unauthenticated);
+        assert_eq!(code(register(Some(SUBMIT)).await), Code::PermissionDenied);
+        // Bundles: submitters upload, workers only download.
+        let bytes = bundle_of(&tiny_scene(2)).encode();
+        let mut wb = bundles(&c.url, Some(WORK)).await;
+        assert_eq!(
+            code(upload(&mut wb, vec![bytes.clone()]).await),
+            Code::PermissionDenied
+        );
+        let mut nb = bundles(&c.url, None).await;
+        assert_eq!(
+            code(upload(&mut nb, vec![bytes.clone()]).await),
+            Code::Unauthenticated
+        );
+        let mut sb = bundles(&c.url, Some(SUBMIT)).await;
+        let hash = upload(&mut sb, vec![bytes.clone()]).await.unwrap();
+        let mut got = Vec::new();
+        let mut s = wb
+            .download_bundle(pb::BundleRef {
+                hash: hash.clone(),
+                size: 0,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        while let Some(chunk) = s.message().await.unwrap() {
+            got.extend_from_slice(&chunk.data);
+        }
+        assert_eq!(got, bytes);
+        assert_eq!(
+            code(
+                nb.download_bundle(pb::BundleRef { hash, size: 0 })
+                    .await
+                    .map(|_| ())
+            ),
+            Code::Unauthenticated
+        );
+        // Health stays open.
+        use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
+        let r = HealthClient::new(channel(&c.url).await)
+            .check(HealthCheckRequest {
+                service: "trevi.v1.Jobs".into(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(r.status, 1);
+    });
+    // The real programs with their tokens render the same bytes.
+    let _w = worker_with(&dir, &c.url, "worker", &[], &[("TREVI_TOKEN", WORK)]);
+    let out = dir.path().join("farm.png");
+    let args = [
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &c.url,
+        "-o",
+        out.to_str().unwrap(),
+        "--tile",
+        "16",
+    ];
+    let o = submit_env(&dir, &args, &[("TREVI_TOKEN", SUBMIT)]);
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(std::fs::read(&out).unwrap() == expected);
+    // Without a token, or with the worker's, trevi-submit is told why.
+    let o = submit(&dir, &args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("token"), "{err}");
+    let o = submit_env(&dir, &args, &[("TREVI_TOKEN", WORK)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("PermissionDenied"),
+        "{err}"
+    );
+    // A worker with the submit token gets no work (and says why).
+    let _bad = worker_with(&dir, &c.url, "badworker", &["--token", SUBMIT], &[]);
+    wait_for(&dir, "the refused worker to log", 30, || {
+        dir.read_log("badworker").contains("worker token")
+    });
+}
+
+/// A scene made to blow up an XML parser that expands entities.
+const LAUGHS: &str = r#"<?xml version="1.0"?>
+<!DOCTYPE lolz [
+ <!ENTITY lol "lol">
+ <!ENTITY lol2 "&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;&lol;">
+ <!ENTITY lol3 "&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;">
+ <!ENTITY lol4 "&lol3;&lol3;&lol3;&lol3;&lol3;&lol3;&lol3;&lol3;&lol3;&lol3;">
+ <!ENTITY lol5 "&lol4;&lol4;&lol4;&lol4;&lol4;&lol4;&lol4;&lol4;&lol4;&lol4;">
+ <!ENTITY lol6 "&lol5;&lol5;&lol5;&lol5;&lol5;&lol5;&lol5;&lol5;&lol5;&lol5;">
+ <!ENTITY lol7 "&lol6;&lol6;&lol6;&lol6;&lol6;&lol6;&lol6;&lol6;&lol6;&lol6;">
+ <!ENTITY lol8 "&lol7;&lol7;&lol7;&lol7;&lol7;&lol7;&lol7;&lol7;&lol7;&lol7;">
+ <!ENTITY lol9 "&lol8;&lol8;&lol8;&lol8;&lol8;&lol8;&lol8;&lol8;&lol8;&lol8;">
+ <!ENTITY xxe SYSTEM "file:///etc/passwd">
+]>
+<scene version="1">
+  <camera id="&lol9;&xxe;" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="8" height="8" output="o.png"/>
+  </camera>
+</scene>
+"#;
+
+#[test]
+fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
+    let dir = Dir::new();
+    let c = coordinator_with(
+        &dir,
+        "127.0.0.1:0",
+        "coordinator",
+        &[
+            "--max-bundle-mib",
+            "1",
+            "--max-bundle-files",
+            "3",
+            "--max-image-samples",
+            "100000",
+            "--max-jobs-per-submitter",
+            "3",
+        ],
+        &[],
+    );
+    let rt = runtime();
+    rt.block_on(async {
+        let mut b = bundles(&c.url, None).await;
+        let mut j = jobs(&c.url, None).await;
+        let mut w = workers(&c.url, None).await;
+
+        // A bundle over the size limit, sent in legal chunks.
+        let big = vec![vec![7u8; 600 << 10], vec![7u8; 600 << 10]];
+        let e = upload(&mut b, big).await.unwrap_err();
+        assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+        assert!(e.message().contains("limit"), "{}", e.message());
+        // One message over the message size limit.
+        let e = upload(&mut b, vec![vec![1u8; 6 << 20]]).await.unwrap_err();
+        assert!(
+            matches!(e.code(), Code::ResourceExhausted | Code::OutOfRange),
+            "{e:?}"
+        );
+        // Too many files.
+        let mut many = bundle_of(&tiny_scene(1));
+        for i in 0..4 {
+            many.files.insert(format!("f{i}.obj"), b"v 0 0 0".to_vec());
+        }
+        let e = upload(&mut b, vec![many.encode()]).await.unwrap_err();
+        assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+        // A path outside the bundle; a truncated bundle; garbage.
+        let mut sneaky = bundle_of(&tiny_scene(1));
+        sneaky.files.insert("../x.obj".into(), b"v 0 0 0".to_vec());
+        assert_eq!(
+            code(upload(&mut b, vec![sneaky.encode()]).await),
+            Code::InvalidArgument
+        );
+        let good = bundle_of(&tiny_scene(1)).encode();
+        assert_eq!(
+            code(upload(&mut b, vec![good[..good.len() - 5].to_vec()]).await),
+            Code::InvalidArgument
+        );
+        assert_eq!(
+            code(upload(&mut b, vec![b"not a bundle".to_vec()]).await),
+            Code::InvalidArgument
+        );
+        // XML entity tricks: refused, not expanded, no file read.
+        let hash = upload(&mut b, vec![bundle_of(LAUGHS).encode()])
+            .await
+            .unwrap();
+        let e = j
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: hash,
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
+        assert!(!e.message().contains("root:"), "{}", e.message());
+        // A frame over the image limit.
+        let huge =
+            tiny_scene(1).replace(r#"width="24" height="20""#, r#"width="400" height="300""#);
+        let hash = upload(&mut b, vec![bundle_of(&huge).encode()])
+            .await
+            .unwrap();
+        let e = j
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: hash,
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+        assert!(e.message().contains("samples"), "{}", e.message());
+        // Unknown bundle and job.
+        let e = j
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: "ab".repeat(32),
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::NotFound);
+        assert_eq!(code(j.get_job(pb::JobId { id: 999 }).await), Code::NotFound);
+
+        // A bundle damaged on the coordinator's disk is never served.
+        let hash = upload(&mut b, vec![good.clone()]).await.unwrap();
+        let path = c.data.join("bundles").join(&hash);
+        let mut damaged = std::fs::read(&path).unwrap();
+        let last = damaged.len() - 2;
+        damaged[last] ^= 1;
+        std::fs::write(&path, &damaged).unwrap();
+        let r = async {
+            let mut s = b
+                .download_bundle(pb::BundleRef {
+                    hash: hash.clone(),
+                    size: 0,
+                })
+                .await?
+                .into_inner();
+            s.message().await
+        }
+        .await;
+        assert_eq!(code(r), Code::InvalidArgument);
+        assert_eq!(
+            code(
+                j.submit_job(pb::SubmitJobRequest {
+                    bundle_hash: hash,
+                    ..Default::default()
+                })
+                .await
+            ),
+            Code::InvalidArgument
+        );
+
+        // Tile results: a real job and a lease.
+        let scene = tiny_scene(3);
+        let hash = upload(&mut b, vec![bundle_of(&scene).encode()])
+            .await
+            .unwrap();
+        let job = j
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: hash.clone(),
+                tile_size: 16,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .id;
+        let me = w
+            .register(pb::RegisterRequest {
+                name: "liar".into(),
+                threads: 1,
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .worker_id;
+        let lease = loop {
+            if let Some(l) = w
+                .lease_tile(pb::LeaseRequest { worker_id: me })
+                .await
+                .unwrap()
+                .into_inner()
+                .lease
+            {
+                break l;
+            }
+        };
+        let rect: trevi_core::Rect = lease.rect.unwrap().into();
+        let sender = w.clone();
+        let send = |worker_id: u64, lease_id: u64, rect: pb::Rect, pixels: Vec<Vec<u8>>| {
+            let mut w = sender.clone();
+            async move {
+                let mut msgs = vec![pb::TileUpload {
+                    part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
+                        worker_id,
+                        lease_id,
+                        job_id: job,
+                        rect: Some(rect),
+                        rays: 1,
+                    })),
+                }];
+                msgs.extend(pixels.into_iter().map(|p| pb::TileUpload {
+                    part: Some(pb::tile_upload::Part::Pixels(p)),
+                }));
+                w.submit_tile(tokio_stream::iter(msgs)).await
+            }
+        };
+        let px = |n: usize| trevi_proto::pixels_to_bytes(&vec![[0.5f32; 3]; n]);
+        let full = px(rect.pixel_count());
+        // A lease the worker does not hold (made up, or someone else's).
+        let e = send(
+            me,
+            lease.lease_id + 1000,
+            lease.rect.unwrap(),
+            vec![full.clone()],
+        )
+        .await
+        .unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        let e = send(
+            me + 1,
+            lease.lease_id,
+            lease.rect.unwrap(),
+            vec![full.clone()],
+        )
+        .await
+        .unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        // A rectangle that is no tile, and a huge one.
+        let odd = pb::Rect {
+            x: 3,
+            y: 0,
+            w: 16,
+            h: 16,
+        };
+        assert_eq!(
+            code(send(me, lease.lease_id, odd, vec![full.clone()]).await),
+            Code::InvalidArgument
+        );
+        let huge = pb::Rect {
+            x: 0,
+            y: 0,
+            w: u32::MAX,
+            h: u32::MAX,
+        };
+        assert_eq!(
+            code(send(me, lease.lease_id, huge, vec![]).await),
+            Code::InvalidArgument
+        );
+        // Truncated (header only; half the pixels) and oversized streams.
+        assert_eq!(
+            code(send(me, lease.lease_id, lease.rect.unwrap(), vec![]).await),
+            Code::InvalidArgument
+        );
+        let again = loop {
+            if let Some(l) = w
+                .lease_tile(pb::LeaseRequest { worker_id: me })
+                .await
+                .unwrap()
+                .into_inner()
+                .lease
+            {
+                break l;
+            }
+        };
+        assert_eq!(again.rect, lease.rect, "the refused tile is back first");
+        let oversized = vec![full.clone(), px(10)];
+        assert_eq!(
+            code(send(me, again.lease_id, again.rect.unwrap(), oversized).await),
+            Code::InvalidArgument
+        );
+        assert_eq!(
+            jobs(&c.url, None)
+                .await
+                .get_job(pb::JobId { id: job })
+                .await
+                .unwrap()
+                .into_inner()
+                .tiles_done,
+            0
+        );
+    });
+
+    // Jobs per submitter: job 1 is unfinished; two more fit, the next not.
+    let scene = dir.write("s.xml", &tiny_scene(4));
+    let detach = |dir: &Dir| {
+        submit(
+            dir,
+            &[
+                scene.to_str().unwrap(),
+                "--coordinator",
+                &c.url,
+                "--detach",
+                "--tile",
+                "16",
+            ],
+        )
+    };
+    assert!(detach(&dir).status.success(), "{}", dir.logs());
+    assert!(detach(&dir).status.success(), "{}", dir.logs());
+    let o = detach(&dir);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("unfinished jobs") && err.contains("ResourceExhausted"),
+        "{err}"
+    );
+
+    // Still serving: an honest worker finishes everything, and a new render
+    // is byte-identical to the embedded one.
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let _w = worker_with(&dir, &c.url, "honest", &[], &[]);
+    let rt = runtime();
+    wait_for(&dir, "the queued jobs", 60, || {
+        rt.block_on(async {
+            let list = jobs(&c.url, None)
+                .await
+                .list_jobs(pb::ListJobsRequest {})
+                .await
+                .unwrap()
+                .into_inner()
+                .jobs;
+            list.iter().all(|s| s.state == pb::JobState::Done as i32)
+        })
+    });
+    let out = dir.path().join("after.png");
+    let o = submit(
+        &dir,
+        &[
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &c.url,
+            "-o",
+            out.to_str().unwrap(),
+            "--tile",
+            "16",
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(std::fs::read(&out).unwrap() == expected);
+}
