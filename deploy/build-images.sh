@@ -109,9 +109,16 @@ done
 cp -p deploy/trevi-health "$ctx/trevi-health"
 cp deploy/Dockerfile.runtime "$ctx/Dockerfile"
 say "docker build $image (base $base)"
+previous=$(docker image inspect -f '{{.Id}}' "$image" 2>/dev/null || true)
 DOCKER_BUILDKIT=0 docker build -q --build-arg BASE_IMAGE="$base" -t "$image" "$ctx" >/dev/null 2>"$cache/docker-build.log" || {
     cat "$cache/docker-build.log"
     say "docker build failed"
     exit 1
 }
+# The image this one replaces, now untagged: remove it unless a container
+# still uses it.
+current=$(docker image inspect -f '{{.Id}}' "$image")
+if [ -n "$previous" ] && [ "$previous" != "$current" ]; then
+    docker rmi "$previous" >/dev/null 2>&1 || true
+fi
 say "built $image: $(docker image inspect -f '{{.Size}}' "$image" | awk '{printf "%.0f MB", $1/1e6}')"
