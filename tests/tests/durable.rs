@@ -35,7 +35,11 @@ fn rendered(dir: &Dir) -> usize {
 #[test]
 fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
     let dir = Dir::new();
-    let scene = dir.write("s.xml", SLOW_SCENE);
+    // 8 × 6 tiles of 16, slow enough that every kill lands mid-job.
+    let scene = dir.write(
+        "s.xml",
+        &SLOW_SCENE.replace(r#"width="96" height="64""#, r#"width="128" height="96""#),
+    );
     let expected = embedded(&dir, &scene, "embedded.png");
     let mut c = coordinator_with(&dir, "127.0.0.1:0", "coordinator0", &[], &[]);
     let (url, addr) = (c.url.clone(), c.addr.clone());
@@ -64,11 +68,11 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
     .spawn()
     .unwrap();
     let rt = runtime();
-    let total = 6 * 4;
+    let total = 8 * 6;
     let mut kills = 0;
     // Kill after a few tiles, in the middle, and at once after a restart
     // (while it is resuming or has just resumed).
-    for (i, at) in [3u64, 12, 0].into_iter().enumerate() {
+    for (i, at) in [3u64, 20, 0].into_iter().enumerate() {
         if at > 0 {
             wait_for(&dir, &format!("{at} tiles done"), 120, || {
                 tiles_done(&rt, &url, 1).is_some_and(|s| s.tiles_done >= at)
