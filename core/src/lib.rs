@@ -34,9 +34,9 @@ pub mod mesh;
 pub mod output;
 pub mod sampling;
 pub mod scene;
-pub mod tile;
 #[cfg(test)]
 mod testing;
+pub mod tile;
 pub mod world;
 
 pub use bundle::{Bundle, DirSource, FileSource};
