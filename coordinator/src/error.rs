@@ -24,6 +24,8 @@ pub enum FarmError {
     Invalid(String),
     #[error("job {0} has no output: {1}")]
     NoOutput(u64, String),
+    #[error("job {0} is over")]
+    JobOver(u64),
     #[error("{0}")]
     Io(String),
 }
@@ -35,6 +37,7 @@ impl From<SchedError> for FarmError {
             SchedError::UnknownWorker(w) => FarmError::UnknownWorker(w),
             e @ SchedError::NotATile(..) => FarmError::BadTile(e.to_string()),
             e @ SchedError::NotYourLease(..) => FarmError::NotYourLease(e.to_string()),
+            SchedError::JobOver(j) => FarmError::JobOver(j),
         }
     }
 }
@@ -49,7 +52,7 @@ impl FarmError {
             FarmError::BadBundle(_) | FarmError::BadScene(_) | FarmError::BadTile(_) => {
                 Code::InvalidArgument
             }
-            FarmError::NoOutput(..) => Code::FailedPrecondition,
+            FarmError::NoOutput(..) | FarmError::JobOver(_) => Code::FailedPrecondition,
             FarmError::NotYourLease(_) => Code::PermissionDenied,
             FarmError::Limit(_) => Code::ResourceExhausted,
             FarmError::Invalid(_) => Code::InvalidArgument,
@@ -79,6 +82,7 @@ mod tests {
             (FarmError::BadScene("x".into()), Code::InvalidArgument),
             (FarmError::BadTile("x".into()), Code::InvalidArgument),
             (FarmError::NoOutput(1, "x".into()), Code::FailedPrecondition),
+            (FarmError::JobOver(1), Code::FailedPrecondition),
             (FarmError::Io("x".into()), Code::Internal),
             (FarmError::NotYourLease("x".into()), Code::PermissionDenied),
             (FarmError::Limit("x".into()), Code::ResourceExhausted),

@@ -11,12 +11,15 @@
 
 use crate::bundles::BundleStore;
 use crate::error::FarmError;
+use crate::metrics::Metrics;
+use crate::preview::{encode_png, Preview};
 use crate::scheduler::{
-    Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, Restored, Scheduler,
-    SchedulerConfig, WorkerId,
+    Accepted, Counters, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth, Restored,
+    Scheduler, SchedulerConfig, WorkerId,
 };
 use crate::store::{wall_ms, Store, StoredJob};
-use std::collections::HashMap;
+use crate::workers::WorkerInfo;
+use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -112,6 +115,42 @@ struct Output {
     written: u64,
     total: u64,
     max_rows_held: usize,
+    preview: Preview,
+}
+
+impl Output {
+    fn new(sink: Box<dyn TileSink>, spec: &JobSpec, total: u64) -> Output {
+        Output {
+            sink: Some(sink),
+            written: 0,
+            total,
+            max_rows_held: 0,
+            preview: Preview::new(spec.width, spec.height),
+        }
+    }
+}
+
+/// A job's preview as a PNG file, with what it shows.
+#[derive(Debug, Clone)]
+pub struct PreviewImage {
+    pub width: u32,
+    pub height: u32,
+    /// Tiles of the frame in the preview.
+    pub tiles: u64,
+    pub png: Arc<Vec<u8>>,
+}
+
+/// Final previews kept for jobs that have ended (the newest ones).
+const KEPT_PREVIEWS: usize = 32;
+
+/// What `/metrics` reports, read in one go.
+#[derive(Debug, Clone)]
+pub struct FarmSnapshot {
+    pub counters: Counters,
+    pub queue: QueueDepth,
+    pub jobs: Vec<JobInfo>,
+    pub workers: Vec<WorkerInfo>,
+    pub rays_per_second: f64,
 }
 
 struct State {
@@ -120,9 +159,22 @@ struct State {
     watchers: HashMap<JobId, watch::Sender<JobInfo>>,
     /// Who submitted each unfinished job.
     submitters: HashMap<JobId, String>,
+    /// The last previews of jobs that ended, oldest first.
+    final_previews: VecDeque<(JobId, PreviewImage)>,
 }
 
 impl State {
+    /// Keeps an ended job's last preview, so the monitor still shows it.
+    fn keep_final_preview(&mut self, job: JobId, image: Option<PreviewImage>) {
+        let Some(image) = image else {
+            return;
+        };
+        self.final_previews.push_back((job, image));
+        if self.final_previews.len() > KEPT_PREVIEWS {
+            self.final_previews.pop_front();
+        }
+    }
+
     fn publish(&self, job: JobId) {
         if let (Some(tx), Some(info)) = (
             self.watchers.get(&job),
@@ -141,6 +193,7 @@ pub struct Farm {
     work: Notify,
     bundles: BundleStore,
     store: Option<Store>,
+    metrics: Metrics,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -191,10 +244,12 @@ impl Farm {
                 outputs: HashMap::new(),
                 watchers: HashMap::new(),
                 submitters: HashMap::new(),
+                final_previews: VecDeque::new(),
             }),
             work: Notify::new(),
             bundles,
             store,
+            metrics: Metrics::default(),
             cfg,
         };
         farm.restore()?;
@@ -300,12 +355,14 @@ impl Farm {
         }
         let mut writer = FrameWriter::create(&path, info.spec.width, info.spec.height)
             .map_err(|e| FarmError::Io(format!("cannot create the output: {e}")))?;
+        let mut preview = Preview::new(info.spec.width, info.spec.height);
         store.replay_tiles(job, |idx, bytes| {
             let rect = *rects
                 .get(&idx)
                 .ok_or_else(|| FarmError::Io(format!("stored tile {idx} is not in the frame")))?;
             let pixels = pixels_from_le_bytes(bytes);
             validate_pixels(rect, &pixels)?;
+            preview.add_tile(rect, &pixels);
             writer
                 .write_tile(rect, &pixels)
                 .map_err(|e| FarmError::Io(format!("writing the output: {e}")))
@@ -315,6 +372,7 @@ impl Farm {
             sink: Some(Box::new(writer)),
             written: rects.len() as u64,
             total: info.tiles_total,
+            preview,
         })
     }
 
@@ -466,12 +524,7 @@ impl Farm {
         }
         st.outputs.insert(
             id,
-            Arc::new(Mutex::new(Output {
-                sink: Some(sink),
-                written: 0,
-                total: info.tiles_total,
-                max_rows_held: 0,
-            })),
+            Arc::new(Mutex::new(Output::new(sink, &info.spec, info.tiles_total))),
         );
         st.watchers.insert(id, watch::channel(info.clone()).0);
         st.submitters.insert(id, who.to_string());
@@ -483,7 +536,15 @@ impl Farm {
     }
 
     pub fn register_worker(&self) -> WorkerId {
-        lock(&self.state).sched.register_worker(Instant::now())
+        self.register_worker_as("", 0)
+    }
+
+    /// Registers a worker under the name and thread count it gave.
+    pub fn register_worker_as(&self, name: &str, threads: u32) -> WorkerId {
+        let mut st = lock(&self.state);
+        let id = st.sched.register_worker(Instant::now());
+        st.sched.describe_worker(id, name, threads);
+        id
     }
 
     pub fn lease(&self, worker: WorkerId) -> Result<Option<Lease>, FarmError> {
@@ -585,7 +646,7 @@ impl Farm {
             self.fail_jobs(failed);
             return Err(e);
         }
-        match st.sched.accept_tile(job, rect, rays)? {
+        match st.sched.accept_tile(job, rect, rays, Instant::now())? {
             Accepted::Ignored => return Ok(TileOutcome::Ignored),
             Accepted::New { .. } => {}
         }
@@ -617,14 +678,17 @@ impl Farm {
         };
         if let Err(e) = sink.write_tile(rect, pixels) {
             o.sink = None;
+            drop(guard); // end_job takes the output's lock for its preview.
             self.end_job(job, Err(format!("writing the output: {e}")));
             return Err(FarmError::Io(e));
         }
         o.max_rows_held = o.max_rows_held.max(sink.rows_held());
         o.written += 1;
+        o.preview.add_tile(rect, pixels);
         if o.written == o.total {
             let sink = o.sink.take().expect("checked above");
             let result = sink.finish();
+            drop(guard);
             self.end_job(
                 job,
                 result.map_err(|e| format!("finishing the output: {e}")),
@@ -638,14 +702,24 @@ impl Farm {
             Ok(()) => tracing::info!(job, "job done"),
             Err(e) => tracing::error!(job, error = %e, "job failed"),
         }
+        let image = self.final_preview(job);
         let mut st = lock(&self.state);
         st.sched.finish(job, result, Instant::now());
         st.outputs.remove(&job);
         st.submitters.remove(&job);
+        st.keep_final_preview(job, image);
         st.publish(job);
         let info = st.sched.info(job, Instant::now());
         drop(st);
         self.persist_end(info);
+    }
+
+    /// The job's preview as it stands, to keep once the job is over (made
+    /// before the job is marked over, so whoever sees it over finds it).
+    fn final_preview(&self, job: JobId) -> Option<PreviewImage> {
+        let out = lock(&self.state).outputs.get(&job).cloned()?;
+        let p = lock(&out).preview.clone();
+        preview_image(&p).ok()
     }
 
     /// Records a finished job in the database (and drops its tiles there).
@@ -673,6 +747,7 @@ impl Farm {
     /// Cancels a job: no more leases, workers drop theirs at the next
     /// heartbeat, and the partial output is removed.
     pub fn cancel(&self, job: JobId) -> Result<JobInfo, FarmError> {
+        let image = self.final_preview(job);
         let mut st = lock(&self.state);
         let state = st.sched.cancel(job, Instant::now())?;
         st.submitters.remove(&job);
@@ -681,6 +756,9 @@ impl Farm {
         } else {
             None
         };
+        if out.is_some() {
+            st.keep_final_preview(job, image);
+        }
         st.publish(job);
         drop(st);
         if let Some(out) = out {
@@ -726,12 +804,88 @@ impl Farm {
         Ok(self.output_path(job, &info.spec.output_name))
     }
 
+    /// Moves an unfinished job to another priority (higher runs first).
+    pub fn set_priority(&self, job: JobId, priority: i32) -> Result<JobInfo, FarmError> {
+        let mut st = lock(&self.state);
+        st.sched.set_priority(job, priority)?;
+        if let Some(store) = &self.store {
+            store.set_priority(job, priority)?;
+        }
+        st.publish(job);
+        drop(st);
+        tracing::info!(job, priority, "job priority changed");
+        // A job moved up may now take a worker waiting for work.
+        self.work.notify_waiters();
+        self.info(job)
+    }
+
+    /// The job's preview: filling in while it runs, the last state once it
+    /// ended (for the newest few finished jobs).
+    pub fn preview(&self, job: JobId) -> Result<PreviewImage, FarmError> {
+        let st = lock(&self.state);
+        if let Some((_, image)) = st.final_previews.iter().find(|(j, _)| *j == job) {
+            return Ok(image.clone());
+        }
+        let info = st
+            .sched
+            .info(job, Instant::now())
+            .ok_or(FarmError::UnknownJob(job))?;
+        let out = st.outputs.get(&job).cloned();
+        drop(st);
+        match out {
+            Some(out) => {
+                let p = lock(&out).preview.clone();
+                preview_image(&p).map_err(FarmError::Io)
+            }
+            None if !info.state.is_final() => {
+                preview_image(&Preview::new(info.spec.width, info.spec.height))
+                    .map_err(FarmError::Io)
+            }
+            None => Err(FarmError::NoOutput(
+                job,
+                "its preview is no longer kept".to_string(),
+            )),
+        }
+    }
+
+    /// Every known worker.
+    pub fn workers(&self) -> Vec<WorkerInfo> {
+        lock(&self.state).sched.workers(Instant::now())
+    }
+
+    /// Counters, queue, jobs and workers at one instant.
+    pub fn snapshot(&self) -> FarmSnapshot {
+        let now = Instant::now();
+        let st = lock(&self.state);
+        FarmSnapshot {
+            counters: st.sched.counters(),
+            queue: st.sched.queue_depth(),
+            jobs: st.sched.list(now),
+            workers: st.sched.workers(now),
+            rays_per_second: st.sched.rays_per_second(now),
+        }
+    }
+
+    /// Request latencies and other figures only the servers see.
+    pub fn metrics(&self) -> &Metrics {
+        &self.metrics
+    }
+
     /// Most rows the job's output held at once (while it is running).
     pub fn max_rows_held(&self, job: JobId) -> Option<usize> {
         let out = lock(&self.state).outputs.get(&job).cloned()?;
         let m = lock(&out).max_rows_held;
         Some(m)
     }
+}
+
+fn preview_image(p: &Preview) -> Result<PreviewImage, String> {
+    Ok(PreviewImage {
+        width: p.width,
+        height: p.height,
+        tiles: p.tiles,
+        png: Arc::new(encode_png(p.width, p.height, &p.to_rgba8())?),
+    })
 }
 
 /// Pixels as little-endian f32 RGB triples (how the database keeps them).

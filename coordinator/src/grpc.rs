@@ -202,6 +202,18 @@ impl pb::jobs_server::Jobs for JobsService {
         Ok(Response::new(job_status(&info)))
     }
 
+    async fn get_preview(&self, req: Request<pb::JobId>) -> Result<Response<pb::Preview>, Status> {
+        let id = req.into_inner().id;
+        let farm = self.farm.clone();
+        let p = blocking(move || farm.preview(id)).await?;
+        Ok(Response::new(pb::Preview {
+            png: p.png.as_ref().clone(),
+            width: p.width,
+            height: p.height,
+            tiles: p.tiles,
+        }))
+    }
+
     type DownloadOutputStream = ReceiverStream<Result<pb::OutputChunk, Status>>;
 
     async fn download_output(
@@ -259,7 +271,7 @@ impl pb::workers_server::Workers for WorkersService {
         req: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterResponse>, Status> {
         let r = req.into_inner();
-        let id = self.farm.register_worker();
+        let id = self.farm.register_worker_as(&r.name, r.threads);
         tracing::info!(worker = id, name = %r.name, threads = r.threads, "worker registered");
         Ok(Response::new(pb::RegisterResponse {
             worker_id: id,
@@ -414,8 +426,10 @@ pub async fn serve_with(
         .max_decoding_message_size(max_msg);
     let jobs =
         JobsServer::new(JobsService { farm: farm.clone() }).max_decoding_message_size(max_msg);
+    let latency = crate::metrics::LatencyLayer { farm: farm.clone() };
     let workers = WorkersServer::new(WorkersService { farm }).max_decoding_message_size(max_msg);
     let result = tonic::transport::Server::builder()
+        .layer(latency)
         .add_service(health_service)
         .add_service(reflection)
         .add_service(tonic::service::interceptor::InterceptedService::new(

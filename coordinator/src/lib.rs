@@ -7,6 +7,9 @@
 //!   the file is moved into place when the last tile is in).
 //! - [`grpc`]: the `trevi.v1` services over [`farm::Farm`], plus
 //!   `grpc.health.v1` and server reflection.
+//! - [`http`]: the web monitor (`--http`), its JSON API, `/metrics`
+//!   ([`metrics`]) and `/healthz`; [`preview`] keeps each running frame's
+//!   small live preview, [`workers`] what is known of each worker.
 //!
 //! Memory: tiles are leased in band order and at most a window of bands ahead
 //! of the first incomplete band, so the rows held by a job's writer are
@@ -18,8 +21,12 @@ pub mod bundles;
 pub mod error;
 pub mod farm;
 pub mod grpc;
+pub mod http;
+pub mod metrics;
+pub mod preview;
 pub mod scheduler;
 pub mod store;
+pub mod workers;
 
 pub use error::FarmError;
 pub use farm::{Farm, FarmConfig, Limits, TileOutcome, TileSink};

@@ -20,6 +20,10 @@ struct Args {
     /// printed as `listening on ADDR`).
     #[arg(long, env = "TREVI_LISTEN", default_value = "0.0.0.0:50051")]
     listen: String,
+    /// Serve the web monitor, `/metrics` and `/healthz` over HTTP on this
+    /// address (printed as `monitor on http://ADDR/`); off when not given.
+    #[arg(long, env = "TREVI_HTTP")]
+    http: Option<String>,
     /// Where bundles and job outputs are kept.
     #[arg(long, env = "TREVI_DATA_DIR", default_value = "trevi-data")]
     data_dir: PathBuf,
@@ -113,6 +117,7 @@ async fn main() -> Result<()> {
     if tokens.is_open() {
         tracing::warn!("no tokens: anyone who can reach this coordinator may submit and take work");
     }
+    let http_tokens = tokens.clone();
     let opts = ServeOptions { tokens };
     let farm =
         Arc::new(Farm::new(cfg).with_context(|| {
@@ -124,9 +129,40 @@ async fn main() -> Result<()> {
     let addr = listener.local_addr()?;
     println!("listening on {addr}");
     tracing::info!(%addr, data_dir = %args.data_dir.display(), "coordinator up");
-    trevi_coordinator::grpc::serve_with(farm, listener, shutdown_signal(), opts)
+    // The HTTP server stops with the gRPC one: both wait on this.
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let http = match &args.http {
+        Some(http_addr) => {
+            let l = tokio::net::TcpListener::bind(http_addr)
+                .await
+                .with_context(|| format!("cannot listen on {http_addr} (--http)"))?;
+            println!("monitor on http://{}/", l.local_addr()?);
+            let mut stop = stop_rx.clone();
+            let stopped = async move {
+                let _ = stop.wait_for(|&s| s).await;
+            };
+            let farm = farm.clone();
+            Some(tokio::spawn(trevi_coordinator::http::serve(
+                farm,
+                http_tokens,
+                l,
+                stopped,
+            )))
+        }
+        None => None,
+    };
+    let shutdown = async move {
+        shutdown_signal().await;
+        let _ = stop_tx.send(true);
+    };
+    trevi_coordinator::grpc::serve_with(farm, listener, shutdown, opts)
         .await
         .context("the gRPC server failed")?;
+    if let Some(h) = http {
+        h.await
+            .context("the HTTP server task failed")?
+            .context("the HTTP server failed")?;
+    }
     tracing::info!("coordinator stopped");
     Ok(())
 }

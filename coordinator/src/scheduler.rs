@@ -12,6 +12,7 @@
 //! - The first valid result for a tile wins; later and duplicate results are
 //!   ignored. An invalid result re-queues the tile at once.
 
+use crate::workers::{WorkerEntry, WorkerInfo};
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::{Duration, Instant};
@@ -38,6 +39,25 @@ impl JobState {
             self,
             JobState::Done | JobState::Failed | JobState::Cancelled
         )
+    }
+
+    pub const ALL: [JobState; 5] = [
+        JobState::Queued,
+        JobState::Running,
+        JobState::Done,
+        JobState::Failed,
+        JobState::Cancelled,
+    ];
+
+    /// The state's name, as the database, the API and the metrics use it.
+    pub fn name(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Done => "done",
+            JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
+        }
     }
 }
 
@@ -117,6 +137,35 @@ pub enum SchedError {
     NotATile(Rect, JobId),
     #[error("lease {0} is not worker {1}'s lease on tile {2:?} of job {3}")]
     NotYourLease(LeaseId, WorkerId, Rect, JobId),
+    #[error("job {0} is over")]
+    JobOver(JobId),
+}
+
+/// Running totals since the coordinator started (for `/metrics`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counters {
+    pub jobs_submitted: u64,
+    pub leases_granted: u64,
+    /// First valid results (each tile is counted once).
+    pub tiles_accepted: u64,
+    /// Valid results that lost to an earlier one, or came after the job ended.
+    pub tiles_ignored: u64,
+    /// Invalid results (wrong size, not finite, wrong tile).
+    pub tiles_rejected: u64,
+    /// Tiles put back in the queue (an expired lease or an invalid result).
+    pub tiles_requeued: u64,
+    pub lease_expiries: u64,
+    /// Rays of the accepted tiles.
+    pub rays: u64,
+}
+
+/// Work waiting in the queue.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct QueueDepth {
+    /// Jobs not finished (queued or running).
+    pub jobs: u64,
+    /// Their tiles neither done nor leased.
+    pub tiles: u64,
 }
 
 /// Tunables.
@@ -275,7 +324,10 @@ pub struct Scheduler {
     /// Unfinished jobs in the order they get workers.
     queue: BTreeSet<(Reverse<i32>, JobId)>,
     leases: HashMap<LeaseId, LeaseEntry>,
-    workers: HashMap<WorkerId, Instant>,
+    workers: HashMap<WorkerId, WorkerEntry>,
+    /// Time zero of the workers' per-second rates.
+    epoch: Instant,
+    counters: Counters,
     next_job: JobId,
     next_lease: LeaseId,
     next_worker: WorkerId,
@@ -294,6 +346,8 @@ impl Scheduler {
             queue: BTreeSet::new(),
             leases: HashMap::new(),
             workers: HashMap::new(),
+            epoch: Instant::now(),
+            counters: Counters::default(),
             next_job: 1,
             // Like worker ids: a result under a lease of an earlier run
             // never matches a lease of this one.
@@ -311,8 +365,17 @@ impl Scheduler {
     pub fn register_worker(&mut self, now: Instant) -> WorkerId {
         let id = self.next_worker;
         self.next_worker += 1;
-        self.workers.insert(id, now);
+        self.workers.insert(id, WorkerEntry::new(now));
         id
+    }
+
+    /// Records what a worker said about itself when it registered.
+    pub fn describe_worker(&mut self, worker: WorkerId, name: &str, threads: u32) {
+        if let Some(w) = self.workers.get_mut(&worker) {
+            // Names come from the network: keep them short.
+            w.name = name.chars().take(64).collect();
+            w.threads = threads;
+        }
     }
 
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
@@ -322,6 +385,7 @@ impl Scheduler {
         let job = self.new_job(spec, now);
         self.queue.insert((Reverse(job.spec.priority), id));
         self.jobs.insert(id, job);
+        self.counters.jobs_submitted += 1;
         id
     }
 
@@ -427,6 +491,7 @@ impl Scheduler {
             };
             let lease_id = self.next_lease;
             self.next_lease += 1;
+            self.counters.leases_granted += 1;
             job.set_leased(idx, lease_id);
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
@@ -482,6 +547,12 @@ impl Scheduler {
             let worker = self.leases[&id].worker;
             self.release(id, &format!("lease expired (worker {worker} went silent)"));
         }
+        self.counters.lease_expiries += expired.len() as u64;
+        // Workers silent for ten lease lifetimes are forgotten; one that
+        // comes back is told to register again.
+        let forget = (self.cfg.lease_ttl * 10).max(Duration::from_secs(60));
+        self.workers
+            .retain(|_, w| now.saturating_duration_since(w.last_seen) <= forget);
         expired.len()
     }
 
@@ -500,6 +571,7 @@ impl Scheduler {
         }
         job.active.insert(e.tile, TileState::Pending);
         job.requeued.insert(e.tile);
+        self.counters.tiles_requeued += 1;
         job.past_leases.insert(lease, (e.tile, e.worker));
         *job.worker_failures.entry(e.worker).or_default() += 1;
         let r = job.rect(e.tile);
@@ -577,33 +649,64 @@ impl Scheduler {
         job: JobId,
         rect: Rect,
         rays: u64,
+        now: Instant,
     ) -> Result<Accepted, SchedError> {
         let j = self.jobs.get_mut(&job).ok_or(SchedError::UnknownJob(job))?;
         if j.state.is_final() {
+            self.counters.tiles_ignored += 1;
             return Ok(Accepted::Ignored);
         }
         let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
-        match j.tile_state(idx) {
-            TileState::Done => return Ok(Accepted::Ignored),
+        let worker = match j.tile_state(idx) {
+            TileState::Done => None,
             // Never handed out: not a result of this coordinator's leases.
-            TileState::Pending if idx >= j.next_fresh => return Ok(Accepted::Ignored),
-            TileState::Leased(l) => {
-                self.leases.remove(&l);
-            }
-            TileState::Pending => {}
-        }
+            TileState::Pending if idx >= j.next_fresh => None,
+            TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| e.worker)),
+            // A late result under a lease that ran out.
+            TileState::Pending => Some(
+                j.past_leases
+                    .values()
+                    .find(|(t, _)| *t == idx)
+                    .map(|&(_, w)| w),
+            ),
+        };
+        let Some(worker) = worker else {
+            self.counters.tiles_ignored += 1;
+            return Ok(Accepted::Ignored);
+        };
         j.set_done(idx);
         j.done += 1;
         j.rays += rays;
-        Ok(Accepted::New {
-            last: j.done == j.tiles_total as u64,
-        })
+        let last = j.done == j.tiles_total as u64;
+        self.counters.tiles_accepted += 1;
+        self.counters.rays += rays;
+        let sec = now_sec(self.epoch, now);
+        if let Some(w) = worker.and_then(|w| self.workers.get_mut(&w)) {
+            w.tiles_done += 1;
+            w.rays += rays;
+            w.rate.add(sec, 1, rays);
+        }
+        Ok(Accepted::New { last })
     }
 
     /// An invalid result arrived under `lease`: put the tile back at once
     /// (unless someone else holds it or it is done).
     pub fn reject_tile(&mut self, lease: LeaseId, cause: &str) {
+        self.counters.tiles_rejected += 1;
         self.release(lease, cause);
+    }
+
+    /// Moves an unfinished job to priority `priority` (its place among jobs
+    /// of equal priority stays its submission order).
+    pub fn set_priority(&mut self, job: JobId, priority: i32) -> Result<(), SchedError> {
+        let j = self.jobs.get_mut(&job).ok_or(SchedError::UnknownJob(job))?;
+        if j.state.is_final() {
+            return Err(SchedError::JobOver(job));
+        }
+        self.queue.remove(&(Reverse(j.spec.priority), job));
+        j.spec.priority = priority;
+        self.queue.insert((Reverse(priority), job));
+        Ok(())
     }
 
     /// Ends a job: `Ok` when its output is in place, `Err` when it failed.
@@ -678,10 +781,74 @@ impl Scheduler {
         self.leases.len()
     }
 
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// Unfinished jobs and their tiles that wait for a worker.
+    pub fn queue_depth(&self) -> QueueDepth {
+        let mut leased: HashMap<JobId, u64> = HashMap::new();
+        for e in self.leases.values() {
+            *leased.entry(e.job).or_default() += 1;
+        }
+        let mut d = QueueDepth::default();
+        for &(_, id) in &self.queue {
+            let j = &self.jobs[&id];
+            d.jobs += 1;
+            d.tiles += (j.tiles_total as u64)
+                .saturating_sub(j.done)
+                .saturating_sub(leased.get(&id).copied().unwrap_or(0));
+        }
+        d
+    }
+
+    /// Every known worker, by id, with what it holds and how fast it went
+    /// over the last few seconds.
+    pub fn workers(&self, now: Instant) -> Vec<WorkerInfo> {
+        let mut held: HashMap<WorkerId, Vec<(JobId, Rect)>> = HashMap::new();
+        for e in self.leases.values() {
+            let rect = self.jobs[&e.job].rect(e.tile);
+            held.entry(e.worker).or_default().push((e.job, rect));
+        }
+        let sec = now_sec(self.epoch, now);
+        let mut out: Vec<WorkerInfo> = self
+            .workers
+            .iter()
+            .map(|(&id, w)| {
+                let mut leases = held.remove(&id).unwrap_or_default();
+                leases.sort_unstable_by_key(|&(j, r)| (j, r.y, r.x));
+                let (tiles_per_s, rays_per_s) = w.rate.per_second(sec);
+                WorkerInfo {
+                    id,
+                    name: w.name.clone(),
+                    threads: w.threads,
+                    state: w.state(leases.len(), self.cfg.lease_ttl, now),
+                    silent_for: now.saturating_duration_since(w.last_seen),
+                    leases,
+                    tiles_done: w.tiles_done,
+                    rays: w.rays,
+                    tiles_per_s,
+                    rays_per_s,
+                }
+            })
+            .collect();
+        out.sort_unstable_by_key(|w| w.id);
+        out
+    }
+
+    /// Rays per second of the whole farm over the last few seconds.
+    pub fn rays_per_second(&self, now: Instant) -> f64 {
+        let sec = now_sec(self.epoch, now);
+        self.workers
+            .values()
+            .map(|w| w.rate.per_second(sec).1)
+            .sum()
+    }
+
     fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<(), SchedError> {
         match self.workers.get_mut(&worker) {
-            Some(seen) => {
-                *seen = now;
+            Some(w) => {
+                w.last_seen = now;
                 Ok(())
             }
             None => Err(SchedError::UnknownWorker(worker)),
@@ -689,9 +856,15 @@ impl Scheduler {
     }
 }
 
+/// Whole seconds from `epoch` to `now` (0 before it).
+fn now_sec(epoch: Instant, now: Instant) -> u64 {
+    now.saturating_duration_since(epoch).as_secs()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::workers::WorkerState;
 
     fn spec(priority: i32, w: u32, h: u32, tile: u32) -> JobSpec {
         JobSpec {
@@ -770,7 +943,7 @@ mod tests {
         assert_eq!(leased.len(), 8, "two bands of four tiles");
         // Completing the first band opens the third.
         for l in &leased[..4] {
-            s.accept_tile(j, l.rect, 1).unwrap();
+            s.accept_tile(j, l.rect, 1, now).unwrap();
         }
         let more: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
         assert_eq!(more.len(), 4);
@@ -808,15 +981,15 @@ mod tests {
         assert_eq!(l2.rect, l1.rect);
         // The late worker finishes first: its result counts.
         assert_eq!(
-            s.accept_tile(j, l1.rect, 7),
+            s.accept_tile(j, l1.rect, 7, t1),
             Ok(Accepted::New { last: true })
         );
-        assert_eq!(s.accept_tile(j, l2.rect, 7), Ok(Accepted::Ignored));
+        assert_eq!(s.accept_tile(j, l2.rect, 7, t1), Ok(Accepted::Ignored));
         // w2's lease is gone.
         assert_eq!(s.heartbeat(w2, &[l2.id], t1).unwrap(), vec![l2.id]);
         assert_eq!(s.info(j, t1).unwrap().rays, 7);
         assert_eq!(
-            s.accept_tile(j, Rect::new(1, 0, 3, 4), 0),
+            s.accept_tile(j, Rect::new(1, 0, 3, 4), 0, t1),
             Err(SchedError::NotATile(Rect::new(1, 0, 3, 4), j))
         );
     }
@@ -844,7 +1017,7 @@ mod tests {
         assert_eq!(s.cancel(j, t0), Ok(JobState::Cancelled));
         assert_eq!(s.lease(w, t0).unwrap(), None);
         assert_eq!(s.heartbeat(w, &[l.id], t0).unwrap(), vec![l.id]);
-        assert_eq!(s.accept_tile(j, l.rect, 1), Ok(Accepted::Ignored));
+        assert_eq!(s.accept_tile(j, l.rect, 1, t0), Ok(Accepted::Ignored));
         assert_eq!(s.cancel(42, t0), Err(SchedError::UnknownJob(42)));
     }
 
@@ -881,7 +1054,7 @@ mod tests {
                 break;
             }
             for l in leased.iter().rev() {
-                s.accept_tile(j, l.rect, 1).unwrap();
+                s.accept_tile(j, l.rect, 1, now).unwrap();
                 peak = peak.max(s.jobs[&j].active.len());
             }
         }
@@ -895,14 +1068,102 @@ mod tests {
         let j = s.submit(spec(0, 8, 8, 4), now);
         let l = s.lease(w, now).unwrap().unwrap();
         assert_eq!(
-            s.accept_tile(j, Rect::new(4, 4, 4, 4), 1),
+            s.accept_tile(j, Rect::new(4, 4, 4, 4), 1, now),
             Ok(Accepted::Ignored)
         );
         assert_eq!(
-            s.accept_tile(j, l.rect, 1),
+            s.accept_tile(j, l.rect, 1, now),
             Ok(Accepted::New { last: false })
         );
-        assert!(s.accept_tile(j, Rect::new(8, 0, 4, 4), 1).is_err());
+        assert!(s.accept_tile(j, Rect::new(8, 0, 4, 4), 1, now).is_err());
         assert_eq!(s.info(j, now).unwrap().tiles_done, 1);
+    }
+
+    #[test]
+    fn counters_follow_every_tile_event() {
+        let (mut s, t0, w) = sched();
+        let w2 = s.register_worker(t0);
+        // 2×2 tiles of 4 pixels.
+        let j = s.submit(spec(0, 8, 8, 4), t0);
+        let a = s.lease(w, t0).unwrap().unwrap();
+        let b = s.lease(w, t0).unwrap().unwrap();
+        s.accept_tile(j, a.rect, 10, t0).unwrap();
+        // b's lease runs out (ttl 5 s) and its tile goes back in the queue.
+        let t1 = t0 + Duration::from_secs(6);
+        assert_eq!(s.expire(t1), 1);
+        let c = s.lease(w2, t1).unwrap().unwrap();
+        assert_eq!(c.rect, b.rect);
+        s.reject_tile(c.id, "NaN");
+        let d = s.lease(w2, t1).unwrap().unwrap();
+        s.accept_tile(j, d.rect, 5, t1).unwrap();
+        // The late result under b's expired lease loses to d's.
+        assert_eq!(s.accept_tile(j, b.rect, 5, t1), Ok(Accepted::Ignored));
+        let want = Counters {
+            jobs_submitted: 1,
+            leases_granted: 4,
+            tiles_accepted: 2,
+            tiles_ignored: 1,
+            tiles_rejected: 1,
+            tiles_requeued: 2,
+            lease_expiries: 1,
+            rays: 15,
+        };
+        assert_eq!(s.counters(), want);
+        // Two tiles left, neither leased.
+        assert_eq!(s.queue_depth(), QueueDepth { jobs: 1, tiles: 2 });
+        s.lease(w, t1).unwrap().unwrap();
+        assert_eq!(s.queue_depth(), QueueDepth { jobs: 1, tiles: 1 });
+    }
+
+    #[test]
+    fn workers_show_their_tiles_state_and_rate() {
+        let (mut s, t0, w) = sched();
+        let w2 = s.register_worker(t0);
+        s.describe_worker(w, "render-01", 8);
+        let j = s.submit(spec(0, 8, 8, 4), t0);
+        let a = s.lease(w, t0).unwrap().unwrap();
+        let ws = s.workers(t0);
+        assert_eq!(ws.len(), 2);
+        assert_eq!(ws[0].id, w);
+        assert_eq!((ws[0].name.as_str(), ws[0].threads), ("render-01", 8));
+        assert_eq!(ws[0].state, WorkerState::Busy);
+        assert_eq!(ws[0].leases, vec![(j, a.rect)]);
+        assert_eq!(ws[1].state, WorkerState::Idle);
+        // w finishes its tile; w2 says nothing for longer than a lease lives.
+        let t1 = t0 + Duration::from_secs(3);
+        s.accept_tile(j, a.rect, 400, t1).unwrap();
+        let t2 = t0 + Duration::from_secs(6);
+        s.heartbeat(w, &[], t2).unwrap();
+        let ws = s.workers(t2);
+        assert_eq!(ws[0].state, WorkerState::Idle);
+        assert_eq!((ws[0].tiles_done, ws[0].rays), (1, 400));
+        assert_eq!(ws[1].state, WorkerState::Lost);
+        // Averaged over the 10 s window once the second is over.
+        let later = s.epoch + Duration::from_secs(t1.duration_since(s.epoch).as_secs() + 1);
+        let ws = s.workers(later.max(t2));
+        assert!(
+            (ws[0].rays_per_s - 40.0).abs() < 1e-9,
+            "{}",
+            ws[0].rays_per_s
+        );
+        assert!((s.rays_per_second(later.max(t2)) - 40.0).abs() < 1e-9);
+        // Long silence: w2 is forgotten and must register again.
+        let t3 = t0 + Duration::from_secs(120);
+        s.expire(t3);
+        assert_eq!(s.lease(w2, t3), Err(SchedError::UnknownWorker(w2)));
+    }
+
+    #[test]
+    fn priority_changes_reorder_the_queue() {
+        let (mut s, t0, w) = sched();
+        let a = s.submit(spec(0, 4, 4, 4), t0);
+        let b = s.submit(spec(0, 4, 4, 4), t0);
+        s.set_priority(b, 5).unwrap();
+        assert_eq!(s.info(b, t0).unwrap().spec.priority, 5);
+        assert_eq!(s.lease(w, t0).unwrap().unwrap().job, b);
+        assert_eq!(s.lease(w, t0).unwrap().unwrap().job, a);
+        s.cancel(a, t0).unwrap();
+        assert_eq!(s.set_priority(a, 1), Err(SchedError::JobOver(a)));
+        assert_eq!(s.set_priority(99, 1), Err(SchedError::UnknownJob(99)));
     }
 }

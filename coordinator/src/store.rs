@@ -54,16 +54,6 @@ fn db_err(e: rusqlite::Error) -> FarmError {
     FarmError::Io(format!("state database: {e}"))
 }
 
-fn state_name(s: JobState) -> &'static str {
-    match s {
-        JobState::Queued => "queued",
-        JobState::Running => "running",
-        JobState::Done => "done",
-        JobState::Failed => "failed",
-        JobState::Cancelled => "cancelled",
-    }
-}
-
 fn state_from(s: &str) -> JobState {
     match s {
         "done" => JobState::Done,
@@ -145,7 +135,7 @@ impl Store {
                     s.tile_size,
                     s.output_name,
                     j.submitter,
-                    state_name(j.state),
+                    j.state.name(),
                     j.submitted_ms as i64,
                 ],
             )
@@ -170,6 +160,17 @@ impl Store {
         Ok(())
     }
 
+    /// Changes a job's priority (the monitor's priority buttons).
+    pub fn set_priority(&self, job: JobId, priority: i32) -> Result<(), FarmError> {
+        self.conn()
+            .execute(
+                "UPDATE jobs SET priority = ?2 WHERE id = ?1",
+                params![job as i64, priority],
+            )
+            .map_err(db_err)?;
+        Ok(())
+    }
+
     /// Records a job's end and drops its stored tiles.
     pub fn finish_job(&self, j: &StoredJob) -> Result<(), FarmError> {
         let mut conn = self.conn();
@@ -179,7 +180,7 @@ impl Store {
                  tiles_done = ?6, rays = ?7 WHERE id = ?1",
             params![
                 j.id as i64,
-                state_name(j.state),
+                j.state.name(),
                 j.elapsed.map(|d| d.as_millis() as i64),
                 j.error,
                 j.finish_order as i64,

@@ -386,3 +386,88 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
         .unwrap();
     assert_eq!(f.info(job).unwrap().state, JobState::Done);
 }
+
+/// Decodes a preview PNG into RGBA bytes.
+fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+#[test]
+fn the_preview_fills_in_tile_by_tile_and_outlives_the_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+    // 1100×40: the preview is shrunk by 3 to 367×14.
+    let job = f.submit(spec(1100, 40, 64, "wide.png", 0)).unwrap().id;
+    let opaque = |png: &[u8]| decode_png(png).2.chunks(4).filter(|p| p[3] == 255).count();
+    let p = f.preview(job).unwrap();
+    assert_eq!((p.width, p.height, p.tiles), (367, 14, 0));
+    assert_eq!(opaque(&p.png), 0, "a queued job's preview is empty");
+    let w = f.register_worker();
+    let leases = lease_all(&f, w);
+    assert_eq!(leases.len(), 18);
+    let mut seen = 0;
+    for (i, l) in leases.iter().enumerate() {
+        f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap();
+        let p = f.preview(job).unwrap();
+        assert_eq!(p.tiles, i as u64 + 1);
+        let now = opaque(&p.png);
+        assert!(now > seen, "tile {i} must show in the preview");
+        seen = now;
+    }
+    assert_eq!(f.info(job).unwrap().state, JobState::Done);
+    // Done: the last preview is still there, complete, and matches the
+    // frame's pixels averaged over 3×3 blocks.
+    let (pw, ph, rgba) = decode_png(&f.preview(job).unwrap().png);
+    assert_eq!(opaque(&f.preview(job).unwrap().png), (pw * ph) as usize);
+    let (px, py) = (100u32, 5u32);
+    let mut mean = [0f32; 3];
+    for y in py * 3..py * 3 + 3 {
+        for x in px * 3..px * 3 + 3 {
+            for (m, v) in mean.iter_mut().zip(pixel(x, y)) {
+                *m += v / 9.0;
+            }
+        }
+    }
+    let i = ((py * pw + px) * 4) as usize;
+    for c in 0..3 {
+        let want = trevi_core::output::linear_to_srgb8(mean[c]);
+        assert!(rgba[i + c].abs_diff(want) <= 1, "{} vs {want}", rgba[i + c]);
+    }
+}
+
+#[test]
+fn metrics_count_the_job_s_tiles_and_priority_changes_reorder_jobs() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+    let a = f.submit(spec(32, 32, 16, "a.png", 0)).unwrap().id;
+    let b = f.submit(spec(32, 16, 16, "b.png", 0)).unwrap().id;
+    assert_eq!(f.set_priority(b, 3).unwrap().spec.priority, 3);
+    let w = f.register_worker_as("w1", 4);
+    // b now goes first: its two tiles, then a's four.
+    let leases = lease_all(&f, w);
+    let jobs: Vec<u64> = leases.iter().map(|l| l.job).collect();
+    assert_eq!(jobs, [b, b, a, a, a, a]);
+    for l in &leases {
+        f.put_tile(l.id, l.job, l.rect, 100, &pixels(l.rect))
+            .unwrap();
+    }
+    let text = trevi_coordinator::metrics::render(&f);
+    let value = |name: &str| -> f64 {
+        text.lines()
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+            .unwrap_or_else(|| panic!("no {name} in\n{text}"))
+    };
+    assert_eq!(value("trevi_tiles_rendered_total"), 6.0);
+    assert_eq!(value("trevi_rays_total"), 600.0);
+    assert_eq!(value("trevi_leases_granted_total"), 6.0);
+    assert_eq!(value("trevi_jobs{state=\"done\"}"), 2.0);
+    assert_eq!(value("trevi_workers{state=\"idle\"}"), 1.0);
+    assert_eq!(value("trevi_queue_depth_jobs"), 0.0);
+    assert!(matches!(f.set_priority(a, 1), Err(FarmError::JobOver(_))));
+}

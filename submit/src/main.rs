@@ -55,6 +55,11 @@ struct Args {
     /// No progress output.
     #[arg(short, long)]
     quiet: bool,
+    /// Keep the live preview of the frame being rendered in this PNG file
+    /// (at most 512 pixels a side, updated about once a second); with
+    /// `status ID`, write the job's preview once.
+    #[arg(long, global = true)]
+    preview: Option<PathBuf>,
 }
 
 #[derive(clap::Subcommand, Debug)]
@@ -86,7 +91,17 @@ fn run(args: Args) -> Result<()> {
             let mut client = remote::Client::connect(url, args.token.as_deref()).await?;
             match cmd {
                 Command::Status { id } => {
-                    println!("{}", remote::describe(&client.status(*id).await?))
+                    println!("{}", remote::describe(&client.status(*id).await?));
+                    if let Some(out) = &args.preview {
+                        let p = client.save_preview(*id, out).await?;
+                        println!(
+                            "preview: {}x{}, {} tiles -> {}",
+                            p.width,
+                            p.height,
+                            p.tiles,
+                            out.display()
+                        );
+                    }
                 }
                 Command::List => {
                     for s in client.list().await? {
@@ -158,6 +173,7 @@ fn run(args: Args) -> Result<()> {
         match &args.coordinator {
             Some(url) => {
                 let mut client = remote::Client::connect(url, args.token.as_deref()).await?;
+                client.preview = args.preview.clone();
                 client
                     .render(
                         &bundle,
@@ -174,6 +190,7 @@ fn run(args: Args) -> Result<()> {
                 let result = async {
                     let mut client = remote::Client::connect(&farm.url, None).await?;
                     client.announce = false;
+                    client.preview = args.preview.clone();
                     client
                         .render(&bundle, &targets, args.priority, args.tile, false, progress)
                         .await

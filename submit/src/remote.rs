@@ -28,6 +28,8 @@ pub struct Client {
     url: String,
     /// Say which jobs were queued where (off for the embedded farm).
     pub announce: bool,
+    /// Keep the watched job's live preview in this PNG file (`--preview`).
+    pub preview: Option<PathBuf>,
     jobs: JobsClient<AuthChannel>,
     bundles: BundlesClient<AuthChannel>,
 }
@@ -53,6 +55,7 @@ impl Client {
         Ok(Client {
             url: url.to_string(),
             announce: true,
+            preview: None,
             jobs: JobsClient::with_interceptor(channel.clone(), bearer.clone())
                 .max_decoding_message_size(MAX_MESSAGE_SIZE),
             bundles: BundlesClient::with_interceptor(channel, bearer)
@@ -112,6 +115,7 @@ impl Client {
     pub async fn watch(&mut self, id: u64, progress: Progress) -> Result<pb::JobStatus> {
         let mut view = ProgressView::new(progress);
         let mut last: Option<pb::JobStatus> = None;
+        let mut preview = PreviewFile::new(self.preview.clone());
         let mut backoff = Duration::from_millis(100);
         let mut lost_since: Option<std::time::Instant> = None;
         loop {
@@ -124,6 +128,7 @@ impl Client {
                                 lost_since = None;
                                 backoff = Duration::from_millis(100);
                                 view.show(&s);
+                                preview.update(self, &s).await;
                                 last = Some(s);
                             }
                             Ok(None) => break "the progress stream ended".to_string(),
@@ -213,6 +218,39 @@ impl Client {
             let _ = tokio::fs::remove_file(&tmp).await;
         }
         result
+    }
+
+    /// Writes job `id`'s live preview (a PNG) to `out`, through a temporary
+    /// file renamed into place so a viewer never sees half an image.
+    pub async fn save_preview(&mut self, id: u64, out: &Path) -> Result<pb::Preview> {
+        let p = self
+            .jobs
+            .get_preview(pb::JobId { id })
+            .await
+            .map_err(status_error)?
+            .into_inner();
+        let dir = out
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let name = out
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("preview");
+        let tmp = dir.join(format!(".{name}.{}.part", std::process::id()));
+        let written = async {
+            tokio::fs::write(&tmp, &p.png)
+                .await
+                .with_context(|| format!("cannot write {}", tmp.display()))?;
+            tokio::fs::rename(&tmp, out)
+                .await
+                .with_context(|| format!("cannot move the preview to {}", out.display()))
+        }
+        .await;
+        if written.is_err() {
+            let _ = tokio::fs::remove_file(&tmp).await;
+        }
+        written.map(|()| p)
     }
 
     pub async fn status(&mut self, id: u64) -> Result<pb::JobStatus> {
@@ -311,6 +349,49 @@ impl Client {
             }
         }
         Ok(())
+    }
+}
+
+/// The `--preview` file while a job is watched: rewritten at most once a
+/// second while tiles arrive, and once more when the job ends.
+struct PreviewFile {
+    path: Option<PathBuf>,
+    last: Option<std::time::Instant>,
+    tiles: Option<u64>,
+    warned: bool,
+}
+
+impl PreviewFile {
+    fn new(path: Option<PathBuf>) -> Self {
+        PreviewFile {
+            path,
+            last: None,
+            tiles: None,
+            warned: false,
+        }
+    }
+
+    async fn update(&mut self, client: &mut Client, s: &pb::JobStatus) {
+        let Some(path) = self.path.clone() else {
+            return;
+        };
+        let due = self
+            .last
+            .is_none_or(|t| t.elapsed() >= Duration::from_secs(1));
+        let changed = self.tiles != Some(s.tiles_done);
+        if !(changed && (due || s.state().is_final())) {
+            return;
+        }
+        self.last = Some(std::time::Instant::now());
+        match client.save_preview(s.id, &path).await {
+            Ok(_) => self.tiles = Some(s.tiles_done),
+            // The render matters more than its preview: say so once, go on.
+            Err(e) if !self.warned => {
+                self.warned = true;
+                eprintln!("trevi-submit: cannot update the preview: {e:#}");
+            }
+            Err(_) => {}
+        }
     }
 }
 

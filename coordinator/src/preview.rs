@@ -1,0 +1,219 @@
+//! A running frame's live preview: the frame shrunk by a whole factor so
+//! that neither side exceeds [`Preview::MAX_EDGE`] pixels, filled in tile by
+//! tile as results arrive.
+//!
+//! Each preview pixel is the mean of the frame pixels in its `scale`×`scale`
+//! block (a box filter), accumulated in linear light, so tiles that split a
+//! block add up to the same mean whatever order they come in. The
+//! coordinator keeps only this small image per running job (at most
+//! 512×512×16 bytes = 4 MiB), never the frame. Pixels no tile has reached
+//! yet are transparent in the PNG.
+
+use trevi_core::output::linear_to_srgb8;
+use trevi_core::Rect;
+
+/// The preview of one frame.
+#[derive(Debug, Clone)]
+pub struct Preview {
+    pub width: u32,
+    pub height: u32,
+    /// Frame pixels per preview pixel along each axis.
+    pub scale: u32,
+    /// Linear RGB sums and sample counts, row-major; empty until the first
+    /// tile arrives (queued jobs cost nothing).
+    sum: Vec<[f32; 3]>,
+    count: Vec<u32>,
+    /// Tiles added so far.
+    pub tiles: u64,
+}
+
+impl Preview {
+    /// Largest preview edge in pixels.
+    pub const MAX_EDGE: u32 = 512;
+
+    /// The preview of a `frame_w`×`frame_h` frame (both ≥ 1).
+    pub fn new(frame_w: u32, frame_h: u32) -> Preview {
+        let (fw, fh) = (frame_w.max(1), frame_h.max(1));
+        let scale = fw
+            .div_ceil(Self::MAX_EDGE)
+            .max(fh.div_ceil(Self::MAX_EDGE))
+            .max(1);
+        Preview {
+            width: fw.div_ceil(scale),
+            height: fh.div_ceil(scale),
+            scale,
+            sum: Vec::new(),
+            count: Vec::new(),
+            tiles: 0,
+        }
+    }
+
+    /// Adds a tile's pixels (row-major, `rect.w × rect.h`, already checked).
+    pub fn add_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) {
+        if pixels.len() != rect.pixel_count() {
+            return;
+        }
+        if self.sum.is_empty() {
+            let n = self.width as usize * self.height as usize;
+            self.sum = vec![[0.0; 3]; n];
+            self.count = vec![0; n];
+        }
+        let s = self.scale;
+        for (row, line) in pixels.chunks_exact(rect.w.max(1) as usize).enumerate() {
+            let py = (rect.y + row as u32) / s;
+            if py >= self.height {
+                break;
+            }
+            let base = py as usize * self.width as usize;
+            for (col, p) in line.iter().enumerate() {
+                let px = (rect.x + col as u32) / s;
+                if px >= self.width {
+                    break;
+                }
+                let i = base + px as usize;
+                for (s, v) in self.sum[i].iter_mut().zip(p) {
+                    *s += v;
+                }
+                self.count[i] += 1;
+            }
+        }
+        self.tiles += 1;
+    }
+
+    /// 8-bit sRGB RGBA, row-major; alpha 0 where no tile has arrived yet.
+    pub fn to_rgba8(&self) -> Vec<u8> {
+        let n = self.width as usize * self.height as usize;
+        let mut out = vec![0u8; n * 4];
+        if self.sum.is_empty() {
+            return out;
+        }
+        for (i, px) in out.chunks_exact_mut(4).enumerate() {
+            let k = self.count[i];
+            if k == 0 {
+                continue;
+            }
+            let inv = 1.0 / k as f32;
+            for (out, s) in px.iter_mut().zip(self.sum[i]) {
+                *out = linear_to_srgb8(s * inv);
+            }
+            px[3] = 255;
+        }
+        out
+    }
+}
+
+/// RGBA pixels (`width × height × 4` bytes) as a PNG file's bytes.
+pub fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, String> {
+    let mut bytes = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut bytes, width, height);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc
+            .write_header()
+            .map_err(|e| format!("encoding the preview: {e}"))?;
+        w.write_image_data(rgba)
+            .map_err(|e| format!("encoding the preview: {e}"))?;
+    }
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tile(rect: Rect, f: impl Fn(u32, u32) -> [f32; 3]) -> Vec<[f32; 3]> {
+        let mut v = Vec::new();
+        for y in rect.y..rect.y + rect.h {
+            for x in rect.x..rect.x + rect.w {
+                v.push(f(x, y));
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn size_is_bounded_by_512_on_both_sides() {
+        for (w, h, pw, ph, s) in [
+            (512, 300, 512, 300, 1),
+            (513, 10, 257, 5, 2),
+            (3000, 2000, 500, 334, 6),
+            (16384, 16384, 512, 512, 32),
+            (1, 10000, 1, 500, 20),
+            (1, 1, 1, 1, 1),
+        ] {
+            let p = Preview::new(w, h);
+            assert_eq!((p.width, p.height, p.scale), (pw, ph, s), "{w}x{h}");
+            assert!(p.width <= 512 && p.height <= 512);
+            // Every frame pixel lands in the preview.
+            assert!((w - 1) / p.scale < p.width && (h - 1) / p.scale < p.height);
+        }
+    }
+
+    #[test]
+    fn each_pixel_is_the_mean_of_its_block_whatever_the_tiling() {
+        // A 1030×7 frame: scale 3, and 5-pixel tiles split the 3×3 blocks.
+        let (w, h) = (1030u32, 7u32);
+        let f = |x: u32, y: u32| [x as f32 / w as f32, y as f32 / h as f32, 0.25];
+        let mut p = Preview::new(w, h);
+        assert_eq!(p.scale, 3);
+        let t = 5;
+        for ty in (0..h).step_by(t as usize).rev() {
+            for tx in (0..w).step_by(t as usize) {
+                let r = Rect::new(tx, ty, t.min(w - tx), t.min(h - ty));
+                p.add_tile(r, &tile(r, f));
+            }
+        }
+        let rgba = p.to_rgba8();
+        // The mean of each block computed directly from the function.
+        for py in 0..p.height {
+            for px in 0..p.width {
+                let (mut sum, mut n) = ([0f64; 3], 0);
+                for y in py * 3..((py + 1) * 3).min(h) {
+                    for x in px * 3..((px + 1) * 3).min(w) {
+                        let v = f(x, y);
+                        for c in 0..3 {
+                            sum[c] += v[c] as f64;
+                        }
+                        n += 1;
+                    }
+                }
+                let i = ((py * p.width + px) * 4) as usize;
+                for c in 0..3 {
+                    let want = linear_to_srgb8((sum[c] / n as f64) as f32);
+                    let got = rgba[i + c];
+                    assert!(got.abs_diff(want) <= 1, "({px},{py}) c{c}: {got} vs {want}");
+                }
+                assert_eq!(rgba[i + 3], 255);
+            }
+        }
+    }
+
+    #[test]
+    fn pixels_not_reached_yet_are_transparent() {
+        let mut p = Preview::new(128, 128);
+        assert!(p.to_rgba8().iter().all(|&b| b == 0));
+        let r = Rect::new(0, 0, 64, 64);
+        p.add_tile(r, &vec![[1.0, 1.0, 1.0]; 64 * 64]);
+        let rgba = p.to_rgba8();
+        let at = |x: usize, y: usize| &rgba[(y * 128 + x) * 4..(y * 128 + x) * 4 + 4];
+        assert_eq!(at(10, 10), &[255, 255, 255, 255]);
+        assert_eq!(at(100, 10), &[0, 0, 0, 0]);
+        assert_eq!(p.tiles, 1);
+    }
+
+    #[test]
+    fn png_decodes_to_the_same_pixels() {
+        let mut p = Preview::new(40, 30);
+        let r = Rect::new(0, 0, 40, 15);
+        p.add_tile(r, &tile(r, |x, _| [x as f32 / 40.0, 0.5, 0.0]));
+        let png_bytes = encode_png(p.width, p.height, &p.to_rgba8()).unwrap();
+        let dec = png::Decoder::new(std::io::Cursor::new(png_bytes));
+        let mut reader = dec.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width, info.height), (40, 30));
+        assert_eq!(info.color_type, png::ColorType::Rgba);
+        assert_eq!(&buf[..info.buffer_size()], &p.to_rgba8()[..]);
+    }
+}
