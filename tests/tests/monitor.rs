@@ -1,0 +1,570 @@
+//! The web monitor end to end: a real coordinator serving `--http`, a real
+//! worker, `trevi-submit`, and headless Chromium driven over WebDriver
+//! (`chromedriver`, through the `fantoccini` client).
+//!
+//! The browser test needs Debian's `chromium` and `chromium-driver`
+//! packages; `.ci/run` installs them and sets `TREVI_REQUIRE_BROWSER=1`, so
+//! in CI a missing browser fails the test. Elsewhere it is skipped with a
+//! message saying what to install.
+//!
+//! The screenshot the browser test takes is kept in
+//! `target/test-artifacts/monitor.png` (or `$TREVI_ARTIFACTS_DIR`).
+
+use serde_json::json;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const SUBMIT_TOKEN: &str = "submit-s3cret";
+const WORKER_TOKEN: &str = "worker-s3cret";
+
+/// A frame with enough work (one render thread) that the job is still
+/// running while the browser watches it (about two minutes of rendering on
+/// this project's 2-core machines): 1200 tiles of 32×32 at supersample 8 with
+/// soft shadows and ambient occlusion.
+const SLOW_SCENE: &str = r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
+  <sphere id="ball" center="0 1 0" radius="1">
+    <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" reflectivity="0.2"/>
+  </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="1280" height="960" supersample="8" shadow-samples="8" ao-samples="16" output="slow.png"/>
+  </camera>
+</scene>
+"#;
+
+/// A small frame for the metrics test: 4×3 tiles of 16×16.
+const SMALL_SCENE: &str = r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.1 0.1 0.1"/>
+  <sphere id="ball" center="0 1 0" radius="1"> <surface diffuse="0.8 0.3 0.2"/> </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="64" height="48" output="small.png"/>
+  </camera>
+</scene>
+"#;
+
+fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("current_exe");
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("the test runs from target/<profile>/deps");
+    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        path.exists(),
+        "{} is missing: build the binaries first (cargo build --profile test \
+         -p trevi-coordinator -p trevi-worker -p trevi-submit)",
+        path.display()
+    );
+    path
+}
+
+/// A child process killed when dropped.
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// A coordinator with tokens and the HTTP monitor, and one worker with one
+/// render thread.
+struct Farm {
+    _coordinator: Proc,
+    _worker: Proc,
+    url: String,
+    http: String,
+    data: PathBuf,
+    dir: tempfile::TempDir,
+}
+
+impl Farm {
+    fn start() -> Farm {
+        let dir = tempfile::Builder::new()
+            .prefix("trevi-monitor-")
+            .tempdir()
+            .unwrap();
+        let data = dir.path().join("data");
+        let log = std::fs::File::create(dir.path().join("coordinator.log")).unwrap();
+        let mut child = Command::new(bin("trevi-coordinator"))
+            .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"])
+            .args(["--tile-size", "16"])
+            .args([
+                "--submit-token",
+                SUBMIT_TOKEN,
+                "--worker-token",
+                WORKER_TOKEN,
+            ])
+            .arg("--data-dir")
+            .arg(&data)
+            .stdout(Stdio::piped())
+            .stderr(log)
+            .spawn()
+            .unwrap();
+        let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+        let mut grpc = None;
+        let mut http = None;
+        while grpc.is_none() || http.is_none() {
+            let line = lines
+                .next()
+                .expect("the coordinator printed its addresses")
+                .unwrap();
+            if let Some(a) = line.strip_prefix("listening on ") {
+                grpc = Some(format!("http://{a}"));
+            }
+            if let Some(a) = line.strip_prefix("monitor on http://") {
+                http = Some(a.trim_end_matches('/').to_string());
+            }
+        }
+        let coordinator = Proc(child);
+        let url = grpc.unwrap();
+        let wlog = std::fs::File::create(dir.path().join("worker.log")).unwrap();
+        let worker = Command::new(bin("trevi-worker"))
+            .args([
+                "--coordinator",
+                &url,
+                "--threads",
+                "1",
+                "--token",
+                WORKER_TOKEN,
+            ])
+            .stdout(Stdio::null())
+            .stderr(wlog)
+            .spawn()
+            .unwrap();
+        Farm {
+            _coordinator: coordinator,
+            _worker: Proc(worker),
+            url,
+            http: http.unwrap(),
+            data,
+            dir,
+        }
+    }
+
+    /// `trevi-submit ARGS --coordinator URL --token T`; panics with its
+    /// output unless it succeeds.
+    fn submit(&self, args: &[&str]) -> String {
+        let out = Command::new(bin("trevi-submit"))
+            .args(args)
+            .args(["--coordinator", &self.url, "--token", SUBMIT_TOKEN])
+            .current_dir(self.dir.path())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            out.status.success(),
+            "trevi-submit {args:?} failed:\n{text}\n{}\n{}",
+            String::from_utf8_lossy(&out.stderr),
+            self.logs()
+        );
+        text
+    }
+
+    fn write(&self, name: &str, text: &str) -> PathBuf {
+        let p = self.dir.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    fn logs(&self) -> String {
+        ["coordinator.log", "worker.log"]
+            .iter()
+            .map(|n| {
+                let t = std::fs::read_to_string(self.dir.path().join(n)).unwrap_or_default();
+                let tail: Vec<&str> = t.lines().rev().take(30).collect();
+                let tail: Vec<&str> = tail.into_iter().rev().collect();
+                format!("--- {n}\n{}\n", tail.join("\n"))
+            })
+            .collect()
+    }
+}
+
+/// A plain HTTP/1.1 GET: (status code, body).
+fn http_get(addr: &str, path: &str, token: Option<&str>) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    let auth = token
+        .map(|t| format!("Authorization: Bearer {t}\r\n"))
+        .unwrap_or_default();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Connection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut raw = String::new();
+    s.read_to_string(&mut raw).unwrap();
+    let (head, body) = raw.split_once("\r\n\r\n").expect("an HTTP response");
+    let code = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .expect("a status code");
+    (code, body.to_string())
+}
+
+/// Waits for `f` to give `Some`, up to `limit`.
+fn wait_for<T>(limit: Duration, what: &str, mut f: impl FnMut() -> Option<T>) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(start.elapsed() < limit, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+#[test]
+fn metrics_parse_as_prometheus_text_and_count_the_job_s_tiles() {
+    let farm = Farm::start();
+    // Open endpoints: no token needed.
+    let (code, body) = http_get(&farm.http, "/healthz", None);
+    assert_eq!(code, 200, "{body}");
+    assert!(body.starts_with("ok"), "{body}");
+    // The API is a submitter's business.
+    assert_eq!(http_get(&farm.http, "/api/state", None).0, 401);
+    assert_eq!(
+        http_get(&farm.http, "/api/state", Some(WORKER_TOKEN)).0,
+        403
+    );
+
+    let scene = farm.write("small.xml", SMALL_SCENE);
+    farm.submit(&[
+        scene.to_str().unwrap(),
+        "--quiet",
+        "--tile",
+        "16",
+        "-o",
+        "small.png",
+    ]);
+    let status = farm.submit(&["status", "1"]);
+    assert!(status.contains("done"), "{status}");
+
+    // The job as the API sees it.
+    let (code, body) = http_get(&farm.http, "/api/state", Some(SUBMIT_TOKEN));
+    assert_eq!(code, 200, "{body}");
+    let state: serde_json::Value = serde_json::from_str(&body).unwrap();
+    let job = &state["jobs"][0];
+    assert_eq!(job["state"], "done");
+    let tiles = job["tiles_total"].as_u64().unwrap();
+    assert_eq!(tiles, 4 * 3);
+    let rays = job["rays"].as_u64().unwrap();
+    assert!(rays >= 64 * 48, "{rays} rays for 64×48 pixels");
+
+    let (code, text) = http_get(&farm.http, "/metrics", None);
+    assert_eq!(code, 200, "{text}");
+    // Every line is a comment, or a sample the parser understands.
+    for line in text.lines() {
+        let info = prometheus_parse::LineInfo::parse(line);
+        assert!(
+            !matches!(info, prometheus_parse::LineInfo::Ignored),
+            "not Prometheus text: {line:?}"
+        );
+        if let prometheus_parse::LineInfo::Sample { value, .. } = info {
+            assert!(value.parse::<f64>().is_ok(), "bad value in {line:?}");
+        }
+    }
+    let scrape = prometheus_parse::Scrape::parse(text.lines().map(|l| Ok(l.to_string()))).unwrap();
+    let value = |name: &str, label: Option<(&str, &str)>| -> f64 {
+        let s = scrape
+            .samples
+            .iter()
+            .find(|s| s.metric == name && label.is_none_or(|(k, v)| s.labels.get(k) == Some(v)))
+            .unwrap_or_else(|| panic!("no {name} {label:?} in\n{text}"));
+        match s.value {
+            prometheus_parse::Value::Counter(v)
+            | prometheus_parse::Value::Gauge(v)
+            | prometheus_parse::Value::Untyped(v) => v,
+            ref other => panic!("{name} is {other:?}"),
+        }
+    };
+    assert_eq!(value("trevi_tiles_rendered_total", None), tiles as f64);
+    assert_eq!(value("trevi_rays_total", None), rays as f64);
+    assert!(value("trevi_leases_granted_total", None) >= tiles as f64);
+    assert_eq!(value("trevi_jobs_submitted_total", None), 1.0);
+    assert_eq!(value("trevi_jobs", Some(("state", "done"))), 1.0);
+    assert_eq!(value("trevi_queue_depth_jobs", None), 0.0);
+    let workers: f64 = ["busy", "idle", "lost"]
+        .iter()
+        .map(|s| value("trevi_workers", Some(("state", s))))
+        .sum();
+    assert_eq!(workers, 1.0);
+    // Each tile result is one SubmitTile call, timed by the histogram.
+    let submit_tile = scrape
+        .samples
+        .iter()
+        .find(|s| {
+            s.metric == "trevi_grpc_request_duration_seconds"
+                && s.labels.get("method") == Some("trevi.v1.Workers/SubmitTile")
+        })
+        .expect("SubmitTile latencies");
+    let prometheus_parse::Value::Histogram(buckets) = &submit_tile.value else {
+        panic!("{:?} is not a histogram", submit_tile.value);
+    };
+    let inf = buckets
+        .iter()
+        .find(|b| b.less_than.is_infinite())
+        .expect("+Inf bucket");
+    assert_eq!(inf.count, tiles as f64);
+    assert!(buckets.windows(2).all(|w| w[0].count <= w[1].count));
+}
+
+/// Where chromium and chromedriver are, if installed.
+fn browser() -> Option<(PathBuf, PathBuf)> {
+    let find = |names: &[&str]| {
+        names.iter().find_map(|n| {
+            std::env::var_os("PATH").and_then(|paths| {
+                std::env::split_paths(&paths)
+                    .map(|d| d.join(n))
+                    .find(|p| p.is_file())
+            })
+        })
+    };
+    Some((
+        find(&["chromium", "chromium-browser", "google-chrome"])?,
+        find(&["chromedriver"])?,
+    ))
+}
+
+fn artifacts_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("TREVI_ARTIFACTS_DIR") {
+        return PathBuf::from(d);
+    }
+    // target/<profile>/deps/this-test → target/test-artifacts
+    let exe = std::env::current_exe().unwrap();
+    exe.ancestors()
+        .nth(3)
+        .expect("target directory")
+        .join("test-artifacts")
+}
+
+/// Draws the preview `<img>` on a canvas in the page and counts its opaque
+/// pixels: what the browser actually shows, not what the server sent.
+const COUNT_OPAQUE_JS: &str = r#"
+const img = document.getElementById(arguments[0]);
+if (!img || !img.complete || !img.naturalWidth) return [0, 0];
+const c = document.createElement("canvas");
+c.width = img.naturalWidth; c.height = img.naturalHeight;
+const g = c.getContext("2d");
+g.drawImage(img, 0, 0);
+const d = g.getImageData(0, 0, c.width, c.height).data;
+let n = 0;
+for (let i = 3; i < d.length; i += 4) if (d[i] === 255) n++;
+return [n, c.width * c.height];
+"#;
+
+#[test]
+fn the_monitor_shows_a_live_preview_and_cancels_from_the_page() {
+    let Some((chromium, chromedriver)) = browser() else {
+        let msg = "the browser test needs chromium and chromedriver \
+                   (apt-get install chromium chromium-driver)";
+        if std::env::var_os("TREVI_REQUIRE_BROWSER").is_some() {
+            panic!("{msg}");
+        }
+        eprintln!("SKIPPED: {msg}");
+        return;
+    };
+    let farm = Farm::start();
+    let scene = farm.write("slow.xml", SLOW_SCENE);
+    let out = farm.submit(&[scene.to_str().unwrap(), "--detach", "--tile", "32"]);
+    let job: u64 = out.trim().parse().expect("--detach prints the job id");
+
+    // chromedriver on a free port.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let dlog = std::fs::File::create(farm.dir.path().join("chromedriver.log")).unwrap();
+    let _driver = Proc(
+        Command::new(&chromedriver)
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(dlog)
+            .spawn()
+            .unwrap(),
+    );
+    let driver_addr = format!("127.0.0.1:{port}");
+    wait_for(Duration::from_secs(30), "chromedriver", || {
+        TcpStream::connect(&driver_addr).ok()
+    });
+
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let shot = rt.block_on(async {
+        let mut caps = serde_json::Map::new();
+        caps.insert(
+            "goog:chromeOptions".into(),
+            json!({
+                "binary": chromium,
+                "args": ["--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                         "--disable-gpu", "--window-size=1280,1000"],
+            }),
+        );
+        let client = fantoccini::ClientBuilder::new(
+            hyper_util::client::legacy::connect::HttpConnector::new(),
+        )
+        .capabilities(caps)
+        .connect(&format!("http://{driver_addr}"))
+        .await
+        .expect("a WebDriver session with headless Chromium");
+        let result = drive(&client, &farm, job).await;
+        let _ = client.close().await;
+        result
+    });
+    let shot = shot.unwrap_or_else(|e| panic!("{e}\n{}", farm.logs()));
+
+    let dir = artifacts_dir();
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("monitor.png");
+    std::fs::write(&path, &shot).unwrap();
+    eprintln!("screenshot of the monitor: {}", path.display());
+    assert!(shot.starts_with(b"\x89PNG"), "the screenshot is a PNG");
+
+    // The coordinator itself says the job is cancelled, and it left no output.
+    let status = farm.submit(&["status", &job.to_string()]);
+    assert!(status.contains("cancelled"), "{status}");
+    let outputs = std::fs::read_dir(farm.data.join("jobs").join(job.to_string()))
+        .map(|d| d.count())
+        .unwrap_or(0);
+    assert_eq!(outputs, 0, "a cancelled job leaves no output");
+    // And the worker stops working on it: idle again within a heartbeat or two.
+    wait_for(Duration::from_secs(30), "the worker to go idle", || {
+        let (_, body) = http_get(&farm.http, "/api/state", Some(SUBMIT_TOKEN));
+        let s: serde_json::Value = serde_json::from_str(&body).ok()?;
+        (s["workers"][0]["state"] == "idle").then_some(())
+    });
+}
+
+/// The browser part: returns the screenshot, or what went wrong.
+async fn drive(c: &fantoccini::Client, farm: &Farm, job: u64) -> Result<Vec<u8>, String> {
+    use fantoccini::Locator;
+    let err = |what: &str| {
+        let what = what.to_string();
+        move |e: fantoccini::error::CmdError| format!("{what}: {e}")
+    };
+    c.goto(&format!("http://{}/", farm.http))
+        .await
+        .map_err(err("opening the monitor"))?;
+    // Without the token the page says what it needs.
+    let message = poll(c, "the page to ask for the token", |c| async move {
+        let m = c
+            .find(Locator::Id("message"))
+            .await
+            .ok()?
+            .text()
+            .await
+            .ok()?;
+        m.contains("token").then_some(m)
+    })
+    .await?;
+    assert!(message.contains("submit token"), "{message}");
+
+    // Type the token as a user would; leaving the field applies it.
+    let input = c
+        .find(Locator::Id("token"))
+        .await
+        .map_err(err("the token field"))?;
+    input
+        .send_keys(SUBMIT_TOKEN)
+        .await
+        .map_err(err("typing the token"))?;
+    c.find(Locator::Css("header h1"))
+        .await
+        .map_err(err("the header"))?
+        .click()
+        .await
+        .map_err(err("leaving the token field"))?;
+
+    let card = format!("job-{job}");
+    let progress = |c: fantoccini::Client, card: String| async move {
+        let t = c
+            .find(Locator::Css(&format!("#{card} .progress")))
+            .await
+            .ok()?
+            .text()
+            .await
+            .ok()?;
+        // "12 / 1200 tiles"
+        let (done, rest) = t.split_once(" / ")?;
+        let total: u64 = rest.split_whitespace().next()?.parse().ok()?;
+        Some((done.parse::<u64>().ok()?, total))
+    };
+    // The preview shows part of the frame...
+    let preview_id = format!("preview-{job}");
+    let (shown, total_px) = poll(c, "the preview to show part of the frame", |c| {
+        let id = preview_id.clone();
+        async move {
+            let v = c.execute(COUNT_OPAQUE_JS, vec![json!(id)]).await.ok()?;
+            let n = v.get(0)?.as_u64()?;
+            let total = v.get(1)?.as_u64()?;
+            (n > 0).then_some((n, total))
+        }
+    })
+    .await?;
+    assert!(
+        shown < total_px,
+        "the job must still be running ({shown} of {total_px} pixels)"
+    );
+    // ...and the progress moves.
+    let (first, total) = poll(c, "the progress", |c| progress(c, card.clone())).await?;
+    let (later, _) = poll(c, "the progress to move", |c| {
+        let card = card.clone();
+        async move { progress(c, card).await.filter(|&(d, _)| d > first) }
+    })
+    .await?;
+    assert!(
+        later < total,
+        "the job finished before the test could cancel it"
+    );
+    let shot = c.screenshot().await.map_err(err("the screenshot"))?;
+
+    // Cancel from the page.
+    c.find(Locator::Css(&format!("#{card} .cancel")))
+        .await
+        .map_err(err("the cancel button"))?
+        .click()
+        .await
+        .map_err(err("clicking cancel"))?;
+    poll(c, "the page to show the job cancelled", |c| {
+        let card = card.clone();
+        async move {
+            let s = c
+                .find(Locator::Css(&format!("#{card} .state")))
+                .await
+                .ok()?
+                .text()
+                .await
+                .ok()?;
+            (s == "cancelled").then_some(())
+        }
+    })
+    .await?;
+    Ok(shot)
+}
+
+/// Polls `f` against the page every 200 ms for up to two minutes.
+async fn poll<T, F, Fut>(c: &fantoccini::Client, what: &str, mut f: F) -> Result<T, String>
+where
+    F: FnMut(fantoccini::Client) -> Fut,
+    Fut: std::future::Future<Output = Option<T>>,
+{
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f(c.clone()).await {
+            return Ok(v);
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            return Err(format!("timed out waiting for {what}"));
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
