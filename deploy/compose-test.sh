@@ -41,7 +41,7 @@ fi
 project=trevi-ci-$$
 # Short leases so that the killed and the cut-off workers' tiles come back
 # quickly; a free host port on 127.0.0.1.
-export TREVI_LEASE_TTL_MS=3000 TREVI_PUBLISH=127.0.0.1:
+export TREVI_LEASE_TTL_MS=3000 TREVI_PUBLISH=127.0.0.1: TREVI_HTTP_PUBLISH=127.0.0.1:
 compose() { "${compose_cmd[@]}" -p "$project" -f "$root/deploy/docker-compose.yml" "$@"; }
 
 work=$(mktemp -d "${TMPDIR:-/tmp}/trevi-compose-test.XXXXXX")
@@ -118,6 +118,13 @@ while :; do
 done
 say "step 1: coordinator and 3 workers healthy (gRPC health checks)"
 "$root/deploy/trevi-health" "127.0.0.1:$port" || fail "the published port does not answer the gRPC health check"
+http_port=$(compose port coordinator 8080 | tail -n1)
+http_port=${http_port##*:}
+if command -v curl >/dev/null 2>&1; then
+    curl -fsS "http://127.0.0.1:$http_port/healthz" >/dev/null ||
+        fail "the monitor's /healthz does not answer on 127.0.0.1:$http_port"
+    say "step 1: the monitor answers on http://127.0.0.1:$http_port/"
+fi
 
 # ------------------------------------------------------------------ step 2
 # 12x8 = 96 tiles of 64x64 at supersample 4 with soft shadows and AO: tens
