@@ -553,7 +553,48 @@ impl Scheduler {
         let forget = (self.cfg.lease_ttl * 10).max(Duration::from_secs(60));
         self.workers
             .retain(|_, w| now.saturating_duration_since(w.last_seen) <= forget);
+        self.fail_stranded_jobs(now);
         expired.len()
+    }
+
+    /// Fails the jobs that every live worker is kept from (each failed too
+    /// many of their tiles): they would otherwise wait for ever, although no
+    /// single tile reached its failure limit. Lost workers do not count, so
+    /// a job whose workers all crashed waits for new ones.
+    fn fail_stranded_jobs(&mut self, now: Instant) {
+        let ttl = self.cfg.lease_ttl;
+        let live: Vec<WorkerId> = self
+            .workers
+            .iter()
+            .filter(|(_, w)| now.saturating_duration_since(w.last_seen) <= ttl)
+            .map(|(&id, _)| id)
+            .collect();
+        if live.is_empty() {
+            return;
+        }
+        let max = self.cfg.max_worker_failures.max(1);
+        for &(_, id) in &self.queue {
+            let j = &self.jobs[&id];
+            let benched = |w: &WorkerId| j.worker_failures.get(w).is_some_and(|&n| n >= max);
+            if !live.iter().all(benched)
+                || self.leases.values().any(|e| e.job == id)
+                || self.failed.iter().any(|(f, _)| *f == id)
+            {
+                continue;
+            }
+            let last = j
+                .failures
+                .iter()
+                .max_by_key(|(tile, (n, _))| (*n, std::cmp::Reverse(**tile)))
+                .map(|(tile, (n, cause))| format!("; tile {tile} failed {n} times, last: {cause}"))
+                .unwrap_or_default();
+            let msg = format!(
+                "every live worker ({}) failed {max} or more tiles of this job and is kept \
+                 from it{last}",
+                live.len()
+            );
+            self.failed.push((id, msg));
+        }
     }
 
     /// Removes a lease, counts a failure of its tile and worker, and puts the
@@ -1165,5 +1206,38 @@ mod tests {
         s.cancel(a, t0).unwrap();
         assert_eq!(s.set_priority(a, 1), Err(SchedError::JobOver(a)));
         assert_eq!(s.set_priority(99, 1), Err(SchedError::UnknownJob(99)));
+    }
+
+    #[test]
+    fn a_job_every_live_worker_is_kept_from_fails_instead_of_waiting() {
+        let (mut s, t0, w) = sched();
+        // max_worker_failures 3, max_tile_failures 5: w fails three
+        // different tiles once each, so no tile reaches its limit.
+        // While a second worker may still take tiles, nothing fails.
+        let w2 = s.register_worker(t0);
+        let j = s.submit(spec(0, 16, 4, 4), t0);
+        for _ in 0..3 {
+            let l = s.lease(w, t0).unwrap().unwrap();
+            s.reject_tile(l.id, "NaN in pixel (0, 0)");
+        }
+        assert_eq!(s.lease(w, t0).unwrap(), None, "w is benched");
+        s.expire(t0);
+        let early = s.take_failed();
+        assert!(early.is_empty(), "{early:?}");
+        // Once w2 is lost too, the only live worker is benched: the job fails.
+        let t1 = t0 + Duration::from_secs(6);
+        s.heartbeat(w, &[], t1).unwrap();
+        s.expire(t1);
+        let failed = s.take_failed();
+        assert_eq!(failed.len(), 1, "{failed:?}");
+        assert_eq!(failed[0].0, j);
+        assert!(
+            failed[0].1.contains("every live worker (1)"),
+            "{}",
+            failed[0].1
+        );
+        assert!(failed[0].1.contains("NaN in pixel"), "{}", failed[0].1);
+        // w2 comes back: too late, the job is over once the farm ends it.
+        assert_eq!(s.heartbeat(w2, &[], t1), Ok(vec![]));
     }
 }
