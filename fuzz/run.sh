@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Runs the parsers' fuzz targets with libFuzzer (docs/numerics.md, "Fuzzing").
+#
+#   fuzz/run.sh [SECONDS] [TARGET...]     # default: 60 s each of aisxml obj ply
+#
+# Installs cargo-fuzz if it is missing. Works on a stable toolchain
+# (RUSTC_BOOTSTRAP=1, no sanitizer). Seeds each corpus with the project's own
+# example files the first time, so the runs start past the headers. A crash
+# leaves its input in fuzz/artifacts/TARGET/ and a non-zero exit.
+set -euo pipefail
+cd "$(dirname "$0")"
+secs=${1:-60}
+shift || true
+targets=("$@")
+[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj ply)
+
+if ! cargo fuzz --version >/dev/null 2>&1; then
+    echo "== cargo install cargo-fuzz --locked"
+    cargo install cargo-fuzz --locked
+fi
+
+# Seeds: the examples, and the real meshes beside the project when present.
+seed() {
+    local target=$1 pattern=$2
+    mkdir -p "corpus/$target"
+    [ -n "$(ls -A "corpus/$target")" ] && return 0
+    find ../examples ../core/tests ../../shared/meshes -maxdepth 2 -name "$pattern" \
+        -size -256k 2>/dev/null | while read -r f; do
+        cp "$f" "corpus/$target/"
+    done
+}
+seed aisxml '*.xml'
+seed obj '*.obj'
+seed ply '*.ply'
+
+export RUSTC_BOOTSTRAP=1
+for t in "${targets[@]}"; do
+    echo "== $t: ${secs} s"
+    cargo fuzz run --sanitizer none "$t" "corpus/$t" -- -max_total_time="$secs"
+done
