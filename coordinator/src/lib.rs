@@ -7,6 +7,8 @@
 //!   the file is moved into place when the last tile is in).
 //! - [`grpc`]: the `trevi.v1` services over [`farm::Farm`], plus
 //!   `grpc.health.v1` and server reflection.
+//! - [`tls`]: loading and checking the certificate and key of `--tls-cert`
+//!   and `--tls-key`.
 //!
 //! Memory: tiles are leased in band order and at most a window of bands ahead
 //! of the first incomplete band, so the rows held by a job's writer are
@@ -20,6 +22,7 @@ pub mod farm;
 pub mod grpc;
 pub mod scheduler;
 pub mod store;
+pub mod tls;
 
 pub use error::FarmError;
 pub use farm::{Farm, FarmConfig, Limits, TileOutcome, TileSink};
