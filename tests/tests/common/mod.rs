@@ -48,7 +48,8 @@ pub fn bin(name: &str) -> PathBuf {
     let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
     assert!(
         path.exists(),
-        "{} is missing: run the tests with `cargo test --workspace`",
+        "{} is missing: run the tests with `cargo test --workspace` (or build the \
+         workspace's binaries first with `cargo build --workspace --bins` using the same profile)",
         path.display()
     );
     path
@@ -100,7 +101,7 @@ impl Dir {
         entries.sort();
         for p in entries {
             let text = std::fs::read_to_string(&p).unwrap_or_default();
-            let tail: Vec<&str> = text.lines().rev().take(30).collect();
+            let tail: Vec<&str> = text.lines().rev().take(40).collect();
             out.push_str(&format!("--- {}\n", p.display()));
             for l in tail.into_iter().rev() {
                 out.push_str(l);
