@@ -106,9 +106,9 @@ fn contains(haystack: &[u8], needle: &[u8]) -> bool {
 }
 
 /// An error and its sources on one line (`a: b: c`), skipping a source whose
-/// text is already there (tonic and tokio-rustls repeat their causes). tonic's transport errors say only
-/// "transport error" at the top; the cause (refused connection, unknown
-/// certificate issuer, …) is further down.
+/// text is already there (tonic and tokio-rustls repeat their causes).
+/// tonic's transport errors say only "transport error" at the top; the cause
+/// (refused connection, unknown certificate issuer, …) is further down.
 pub fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
     let mut out = e.to_string();
     let mut next = e.source();
@@ -147,7 +147,7 @@ pub fn hint(url: &str, error: &str) -> Option<&'static str> {
         Some("the coordinator seems to serve TLS: use an https:// URL (and --tls-ca if the farm has its own CA)")
     } else if https && error.contains("invalid peer certificate") {
         Some(
-            "the coordinator's certificate is not trusted for this name: give the farm's CA \
+            "the coordinator's certificate is not trusted, or not for this name: give the farm's CA \
              certificate with --tls-ca (ca.pem of deploy/make-certs.sh) and use a host name the \
              certificate was made for (or --tls-domain NAME)",
         )
