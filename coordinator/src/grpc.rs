@@ -363,6 +363,9 @@ impl pb::workers_server::Workers for WorkersService {
 pub struct ServeOptions {
     /// Tokens for submitters and workers (none: an open farm).
     pub tokens: Tokens,
+    /// Serve over TLS with this certificate and key (none: plain gRPC); see
+    /// [`crate::tls`].
+    pub tls: Option<tonic::transport::ServerTlsConfig>,
 }
 
 /// Serves the coordinator on `listener` until `shutdown` resolves: the three
@@ -386,6 +389,11 @@ pub async fn serve_with(
     use pb::{
         bundles_server::BundlesServer, jobs_server::JobsServer, workers_server::WorkersServer,
     };
+
+    let mut server = tonic::transport::Server::builder();
+    if let Some(tls) = opts.tls {
+        server = server.tls_config(tls)?;
+    }
 
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<JobsServer<JobsService>>().await;
@@ -428,7 +436,7 @@ pub async fn serve_with(
         JobsServer::new(JobsService { farm: farm.clone() }).max_decoding_message_size(max_msg);
     let latency = crate::metrics::LatencyLayer { farm: farm.clone() };
     let workers = WorkersServer::new(WorkersService { farm }).max_decoding_message_size(max_msg);
-    let result = tonic::transport::Server::builder()
+    let result = server
         .layer(latency)
         .add_service(health_service)
         .add_service(reflection)

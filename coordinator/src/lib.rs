@@ -10,6 +10,8 @@
 //! - [`http`]: the web monitor (`--http`), its JSON API, `/metrics`
 //!   ([`metrics`]) and `/healthz`; [`preview`] keeps each running frame's
 //!   small live preview, [`workers`] what is known of each worker.
+//! - [`tls`]: loading and checking the certificate and key of `--tls-cert`
+//!   and `--tls-key`.
 //!
 //! Memory: tiles are leased in band order and at most a window of bands ahead
 //! of the first incomplete band, so the rows held by a job's writer are
@@ -26,6 +28,7 @@ pub mod metrics;
 pub mod preview;
 pub mod scheduler;
 pub mod store;
+pub mod tls;
 pub mod workers;
 
 pub use error::FarmError;

@@ -72,6 +72,12 @@ struct Args {
     /// Most unfinished jobs per submitter (per client address).
     #[arg(long, env = "TREVI_MAX_JOBS_PER_SUBMITTER", default_value_t = 1000)]
     max_jobs_per_submitter: usize,
+    /// Serve gRPC over TLS with this PEM certificate chain (needs --tls-key).
+    #[arg(long, env = "TREVI_TLS_CERT")]
+    tls_cert: Option<PathBuf>,
+    /// The PEM private key of --tls-cert.
+    #[arg(long, env = "TREVI_TLS_KEY")]
+    tls_key: Option<PathBuf>,
 }
 
 #[tokio::main]
@@ -118,7 +124,12 @@ async fn main() -> Result<()> {
         tracing::warn!("no tokens: anyone who can reach this coordinator may submit and take work");
     }
     let http_tokens = tokens.clone();
-    let opts = ServeOptions { tokens };
+    let tls =
+        trevi_coordinator::tls::server_tls(args.tls_cert.as_deref(), args.tls_key.as_deref())?;
+    if tls.is_none() && !tokens.is_open() {
+        tracing::warn!("no TLS: tokens and pixels cross the network in the clear");
+    }
+    let opts = ServeOptions { tokens, tls };
     let farm =
         Arc::new(Farm::new(cfg).with_context(|| {
             format!("cannot use the data directory {}", args.data_dir.display())
@@ -128,7 +139,7 @@ async fn main() -> Result<()> {
         .with_context(|| format!("cannot listen on {}", args.listen))?;
     let addr = listener.local_addr()?;
     println!("listening on {addr}");
-    tracing::info!(%addr, data_dir = %args.data_dir.display(), "coordinator up");
+    tracing::info!(%addr, data_dir = %args.data_dir.display(), tls = opts.tls.is_some(), "coordinator up");
     // The HTTP server stops with the gRPC one: both wait on this.
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     let http = match &args.http {

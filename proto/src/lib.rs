@@ -8,6 +8,9 @@
 
 use trevi_core::Rect;
 
+pub mod connect;
+pub use connect::{endpoint, ClientTls, EndpointError};
+
 /// Generated prost messages and tonic clients and servers.
 pub mod pb {
     #![allow(clippy::all, missing_docs)]

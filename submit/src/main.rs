@@ -26,13 +26,21 @@ struct Args {
     command: Option<Command>,
     /// The scene file (AISXML).
     scene: Option<PathBuf>,
-    /// The farm's coordinator, like http://host:50051 (default: render on
-    /// this machine).
+    /// The farm's coordinator, like http://host:50051, or https:// for TLS
+    /// (default: render on this machine).
     #[arg(long, env = "TREVI_COORDINATOR", global = true)]
     coordinator: Option<String>,
     /// The coordinator's submit token (sent as `authorization: Bearer`).
     #[arg(long, env = "TREVI_TOKEN", global = true, hide_env_values = true)]
     token: Option<String>,
+    /// For an https:// coordinator: trust this PEM CA certificate instead of
+    /// the system roots (a farm with its own CA, see deploy/make-certs.sh).
+    #[arg(long, env = "TREVI_TLS_CA", global = true)]
+    tls_ca: Option<PathBuf>,
+    /// For an https:// coordinator: the name its certificate must carry, if
+    /// not the URL's host.
+    #[arg(long, env = "TREVI_TLS_DOMAIN", global = true)]
+    tls_domain: Option<String>,
     /// Job priority on the farm: higher runs first.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     priority: i32,
@@ -74,8 +82,13 @@ enum Command {
 
 fn main() {
     let args = Args::parse();
+    let url = args.coordinator.clone();
     if let Err(e) = run(args) {
-        eprintln!("trevi-submit: error: {e:#}");
+        let text = format!("{e:#}");
+        eprintln!("trevi-submit: error: {text}");
+        if let Some(hint) = url.and_then(|u| trevi_proto::connect::hint(&u, &text)) {
+            eprintln!("trevi-submit: hint: {hint}");
+        }
         std::process::exit(1);
     }
 }
@@ -88,7 +101,8 @@ fn run(args: Args) -> Result<()> {
             .as_deref()
             .context("status, list and cancel need --coordinator URL (or TREVI_COORDINATOR)")?;
         return runtime.block_on(async {
-            let mut client = remote::Client::connect(url, args.token.as_deref()).await?;
+            let mut client =
+                remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
             match cmd {
                 Command::Status { id } => {
                     println!("{}", remote::describe(&client.status(*id).await?));
@@ -172,7 +186,8 @@ fn run(args: Args) -> Result<()> {
     runtime.block_on(async {
         match &args.coordinator {
             Some(url) => {
-                let mut client = remote::Client::connect(url, args.token.as_deref()).await?;
+                let mut client =
+                    remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
                 client.preview = args.preview.clone();
                 client
                     .render(
@@ -201,6 +216,14 @@ fn run(args: Args) -> Result<()> {
             }
         }
     })
+}
+
+/// The TLS settings of `--tls-ca` and `--tls-domain`.
+fn tls(args: &Args) -> trevi_proto::ClientTls {
+    trevi_proto::ClientTls {
+        ca_file: args.tls_ca.clone(),
+        domain: args.tls_domain.clone(),
+    }
 }
 
 /// Scene errors name bundle-relative files; show them as the user typed the

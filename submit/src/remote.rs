@@ -8,10 +8,9 @@ use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use tonic::transport::Channel;
 use trevi_core::Bundle;
 use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient, JobState};
-use trevi_proto::{AuthChannel, Bearer, CHUNK_SIZE, MAX_MESSAGE_SIZE};
+use trevi_proto::{AuthChannel, Bearer, ClientTls, CHUNK_SIZE, MAX_MESSAGE_SIZE};
 
 /// How progress is shown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,14 +43,21 @@ impl Client {
     /// Connects to `url`, sending `token` (the coordinator's submit token)
     /// with every call.
     pub async fn connect(url: &str, token: Option<&str>) -> Result<Client> {
+        Client::connect_with(url, token, &ClientTls::default()).await
+    }
+
+    /// [`Client::connect`] with TLS settings for an `https://` coordinator.
+    pub async fn connect_with(url: &str, token: Option<&str>, tls: &ClientTls) -> Result<Client> {
         let bearer = Bearer::new(token).map_err(|e| anyhow::anyhow!("--token: {e}"))?;
-        let channel = Channel::from_shared(url.to_string())
-            .with_context(|| format!("bad coordinator address \"{url}\""))?
+        let channel = trevi_proto::endpoint(url, tls)?
             .connect_timeout(Duration::from_secs(10))
             .tcp_nodelay(true)
             .connect()
             .await
-            .with_context(|| format!("cannot reach the coordinator at {url}"))?;
+            .map_err(|e| {
+                let why = trevi_proto::connect::error_chain(&e);
+                anyhow::anyhow!("cannot reach the coordinator at {url}: {why}")
+            })?;
         Ok(Client {
             url: url.to_string(),
             announce: true,
@@ -425,7 +431,12 @@ impl std::fmt::Display for StatusError {
     }
 }
 
-impl std::error::Error for StatusError {}
+impl std::error::Error for StatusError {
+    // What lies under a transport failure (a TLS alert, a reset connection).
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        std::error::Error::source(&self.0)
+    }
+}
 
 /// One line about a job, for `status` and `list`.
 pub fn describe(s: &pb::JobStatus) -> String {

@@ -7,10 +7,11 @@
 //! Each test works in its own temporary directory; on failure the message
 //! carries every process's log.
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+mod common;
+
+use common::*;
+use std::path::Path;
+use std::process::Command;
 use tonic::transport::Channel;
 use trevi_proto::pb::{self, jobs_client::JobsClient, workers_client::WorkersClient};
 
@@ -27,194 +28,17 @@ const SCENE: &str = r#"<scene version="1">
 </scene>
 "#;
 
-/// Same scene, with enough samples that a tile takes tens of milliseconds on
-/// one thread, so a job lasts long enough to interfere with.
-const SLOW_SCENE: &str = r#"<scene version="1">
-  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
-  <sphere id="ball" center="0 1 0" radius="1">
-    <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" reflectivity="0.2"/>
-  </sphere>
-  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
-  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
-  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
-    <render width="96" height="64" supersample="6" shadow-samples="8" ao-samples="16" output="slow.png"/>
-  </camera>
-</scene>
-"#;
-
-fn bin(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("current_exe");
-    let dir = exe
-        .parent()
-        .and_then(Path::parent)
-        .expect("the test runs from target/<profile>/deps");
-    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
-    assert!(
-        path.exists(),
-        "{} is missing: run the tests with `cargo test --workspace` (or build the \
-         workspace's binaries first with `cargo build --workspace --bins` using the same profile)",
-        path.display()
-    );
-    path
-}
-
-/// A test's working directory; its logs are shown when an assertion fails.
-struct Dir {
-    tmp: tempfile::TempDir,
-}
-
-impl Dir {
-    fn new() -> Dir {
-        Dir {
-            tmp: tempfile::Builder::new()
-                .prefix("trevi-e2e-")
-                .tempdir()
-                .unwrap(),
-        }
-    }
-
-    fn path(&self) -> &Path {
-        self.tmp.path()
-    }
-
-    fn write(&self, rel: &str, text: &str) -> PathBuf {
-        let p = self.path().join(rel);
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        std::fs::write(&p, text).unwrap();
-        p
-    }
-
-    fn log(&self, name: &str) -> std::fs::File {
-        std::fs::File::create(self.path().join(format!("{name}.log"))).unwrap()
-    }
-
-    /// Every log, for failure messages.
-    fn logs(&self) -> String {
-        let mut out = format!("working directory {}\n", self.path().display());
-        let mut entries: Vec<_> = std::fs::read_dir(self.path())
-            .unwrap()
-            .flatten()
-            .map(|e| e.path())
-            .filter(|p| p.extension().is_some_and(|e| e == "log"))
-            .collect();
-        entries.sort();
-        for p in entries {
-            let text = std::fs::read_to_string(&p).unwrap_or_default();
-            let tail: Vec<&str> = text.lines().rev().take(40).collect();
-            out.push_str(&format!("--- {}\n", p.display()));
-            for l in tail.into_iter().rev() {
-                out.push_str(l);
-                out.push('\n');
-            }
-        }
-        out
-    }
-}
-
-/// A child process killed when dropped.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-struct Coordinator {
-    _proc: Proc,
-    url: String,
-    data: PathBuf,
-}
-
 fn coordinator(dir: &Dir, lease_ttl_ms: u64) -> Coordinator {
     coordinator_at(dir, lease_ttl_ms, "127.0.0.1:0", "coordinator")
 }
 
 fn coordinator_at(dir: &Dir, lease_ttl_ms: u64, listen: &str, name: &str) -> Coordinator {
-    let data = dir.path().join("data");
-    let mut child = Command::new(bin("trevi-coordinator"))
-        .args(["--listen", listen, "--tile-size", "16"])
-        .arg("--data-dir")
-        .arg(&data)
-        .args(["--lease-ttl-ms", &lease_ttl_ms.to_string()])
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::piped())
-        .stderr(dir.log(name))
-        .spawn()
-        .expect("start trevi-coordinator");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap_or_else(|| panic!("coordinator said {line:?}\n{}", dir.logs()))
-        .to_string();
-    Coordinator {
-        _proc: Proc(child),
-        url: format!("http://{addr}"),
-        data,
-    }
+    let ttl = lease_ttl_ms.to_string();
+    coordinator_with(dir, listen, name, &["--lease-ttl-ms", &ttl], &[])
 }
 
 fn worker(dir: &Dir, url: &str, name: &str) -> Proc {
-    Proc(
-        Command::new(bin("trevi-worker"))
-            .args(["--coordinator", url, "--threads", "1", "--name", name])
-            .stdout(Stdio::null())
-            .stderr(dir.log(name))
-            .spawn()
-            .expect("start trevi-worker"),
-    )
-}
-
-fn submit_cmd(args: &[&str]) -> Command {
-    let mut c = Command::new(bin("trevi-submit"));
-    c.args(args).env_remove("TREVI_COORDINATOR");
-    c
-}
-
-fn submit(dir: &Dir, args: &[&str]) -> Output {
-    static RUNS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let out = submit_cmd(args).output().expect("run trevi-submit");
-    std::fs::write(
-        dir.path().join(format!("submit-{n:03}.log")),
-        [&out.stdout[..], &out.stderr[..]].concat(),
-    )
-    .unwrap();
-    out
-}
-
-/// The embedded (one-process) render of a scene.
-fn embedded(dir: &Dir, scene: &Path, out: &str) -> Vec<u8> {
-    let out = dir.path().join(out);
-    let o = submit(
-        dir,
-        &[
-            scene.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--tile",
-            "16",
-            "--quiet",
-        ],
-    );
-    assert!(
-        o.status.success(),
-        "embedded render failed\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    std::fs::read(out).unwrap()
-}
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
+    worker_with(dir, url, name, &[], &[])
 }
 
 async fn jobs(url: &str) -> JobsClient<Channel> {
@@ -230,34 +54,6 @@ fn job(rt: &tokio::runtime::Runtime, url: &str, id: u64) -> pb::JobStatus {
             .unwrap()
             .into_inner()
     })
-}
-
-/// Polls `cond` until it holds; fails with the logs after `secs` seconds.
-fn wait_for(dir: &Dir, what: &str, secs: u64, mut cond: impl FnMut() -> bool) {
-    let end = Instant::now() + Duration::from_secs(secs);
-    while !cond() {
-        assert!(
-            Instant::now() < end,
-            "timed out waiting for {what}\n{}",
-            dir.logs()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-fn wait_child(dir: &Dir, child: &mut Child, secs: u64) -> std::process::ExitStatus {
-    let end = Instant::now() + Duration::from_secs(secs);
-    loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            return s;
-        }
-        assert!(
-            Instant::now() < end,
-            "a process did not finish\n{}",
-            dir.logs()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 #[test]

@@ -10,11 +10,14 @@
 //! The screenshot the browser test takes is kept in
 //! `target/test-artifacts/monitor.png` (or `$TREVI_ARTIFACTS_DIR`).
 
+mod common;
+
+use common::{coordinator_with, submit, worker_with, Coordinator, Dir, Proc};
 use serde_json::json;
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const SUBMIT_TOKEN: &str = "submit-s3cret";
@@ -24,7 +27,7 @@ const WORKER_TOKEN: &str = "worker-s3cret";
 /// running while the browser watches it (about two minutes of rendering on
 /// this project's 2-core machines): 1200 tiles of 32×32 at supersample 8 with
 /// soft shadows and ambient occlusion.
-const SLOW_SCENE: &str = r#"<scene version="1">
+const BROWSER_SCENE: &str = r#"<scene version="1">
   <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
   <sphere id="ball" center="0 1 0" radius="1">
     <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" reflectivity="0.2"/>
@@ -49,142 +52,55 @@ const SMALL_SCENE: &str = r#"<scene version="1">
 </scene>
 "#;
 
-fn bin(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("current_exe");
-    let dir = exe
-        .parent()
-        .and_then(Path::parent)
-        .expect("the test runs from target/<profile>/deps");
-    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
-    assert!(
-        path.exists(),
-        "{} is missing: build the binaries first (cargo build --profile test \
-         -p trevi-coordinator -p trevi-worker -p trevi-submit)",
-        path.display()
-    );
-    path
-}
-
-/// A child process killed when dropped.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// A coordinator with tokens and the HTTP monitor, and one worker with one
 /// render thread.
 struct Farm {
-    _coordinator: Proc,
+    dir: Dir,
+    c: Coordinator,
     _worker: Proc,
-    url: String,
-    http: String,
-    data: PathBuf,
-    dir: tempfile::TempDir,
 }
 
 impl Farm {
     fn start() -> Farm {
-        let dir = tempfile::Builder::new()
-            .prefix("trevi-monitor-")
-            .tempdir()
-            .unwrap();
-        let data = dir.path().join("data");
-        let log = std::fs::File::create(dir.path().join("coordinator.log")).unwrap();
-        let mut child = Command::new(bin("trevi-coordinator"))
-            .args(["--listen", "127.0.0.1:0", "--http", "127.0.0.1:0"])
-            .args(["--tile-size", "16"])
-            .args([
+        let dir = Dir::new();
+        let c = coordinator_with(
+            &dir,
+            "127.0.0.1:0",
+            "coordinator",
+            &[
+                "--http",
+                "127.0.0.1:0",
                 "--submit-token",
                 SUBMIT_TOKEN,
                 "--worker-token",
                 WORKER_TOKEN,
-            ])
-            .arg("--data-dir")
-            .arg(&data)
-            .stdout(Stdio::piped())
-            .stderr(log)
-            .spawn()
-            .unwrap();
-        let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-        let mut grpc = None;
-        let mut http = None;
-        while grpc.is_none() || http.is_none() {
-            let line = lines
-                .next()
-                .expect("the coordinator printed its addresses")
-                .unwrap();
-            if let Some(a) = line.strip_prefix("listening on ") {
-                grpc = Some(format!("http://{a}"));
-            }
-            if let Some(a) = line.strip_prefix("monitor on http://") {
-                http = Some(a.trim_end_matches('/').to_string());
-            }
-        }
-        let coordinator = Proc(child);
-        let url = grpc.unwrap();
-        let wlog = std::fs::File::create(dir.path().join("worker.log")).unwrap();
-        let worker = Command::new(bin("trevi-worker"))
-            .args([
-                "--coordinator",
-                &url,
-                "--threads",
-                "1",
-                "--token",
-                WORKER_TOKEN,
-            ])
-            .stdout(Stdio::null())
-            .stderr(wlog)
-            .spawn()
-            .unwrap();
+            ],
+            &[],
+        );
+        let worker = worker_with(&dir, &c.url, "worker", &["--token", WORKER_TOKEN], &[]);
         Farm {
-            _coordinator: coordinator,
-            _worker: Proc(worker),
-            url,
-            http: http.unwrap(),
-            data,
             dir,
+            c,
+            _worker: worker,
         }
     }
 
-    /// `trevi-submit ARGS --coordinator URL --token T`; panics with its
-    /// output unless it succeeds.
+    fn http(&self) -> &str {
+        self.c.http.as_deref().expect("started with --http")
+    }
+
+    /// `trevi-submit ARGS --coordinator URL --token T`; panics with the
+    /// logs unless it succeeds; returns its standard output.
     fn submit(&self, args: &[&str]) -> String {
-        let out = Command::new(bin("trevi-submit"))
-            .args(args)
-            .args(["--coordinator", &self.url, "--token", SUBMIT_TOKEN])
-            .current_dir(self.dir.path())
-            .output()
-            .unwrap();
-        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        let mut all = args.to_vec();
+        all.extend(["--coordinator", &self.c.url, "--token", SUBMIT_TOKEN]);
+        let out = submit(&self.dir, &all);
         assert!(
             out.status.success(),
-            "trevi-submit {args:?} failed:\n{text}\n{}\n{}",
-            String::from_utf8_lossy(&out.stderr),
-            self.logs()
+            "trevi-submit {args:?} failed\n{}",
+            self.dir.logs()
         );
-        text
-    }
-
-    fn write(&self, name: &str, text: &str) -> PathBuf {
-        let p = self.dir.path().join(name);
-        std::fs::write(&p, text).unwrap();
-        p
-    }
-
-    fn logs(&self) -> String {
-        ["coordinator.log", "worker.log"]
-            .iter()
-            .map(|n| {
-                let t = std::fs::read_to_string(self.dir.path().join(n)).unwrap_or_default();
-                let tail: Vec<&str> = t.lines().rev().take(30).collect();
-                let tail: Vec<&str> = tail.into_iter().rev().collect();
-                format!("--- {n}\n{}\n", tail.join("\n"))
-            })
-            .collect()
+        String::from_utf8_lossy(&out.stdout).to_string()
     }
 }
 
@@ -211,46 +127,36 @@ fn http_get(addr: &str, path: &str, token: Option<&str>) -> (u16, String) {
     (code, body.to_string())
 }
 
-/// Waits for `f` to give `Some`, up to `limit`.
-fn wait_for<T>(limit: Duration, what: &str, mut f: impl FnMut() -> Option<T>) -> T {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(start.elapsed() < limit, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(200));
-    }
-}
-
 #[test]
 fn metrics_parse_as_prometheus_text_and_count_the_job_s_tiles() {
     let farm = Farm::start();
     // Open endpoints: no token needed.
-    let (code, body) = http_get(&farm.http, "/healthz", None);
+    let (code, body) = http_get(farm.http(), "/healthz", None);
     assert_eq!(code, 200, "{body}");
     assert!(body.starts_with("ok"), "{body}");
     // The API is a submitter's business.
-    assert_eq!(http_get(&farm.http, "/api/state", None).0, 401);
+    assert_eq!(http_get(farm.http(), "/api/state", None).0, 401);
     assert_eq!(
-        http_get(&farm.http, "/api/state", Some(WORKER_TOKEN)).0,
+        http_get(farm.http(), "/api/state", Some(WORKER_TOKEN)).0,
         403
     );
 
-    let scene = farm.write("small.xml", SMALL_SCENE);
+    let scene = farm.dir.write("small.xml", SMALL_SCENE);
+    let out = farm.dir.path().join("small.png");
     farm.submit(&[
         scene.to_str().unwrap(),
         "--quiet",
         "--tile",
         "16",
         "-o",
-        "small.png",
+        out.to_str().unwrap(),
     ]);
+    assert!(out.is_file(), "the image was downloaded");
     let status = farm.submit(&["status", "1"]);
     assert!(status.contains("done"), "{status}");
 
     // The job as the API sees it.
-    let (code, body) = http_get(&farm.http, "/api/state", Some(SUBMIT_TOKEN));
+    let (code, body) = http_get(farm.http(), "/api/state", Some(SUBMIT_TOKEN));
     assert_eq!(code, 200, "{body}");
     let state: serde_json::Value = serde_json::from_str(&body).unwrap();
     let job = &state["jobs"][0];
@@ -260,7 +166,7 @@ fn metrics_parse_as_prometheus_text_and_count_the_job_s_tiles() {
     let rays = job["rays"].as_u64().unwrap();
     assert!(rays >= 64 * 48, "{rays} rays for 64×48 pixels");
 
-    let (code, text) = http_get(&farm.http, "/metrics", None);
+    let (code, text) = http_get(farm.http(), "/metrics", None);
     assert_eq!(code, 200, "{text}");
     // Every line is a comment, or a sample the parser understands.
     for line in text.lines() {
@@ -374,7 +280,7 @@ fn the_monitor_shows_a_live_preview_and_cancels_from_the_page() {
         return;
     };
     let farm = Farm::start();
-    let scene = farm.write("slow.xml", SLOW_SCENE);
+    let scene = farm.dir.write("slow.xml", BROWSER_SCENE);
     let out = farm.submit(&[scene.to_str().unwrap(), "--detach", "--tile", "32"]);
     let job: u64 = out.trim().parse().expect("--detach prints the job id");
 
@@ -394,8 +300,8 @@ fn the_monitor_shows_a_live_preview_and_cancels_from_the_page() {
             .unwrap(),
     );
     let driver_addr = format!("127.0.0.1:{port}");
-    wait_for(Duration::from_secs(30), "chromedriver", || {
-        TcpStream::connect(&driver_addr).ok()
+    common::wait_for(&farm.dir, "chromedriver", 30, || {
+        TcpStream::connect(&driver_addr).is_ok()
     });
 
     let rt = tokio::runtime::Runtime::new().unwrap();
@@ -420,7 +326,7 @@ fn the_monitor_shows_a_live_preview_and_cancels_from_the_page() {
         let _ = client.close().await;
         result
     });
-    let shot = shot.unwrap_or_else(|e| panic!("{e}\n{}", farm.logs()));
+    let shot = shot.unwrap_or_else(|e| panic!("{e}\n{}", farm.dir.logs()));
 
     let dir = artifacts_dir();
     std::fs::create_dir_all(&dir).unwrap();
@@ -432,15 +338,15 @@ fn the_monitor_shows_a_live_preview_and_cancels_from_the_page() {
     // The coordinator itself says the job is cancelled, and it left no output.
     let status = farm.submit(&["status", &job.to_string()]);
     assert!(status.contains("cancelled"), "{status}");
-    let outputs = std::fs::read_dir(farm.data.join("jobs").join(job.to_string()))
+    let outputs = std::fs::read_dir(farm.c.data.join("jobs").join(job.to_string()))
         .map(|d| d.count())
         .unwrap_or(0);
     assert_eq!(outputs, 0, "a cancelled job leaves no output");
     // And the worker stops working on it: idle again within a heartbeat or two.
-    wait_for(Duration::from_secs(30), "the worker to go idle", || {
-        let (_, body) = http_get(&farm.http, "/api/state", Some(SUBMIT_TOKEN));
-        let s: serde_json::Value = serde_json::from_str(&body).ok()?;
-        (s["workers"][0]["state"] == "idle").then_some(())
+    common::wait_for(&farm.dir, "the worker to go idle", 30, || {
+        let (_, body) = http_get(farm.http(), "/api/state", Some(SUBMIT_TOKEN));
+        serde_json::from_str::<serde_json::Value>(&body)
+            .is_ok_and(|s| s["workers"][0]["state"] == "idle")
     });
 }
 
@@ -451,7 +357,7 @@ async fn drive(c: &fantoccini::Client, farm: &Farm, job: u64) -> Result<Vec<u8>,
         let what = what.to_string();
         move |e: fantoccini::error::CmdError| format!("{what}: {e}")
     };
-    c.goto(&format!("http://{}/", farm.http))
+    c.goto(&format!("http://{}/", farm.http()))
         .await
         .map_err(err("opening the monitor"))?;
     // Without the token the page says what it needs.

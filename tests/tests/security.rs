@@ -5,6 +5,8 @@
 mod common;
 
 use common::*;
+use std::path::Path;
+use std::process::Command;
 use tonic::transport::Channel;
 use tonic::Code;
 use trevi_core::Bundle;
@@ -16,24 +18,25 @@ use trevi_proto::{AuthChannel, Bearer};
 const SUBMIT: &str = "submit-secret-1234";
 const WORK: &str = "worker-secret-5678";
 
-async fn channel(url: &str) -> Channel {
-    Channel::from_shared(url.to_string())
+/// A channel to the coordinator, over TLS when its URL is `https://`.
+async fn channel(c: &Coordinator) -> Channel {
+    trevi_proto::endpoint(&c.url, &c.tls)
         .unwrap()
         .connect()
         .await
         .unwrap()
 }
 
-async fn jobs(url: &str, token: Option<&str>) -> JobsClient<AuthChannel> {
-    JobsClient::with_interceptor(channel(url).await, Bearer::new(token).unwrap())
+async fn jobs(c: &Coordinator, token: Option<&str>) -> JobsClient<AuthChannel> {
+    JobsClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
 }
 
-async fn workers(url: &str, token: Option<&str>) -> WorkersClient<AuthChannel> {
-    WorkersClient::with_interceptor(channel(url).await, Bearer::new(token).unwrap())
+async fn workers(c: &Coordinator, token: Option<&str>) -> WorkersClient<AuthChannel> {
+    WorkersClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
 }
 
-async fn bundles(url: &str, token: Option<&str>) -> BundlesClient<AuthChannel> {
-    BundlesClient::with_interceptor(channel(url).await, Bearer::new(token).unwrap())
+async fn bundles(c: &Coordinator, token: Option<&str>) -> BundlesClient<AuthChannel> {
+    BundlesClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
         .max_encoding_message_size(64 << 20)
 }
 
@@ -69,41 +72,66 @@ fn code<T: std::fmt::Debug>(r: Result<T, tonic::Status>) -> Code {
 
 #[test]
 fn each_token_and_role_combination() {
+    token_roles(&Dir::new(), None);
+}
+
+#[test]
+fn each_token_and_role_combination_over_tls() {
     let dir = Dir::new();
+    let Some(certs) = make_certs(&dir, "certs") else {
+        return;
+    };
+    token_roles(&dir, Some(&certs));
+}
+
+/// Every token and role, on a plain coordinator or (with `certs`, made by
+/// `deploy/make-certs.sh`) a TLS one, through gRPC clients and the real
+/// programs.
+fn token_roles(dir: &Dir, certs: Option<&Path>) {
     let scene = dir.write("s.xml", &tiny_scene(1));
-    let expected = embedded(&dir, &scene, "embedded.png");
+    let expected = embedded(dir, &scene, "embedded.png");
     let token_file = dir.write("worker.token", &format!("{WORK}\n"));
-    let c = coordinator_with(
-        &dir,
+    let certs = certs.map(|d| {
+        let s = |f: &str| d.join(f).to_str().unwrap().to_string();
+        (s("coordinator.pem"), s("coordinator.key"), s("ca.pem"))
+    });
+    let mut args = vec!["--worker-token-file", token_file.to_str().unwrap()];
+    // What the worker and trevi-submit need to trust the coordinator.
+    let mut client_tls: Vec<&str> = Vec::new();
+    if let Some((cert, key, ca)) = &certs {
+        args.extend(["--tls-cert", cert.as_str(), "--tls-key", key.as_str()]);
+        client_tls.extend(["--tls-ca", ca.as_str()]);
+    }
+    let mut c = coordinator_with(
+        dir,
         "127.0.0.1:0",
         "coordinator",
-        &["--worker-token-file", token_file.to_str().unwrap()],
+        &args,
         &[("TREVI_SUBMIT_TOKEN", SUBMIT)],
     );
+    if let Some((_, _, ca)) = &certs {
+        assert!(c.url.starts_with("https://localhost:"), "{}", c.url);
+        c.tls.ca_file = Some(ca.into());
+    }
     let rt = runtime();
     rt.block_on(async {
-        let list = |t: Option<&'static str>| {
-            let url = c.url.clone();
-            async move {
-                jobs(&url, t)
-                    .await
-                    .list_jobs(pb::ListJobsRequest {})
-                    .await
-                    .map(|r| r.into_inner().jobs.len())
-            }
+        let c = &c;
+        let list = |t: Option<&'static str>| async move {
+            jobs(c, t)
+                .await
+                .list_jobs(pb::ListJobsRequest {})
+                .await
+                .map(|r| r.into_inner().jobs.len())
         };
-        let register = |t: Option<&'static str>| {
-            let url = c.url.clone();
-            async move {
-                workers(&url, t)
-                    .await
-                    .register(pb::RegisterRequest {
-                        name: "t".into(),
-                        threads: 1,
-                    })
-                    .await
-                    .map(|r| r.into_inner().worker_id)
-            }
+        let register = |t: Option<&'static str>| async move {
+            workers(c, t)
+                .await
+                .register(pb::RegisterRequest {
+                    name: "t".into(),
+                    threads: 1,
+                })
+                .await
+                .map(|r| r.into_inner().worker_id)
         };
         // Jobs: the submit token only.
         assert_eq!(list(Some(SUBMIT)).await.unwrap(), 0);
@@ -119,17 +147,17 @@ fn each_token_and_role_combination() {
         assert_eq!(code(register(Some(SUBMIT)).await), Code::PermissionDenied);
         // Bundles: submitters upload, workers only download.
         let bytes = bundle_of(&tiny_scene(2)).encode();
-        let mut wb = bundles(&c.url, Some(WORK)).await;
+        let mut wb = bundles(c, Some(WORK)).await;
         assert_eq!(
             code(upload(&mut wb, vec![bytes.clone()]).await),
             Code::PermissionDenied
         );
-        let mut nb = bundles(&c.url, None).await;
+        let mut nb = bundles(c, None).await;
         assert_eq!(
             code(upload(&mut nb, vec![bytes.clone()]).await),
             Code::Unauthenticated
         );
-        let mut sb = bundles(&c.url, Some(SUBMIT)).await;
+        let mut sb = bundles(c, Some(SUBMIT)).await;
         let hash = upload(&mut sb, vec![bytes.clone()]).await.unwrap();
         let mut got = Vec::new();
         let mut s = wb
@@ -154,7 +182,7 @@ fn each_token_and_role_combination() {
         );
         // Health stays open.
         use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
-        let r = HealthClient::new(channel(&c.url).await)
+        let r = HealthClient::new(channel(c).await)
             .check(HealthCheckRequest {
                 service: "trevi.v1.Jobs".into(),
             })
@@ -164,9 +192,9 @@ fn each_token_and_role_combination() {
         assert_eq!(r.status, 1);
     });
     // The real programs with their tokens render the same bytes.
-    let _w = worker_with(&dir, &c.url, "worker", &[], &[("TREVI_TOKEN", WORK)]);
+    let _w = worker_with(dir, &c.url, "worker", &client_tls, &[("TREVI_TOKEN", WORK)]);
     let out = dir.path().join("farm.png");
-    let args = [
+    let mut args = vec![
         scene.to_str().unwrap(),
         "--coordinator",
         &c.url,
@@ -175,22 +203,25 @@ fn each_token_and_role_combination() {
         "--tile",
         "16",
     ];
-    let o = submit_env(&dir, &args, &[("TREVI_TOKEN", SUBMIT)]);
+    args.extend(&client_tls);
+    let o = submit_env(dir, &args, &[("TREVI_TOKEN", SUBMIT)]);
     assert!(o.status.success(), "{}", dir.logs());
     assert!(std::fs::read(&out).unwrap() == expected);
     // Without a token, or with the worker's, trevi-submit is told why.
-    let o = submit(&dir, &args);
+    let o = submit(dir, &args);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("token"), "{err}");
-    let o = submit_env(&dir, &args, &[("TREVI_TOKEN", WORK)]);
+    let o = submit_env(dir, &args, &[("TREVI_TOKEN", WORK)]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && err.contains("PermissionDenied"),
         "{err}"
     );
     // A worker with the submit token gets no work (and says why).
-    let _bad = worker_with(&dir, &c.url, "badworker", &["--token", SUBMIT], &[]);
-    wait_for(&dir, "the refused worker to log", 30, || {
+    let mut bad_args = vec!["--token", SUBMIT];
+    bad_args.extend(&client_tls);
+    let _bad = worker_with(dir, &c.url, "badworker", &bad_args, &[]);
+    wait_for(dir, "the refused worker to log", 30, || {
         dir.read_log("badworker").contains("worker token")
     });
 }
@@ -237,9 +268,9 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
     );
     let rt = runtime();
     rt.block_on(async {
-        let mut b = bundles(&c.url, None).await;
-        let mut j = jobs(&c.url, None).await;
-        let mut w = workers(&c.url, None).await;
+        let mut b = bundles(&c, None).await;
+        let mut j = jobs(&c, None).await;
+        let mut w = workers(&c, None).await;
 
         // A bundle over the size limit, sent in legal chunks.
         let big = vec![vec![7u8; 600 << 10], vec![7u8; 600 << 10]];
@@ -464,7 +495,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
             Code::InvalidArgument
         );
         assert_eq!(
-            jobs(&c.url, None)
+            jobs(&c, None)
                 .await
                 .get_job(pb::JobId { id: job })
                 .await
@@ -506,7 +537,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
     let rt = runtime();
     wait_for(&dir, "the queued jobs", 60, || {
         rt.block_on(async {
-            let list = jobs(&c.url, None)
+            let list = jobs(&c, None)
                 .await
                 .list_jobs(pb::ListJobsRequest {})
                 .await
@@ -531,4 +562,160 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
     );
     assert!(o.status.success(), "{}", dir.logs());
     assert!(std::fs::read(&out).unwrap() == expected);
+}
+
+/// Runs a program that should fail at once; returns its stderr.
+fn fails(dir: &Dir, name: &str, args: &[&str]) -> String {
+    let mut cmd = if name == "trevi-submit" {
+        submit_cmd(args)
+    } else {
+        let mut c = Command::new(bin(name));
+        c.args(args)
+            .env_remove("TREVI_TLS_CERT")
+            .env_remove("TREVI_TLS_KEY")
+            .env_remove("TREVI_TLS_CA")
+            .env_remove("TREVI_SUBMIT_TOKEN")
+            .env_remove("TREVI_WORKER_TOKEN");
+        c
+    };
+    let o = cmd
+        .env("RUST_BACKTRACE", "0")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(
+        !o.status.success(),
+        "{name} {args:?} succeeded\n{err}\n{}",
+        dir.logs()
+    );
+    assert!(
+        o.status.code().is_some() && !err.contains("panicked"),
+        "{name} {args:?} did not exit with an error\n{err}"
+    );
+    err
+}
+
+#[test]
+fn tls_mistakes_get_clear_errors() {
+    let dir = Dir::new();
+    let (Some(certs), Some(other)) = (make_certs(&dir, "certs"), make_certs(&dir, "other")) else {
+        return;
+    };
+    let f = |d: &Path, name: &str| d.join(name).to_str().unwrap().to_string();
+    let (cert, key, ca) = (
+        f(&certs, "coordinator.pem"),
+        f(&certs, "coordinator.key"),
+        f(&certs, "ca.pem"),
+    );
+    let (other_key, other_ca) = (f(&other, "coordinator.key"), f(&other, "ca.pem"));
+    let data = f(dir.path(), "data-bad");
+
+    // The coordinator refuses to start on a bad key, naming the file.
+    let base = ["--listen", "127.0.0.1:0", "--data-dir", &data];
+    let run = |extra: &[&str]| {
+        let args: Vec<&str> = base.iter().chain(extra).copied().collect();
+        fails(&dir, "trevi-coordinator", &args)
+    };
+    let err = run(&["--tls-cert", &cert, "--tls-key", "missing.key"]);
+    assert!(err.contains("cannot read the TLS key missing.key"), "{err}");
+    let err = run(&["--tls-cert", &cert]);
+    assert!(err.contains("--tls-key is missing"), "{err}");
+    let err = run(&["--tls-cert", &cert, "--tls-key", &cert]);
+    assert!(err.contains("holds no PEM private key"), "{err}");
+    let err = run(&["--tls-cert", &cert, "--tls-key", &other_key]);
+    assert!(err.contains("cannot be used together"), "{err}");
+
+    let c = coordinator_with(
+        &dir,
+        "127.0.0.1:0",
+        "coordinator",
+        &["--tls-cert", &cert, "--tls-key", &key],
+        &[],
+    );
+    let port = c.addr.rsplit(':').next().unwrap().to_string();
+    let plain = format!("http://127.0.0.1:{port}");
+    let scene = dir.write("s.xml", &tiny_scene(3));
+    let out = f(dir.path(), "out.png");
+    let render = |url: &str, extra: &[&str]| {
+        let mut args = vec![scene.to_str().unwrap(), "--coordinator", url, "-o", &out];
+        args.extend(extra);
+        fails(&dir, "trevi-submit", &args)
+    };
+
+    // Plain http:// against TLS: told to use https://.
+    let err = render(&plain, &[]);
+    assert!(
+        err.contains("seems to serve TLS: use an https:// URL"),
+        "{err}"
+    );
+    let err = fails(&dir, "trevi-submit", &["list", "--coordinator", &plain]);
+    assert!(err.contains("seems to serve TLS"), "{err}");
+    // The wrong CA, or none (the system roots do not know this farm's CA).
+    for extra in [&["--tls-ca", other_ca.as_str()][..], &[]] {
+        let err = render(&c.url, extra);
+        assert!(
+            err.contains("cannot reach the coordinator")
+                && err.contains("invalid peer certificate")
+                && err.contains("--tls-ca"),
+            "{extra:?}: {err}"
+        );
+    }
+    // A name the certificate was not made for, and --tls-domain.
+    let by_ip = format!("https://127.0.0.1:{port}");
+    let err = render(&by_ip, &["--tls-ca", &ca, "--tls-domain", "wrong.example"]);
+    assert!(
+        err.contains("not valid for name \"wrong.example\""),
+        "{err}"
+    );
+    let o = submit(
+        &dir,
+        &[
+            "list",
+            "--coordinator",
+            &by_ip,
+            "--tls-ca",
+            &ca,
+            "--tls-domain",
+            "coordinator",
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    // TLS options with an http:// URL, and a CA file that is not one.
+    let err = render(&plain, &["--tls-ca", &ca]);
+    assert!(err.contains("--tls-ca is only for TLS"), "{err}");
+    let err = render(&c.url, &["--tls-ca", &key]);
+    assert!(err.contains("holds no PEM certificate"), "{err}");
+    let err = render(&c.url, &["--tls-ca", "missing-ca.pem"]);
+    assert!(
+        err.contains("cannot read the CA certificate missing-ca.pem"),
+        "{err}"
+    );
+
+    // https:// against a plain coordinator.
+    let dir2 = Dir::new();
+    let p = coordinator_with(&dir2, "127.0.0.1:0", "plain", &[], &[]);
+    let https_plain = p.url.replace("http://", "https://");
+    let err = render(&https_plain, &["--tls-ca", &ca]);
+    assert!(err.contains("seems to serve plain gRPC"), "{err}");
+
+    // A worker trusting the wrong CA stops with the reason (retrying cannot
+    // help); one speaking plain http:// says what is wrong while it retries.
+    let mut w = worker_with(&dir, &c.url, "wrongca", &["--tls-ca", &other_ca], &[]);
+    let status = wait_child(&dir, &mut w.0, 30);
+    assert!(!status.success(), "{}", dir.logs());
+    let log = dir.read_log("wrongca");
+    assert!(
+        log.contains("invalid peer certificate") && !log.contains("panicked"),
+        "{log}"
+    );
+    let _w = worker_with(&dir, &plain, "plainworker", &[], &[]);
+    wait_for(&dir, "the plain worker to log", 30, || {
+        dir.read_log("plainworker")
+            .contains("seems to serve TLS: use an https:// URL")
+    });
+
+    // After all that, the TLS coordinator still serves.
+    let o = submit(&dir, &["list", "--coordinator", &c.url, "--tls-ca", &ca]);
+    assert!(o.status.success(), "{}", dir.logs());
 }

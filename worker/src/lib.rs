@@ -12,7 +12,6 @@
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::watch;
-use tonic::transport::Channel;
 use tonic::Code;
 use trevi_core::{Bundle, Rect, Scene};
 use trevi_proto::pb::{self, bundles_client::BundlesClient, workers_client::WorkersClient};
@@ -35,6 +34,8 @@ pub struct WorkerConfig {
     pub tiles_in_flight: usize,
     /// The coordinator's worker token, if it has one.
     pub token: Option<String>,
+    /// The CA to trust and the name to expect for an `https://` coordinator.
+    pub tls: trevi_proto::ClientTls,
 }
 
 impl WorkerConfig {
@@ -46,6 +47,7 @@ impl WorkerConfig {
             cache_size: 4,
             tiles_in_flight: 2,
             token: None,
+            tls: trevi_proto::ClientTls::default(),
         }
     }
 }
@@ -62,8 +64,12 @@ fn default_name() -> String {
 
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
-    #[error("bad coordinator address \"{0}\": {1}")]
-    BadAddress(String, String),
+    #[error(transparent)]
+    Endpoint(#[from] trevi_proto::EndpointError),
+    /// The coordinator's TLS certificate is not trusted or not for its name:
+    /// retrying cannot help.
+    #[error("cannot connect to {0}: {1}")]
+    Certificate(String, String),
     #[error("cannot start {0} render threads: {1}")]
     Pool(usize, String),
     #[error("{0}")]
@@ -104,8 +110,7 @@ pub async fn run(
     cfg: WorkerConfig,
     mut shutdown: watch::Receiver<bool>,
 ) -> Result<(), WorkerError> {
-    let endpoint = Channel::from_shared(cfg.coordinator.clone())
-        .map_err(|e| WorkerError::BadAddress(cfg.coordinator.clone(), e.to_string()))?
+    let endpoint = trevi_proto::endpoint(&cfg.coordinator, &cfg.tls)?
         .connect_timeout(Duration::from_secs(5))
         .tcp_nodelay(true);
     let bearer = Bearer::new(cfg.token.as_deref()).map_err(WorkerError::Token)?;
@@ -146,12 +151,33 @@ pub async fn run(
                 };
                 s.serve(&cfg, &cache, &shutdown, &mut backoff).await
             }
-            Err(e) => End::Reconnect(format!("cannot connect: {e}")),
+            Err(e) if trevi_proto::connect::is_certificate_error(&e) => {
+                let why = trevi_proto::connect::error_chain(&e);
+                return Err(WorkerError::Certificate(cfg.coordinator.clone(), why));
+            }
+            Err(e) => End::Reconnect(format!(
+                "cannot connect: {}",
+                trevi_proto::connect::error_chain(&e)
+            )),
         };
         match end {
             End::Shutdown => return Ok(()),
             End::Reconnect(why) => {
-                tracing::warn!(coordinator = %cfg.coordinator, retry_in = ?backoff, "{why}");
+                let hint = {
+                    let (url, why) = (cfg.coordinator.clone(), why.clone());
+                    tokio::task::spawn_blocking(move || trevi_proto::connect::hint(&url, &why))
+                        .await
+                        .ok()
+                        .flatten()
+                };
+                match hint {
+                    Some(hint) => {
+                        tracing::warn!(coordinator = %cfg.coordinator, retry_in = ?backoff, "{why} ({hint})")
+                    }
+                    None => {
+                        tracing::warn!(coordinator = %cfg.coordinator, retry_in = ?backoff, "{why}")
+                    }
+                }
                 tokio::select! {
                     _ = tokio::time::sleep(backoff) => {}
                     _ = shutdown.changed() => {}
@@ -171,7 +197,15 @@ struct Session {
 }
 
 fn reconnect(what: &str, s: tonic::Status) -> End {
-    End::Reconnect(format!("{what}: {}: {}", s.code(), s.message()))
+    let mut why = format!("{what}: {}: {}", s.code(), s.message());
+    // A transport failure's cause (a TLS alert, a reset) is under the status.
+    if let Some(cause) = std::error::Error::source(&s) {
+        let cause = trevi_proto::connect::error_chain(cause);
+        if !why.contains(&cause) {
+            why = format!("{why}: {cause}");
+        }
+    }
+    End::Reconnect(why)
 }
 
 impl Session {

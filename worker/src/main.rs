@@ -7,7 +7,7 @@ use trevi_worker::WorkerConfig;
 #[derive(Parser, Debug)]
 #[command(name = "trevi-worker", version, about = "A Trevi render farm worker")]
 struct Args {
-    /// The coordinator, like http://host:50051.
+    /// The coordinator, like http://host:50051 (https:// for TLS).
     #[arg(long, env = "TREVI_COORDINATOR")]
     coordinator: String,
     /// Render threads (default: every core).
@@ -28,6 +28,14 @@ struct Args {
     /// Read the token from this file instead.
     #[arg(long, env = "TREVI_TOKEN_FILE", conflicts_with = "token")]
     token_file: Option<std::path::PathBuf>,
+    /// For an https:// coordinator: trust this PEM CA certificate instead of
+    /// the system roots (a farm with its own CA, see deploy/make-certs.sh).
+    #[arg(long, env = "TREVI_TLS_CA")]
+    tls_ca: Option<std::path::PathBuf>,
+    /// For an https:// coordinator: the name its certificate must carry, if
+    /// not the URL's host.
+    #[arg(long, env = "TREVI_TLS_DOMAIN")]
+    tls_domain: Option<String>,
 }
 
 #[tokio::main]
@@ -44,6 +52,10 @@ async fn main() -> Result<()> {
     cfg.threads = args.threads;
     cfg.cache_size = args.scene_cache;
     cfg.tiles_in_flight = args.tiles_in_flight;
+    cfg.tls = trevi_proto::ClientTls {
+        ca_file: args.tls_ca,
+        domain: args.tls_domain,
+    };
     if let Some(n) = args.name {
         cfg.name = n;
     }

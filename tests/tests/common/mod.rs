@@ -48,7 +48,8 @@ pub fn bin(name: &str) -> PathBuf {
     let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
     assert!(
         path.exists(),
-        "{} is missing: run the tests with `cargo test --workspace`",
+        "{} is missing: run the tests with `cargo test --workspace` (or build the \
+         workspace's binaries first with `cargo build --workspace --bins` using the same profile)",
         path.display()
     );
     path
@@ -100,7 +101,7 @@ impl Dir {
         entries.sort();
         for p in entries {
             let text = std::fs::read_to_string(&p).unwrap_or_default();
-            let tail: Vec<&str> = text.lines().rev().take(30).collect();
+            let tail: Vec<&str> = text.lines().rev().take(40).collect();
             out.push_str(&format!("--- {}\n", p.display()));
             for l in tail.into_iter().rev() {
                 out.push_str(l);
@@ -126,11 +127,18 @@ pub struct Coordinator {
     /// `http://127.0.0.1:PORT` (or `https://localhost:PORT`).
     pub url: String,
     pub addr: String,
+    /// The monitor's `host:port` when started with `--http`.
+    pub http: Option<String>,
     pub data: PathBuf,
+    /// How test clients reach it over TLS (the CA to trust); set by the
+    /// test that started it with `--tls-cert`.
+    pub tls: trevi_proto::ClientTls,
 }
 
 /// Starts `trevi-coordinator` on `listen` with `args` and `envs`; its data
-/// directory is `dir/data`.
+/// directory is `dir/data`. With `--tls-cert` among `args` its URL is
+/// `https://localhost:PORT` (the name in the certificates of
+/// `deploy/make-certs.sh`).
 pub fn coordinator_with(
     dir: &Dir,
     listen: &str,
@@ -147,27 +155,79 @@ pub fn coordinator_with(
         .env("RUST_LOG", "info")
         .env_remove("TREVI_SUBMIT_TOKEN")
         .env_remove("TREVI_WORKER_TOKEN")
+        .env_remove("TREVI_TLS_CERT")
+        .env_remove("TREVI_TLS_KEY")
         .stdout(Stdio::piped())
         .stderr(dir.log(name));
     for (k, v) in envs {
         cmd.env(k, v);
     }
     let mut child = cmd.spawn().expect("start trevi-coordinator");
+    // `listening on ADDR`, then with --http `monitor on http://ADDR/`.
+    let mut out = BufReader::new(child.stdout.take().unwrap());
     let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
+    out.read_line(&mut line).unwrap();
     let addr = line
         .trim()
         .strip_prefix("listening on ")
         .unwrap_or_else(|| panic!("coordinator said {line:?}\n{}", dir.logs()))
         .to_string();
+    let http = args.contains(&"--http").then(|| {
+        line.clear();
+        out.read_line(&mut line).unwrap();
+        line.trim()
+            .strip_prefix("monitor on http://")
+            .unwrap_or_else(|| panic!("coordinator said {line:?}\n{}", dir.logs()))
+            .trim_end_matches('/')
+            .to_string()
+    });
+    let url = if args.contains(&"--tls-cert") {
+        let port = addr.rsplit(':').next().unwrap_or_default();
+        format!("https://localhost:{port}")
+    } else {
+        format!("http://{addr}")
+    };
     Coordinator {
         proc: Proc(child),
-        url: format!("http://{addr}"),
+        url,
         addr,
+        http,
         data,
+        tls: trevi_proto::ClientTls::default(),
     }
+}
+
+/// Certificates for a local farm made by `deploy/make-certs.sh` in
+/// `dir/NAME` (`ca.pem`, `coordinator.pem`, `coordinator.key`, for
+/// localhost and 127.0.0.1); `None`, after saying why, when the `openssl`
+/// command is missing.
+pub fn make_certs(dir: &Dir, name: &str) -> Option<PathBuf> {
+    let have_openssl = Command::new("openssl")
+        .arg("version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !have_openssl {
+        eprintln!("SKIPPED: the openssl command is missing, so deploy/make-certs.sh cannot run");
+        return None;
+    }
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/make-certs.sh");
+    let out_dir = dir.path().join(name);
+    let o = Command::new("sh")
+        .arg(&script)
+        .arg(&out_dir)
+        .output()
+        .expect("run sh");
+    assert!(
+        o.status.success(),
+        "{} failed\n{}{}",
+        script.display(),
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    for f in ["ca.pem", "ca.key", "coordinator.pem", "coordinator.key"] {
+        assert!(out_dir.join(f).is_file(), "make-certs.sh wrote no {f}");
+    }
+    Some(out_dir)
 }
 
 pub fn worker_with(dir: &Dir, url: &str, name: &str, args: &[&str], envs: &[(&str, &str)]) -> Proc {
@@ -176,6 +236,8 @@ pub fn worker_with(dir: &Dir, url: &str, name: &str, args: &[&str], envs: &[(&st
         .args(args)
         .env("RUST_LOG", "info,trevi_worker=debug")
         .env_remove("TREVI_TOKEN")
+        .env_remove("TREVI_TLS_CA")
+        .env_remove("TREVI_TLS_DOMAIN")
         .stdout(Stdio::null())
         .stderr(dir.log(name));
     for (k, v) in envs {
@@ -188,7 +250,9 @@ pub fn submit_cmd(args: &[&str]) -> Command {
     let mut c = Command::new(bin("trevi-submit"));
     c.args(args)
         .env_remove("TREVI_COORDINATOR")
-        .env_remove("TREVI_TOKEN");
+        .env_remove("TREVI_TOKEN")
+        .env_remove("TREVI_TLS_CA")
+        .env_remove("TREVI_TLS_DOMAIN");
     c
 }
 

@@ -1,0 +1,139 @@
+//! TLS for the coordinator: the certificate chain and private key it serves
+//! (`--tls-cert`, `--tls-key`), loaded and checked before the port opens so
+//! that a wrong file is reported by name at start, not at the first client.
+
+use std::path::{Path, PathBuf};
+use tonic::transport::{Identity, ServerTlsConfig};
+
+/// Why the coordinator's certificate or key cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum TlsError {
+    #[error("--tls-cert and --tls-key go together: {0} is missing")]
+    Half(&'static str),
+    #[error("cannot read the TLS {what} {path}: {source}")]
+    Read {
+        what: &'static str,
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "the TLS certificate file {0} holds no PEM certificate \
+         (no \"-----BEGIN CERTIFICATE-----\" block)"
+    )]
+    NoCertificate(PathBuf),
+    #[error(
+        "the TLS key file {0} holds no PEM private key \
+         (no \"-----BEGIN ... PRIVATE KEY-----\" block)"
+    )]
+    NoKey(PathBuf),
+    #[error("the TLS certificate {cert} and key {key} cannot be used together: {reason}")]
+    Unusable {
+        cert: PathBuf,
+        key: PathBuf,
+        reason: String,
+    },
+}
+
+/// The server TLS configuration for `--tls-cert`/`--tls-key`: `None` when
+/// neither is given (plain gRPC), an error when only one is.
+pub fn server_tls(
+    cert: Option<&Path>,
+    key: Option<&Path>,
+) -> Result<Option<ServerTlsConfig>, TlsError> {
+    match (cert, key) {
+        (None, None) => Ok(None),
+        (Some(_), None) => Err(TlsError::Half("--tls-key")),
+        (None, Some(_)) => Err(TlsError::Half("--tls-cert")),
+        (Some(cert), Some(key)) => load(cert, key).map(Some),
+    }
+}
+
+/// Reads a PEM certificate chain (the server's certificate first) and its
+/// PEM private key (PKCS#8, PKCS#1 or SEC1), and checks that rustls accepts
+/// them together.
+pub fn load(cert: &Path, key: &Path) -> Result<ServerTlsConfig, TlsError> {
+    let read = |what, path: &Path| {
+        std::fs::read(path).map_err(|source| TlsError::Read {
+            what,
+            path: path.to_path_buf(),
+            source,
+        })
+    };
+    let cert_pem = read("certificate", cert)?;
+    let key_pem = read("key", key)?;
+    if !contains(&cert_pem, b"-----BEGIN CERTIFICATE-----") {
+        return Err(TlsError::NoCertificate(cert.to_path_buf()));
+    }
+    if !contains(&key_pem, b"PRIVATE KEY-----") {
+        return Err(TlsError::NoKey(key.to_path_buf()));
+    }
+    let config = ServerTlsConfig::new().identity(Identity::from_pem(cert_pem, key_pem));
+    // Building the acceptor parses both files and checks that the key is the
+    // certificate's: do it now, with the file names at hand.
+    tonic::transport::Server::builder()
+        .tls_config(config.clone())
+        .map_err(|e| TlsError::Unusable {
+            cert: cert.to_path_buf(),
+            key: key.to_path_buf(),
+            reason: trevi_proto::connect::error_chain(&e),
+        })?;
+    Ok(config)
+}
+
+fn contains(haystack: &[u8], needle: &[u8]) -> bool {
+    haystack.windows(needle.len()).any(|w| w == needle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn both_or_neither() {
+        assert!(server_tls(None, None).unwrap().is_none());
+        let e = server_tls(Some(Path::new("c.pem")), None).unwrap_err();
+        assert!(matches!(e, TlsError::Half("--tls-key")), "{e}");
+        let e = server_tls(None, Some(Path::new("k.pem"))).unwrap_err();
+        assert!(matches!(e, TlsError::Half("--tls-cert")), "{e}");
+    }
+
+    #[test]
+    fn unreadable_and_wrong_files_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let cert = dir.path().join("cert.pem");
+        let key = dir.path().join("key.pem");
+        let e = load(&cert, &key).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                TlsError::Read {
+                    what: "certificate",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("cert.pem"), "{e}");
+
+        std::fs::write(&cert, "hello").unwrap();
+        std::fs::write(&key, "hello").unwrap();
+        let e = load(&cert, &key).unwrap_err();
+        assert!(matches!(e, TlsError::NoCertificate(_)), "{e}");
+
+        std::fs::write(
+            &cert,
+            "-----BEGIN CERTIFICATE-----\nAAAA\n-----END CERTIFICATE-----\n",
+        )
+        .unwrap();
+        let e = load(&cert, &key).unwrap_err();
+        assert!(matches!(e, TlsError::NoKey(_)), "{e}");
+
+        std::fs::write(
+            &key,
+            "-----BEGIN PRIVATE KEY-----\nAAAA\n-----END PRIVATE KEY-----\n",
+        )
+        .unwrap();
+        let e = load(&cert, &key).unwrap_err();
+        assert!(matches!(e, TlsError::Unusable { .. }), "{e}");
+    }
+}
