@@ -9,7 +9,7 @@
 //! 512×512×16 bytes = 4 MiB), never the frame. Pixels no tile has reached
 //! yet are transparent in the PNG.
 
-use trevi_core::output::linear_to_srgb8;
+use trevi_core::output::Srgb8;
 use trevi_core::Rect;
 
 /// The preview of one frame.
@@ -87,6 +87,7 @@ impl Preview {
         if self.sum.is_empty() {
             return out;
         }
+        let srgb = Srgb8::new();
         for (i, px) in out.chunks_exact_mut(4).enumerate() {
             let k = self.count[i];
             if k == 0 {
@@ -94,7 +95,7 @@ impl Preview {
             }
             let inv = 1.0 / k as f32;
             for (out, s) in px.iter_mut().zip(self.sum[i]) {
-                *out = linear_to_srgb8(s * inv);
+                *out = srgb.encode(s * inv);
             }
             px[3] = 255;
         }
@@ -121,6 +122,7 @@ pub fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, Strin
 #[cfg(test)]
 mod tests {
     use super::*;
+    use trevi_core::output::linear_to_srgb8;
 
     fn tile(rect: Rect, f: impl Fn(u32, u32) -> [f32; 3]) -> Vec<[f32; 3]> {
         let mut v = Vec::new();

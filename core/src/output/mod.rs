@@ -46,7 +46,7 @@ mod tests;
 
 pub use self::exr::read_exr_rgb;
 pub use self::png::read_png_rgb8;
-pub use self::srgb::linear_to_srgb8;
+pub use self::srgb::{linear_to_srgb8, Srgb8};
 
 use self::exr::{ExrSink, BLOCK_ROWS};
 use self::pending::PendingRows;
@@ -281,11 +281,12 @@ impl FrameWriter {
         let lines = pixels.chunks_exact(rect.w as usize);
         match &mut self.encoder {
             Encoder::Png { rows, .. } => {
+                let srgb = Srgb8::new();
                 for (y, line) in (rect.y..).zip(lines) {
                     let row = rows.claim(y, x0, x1);
                     let dst = &mut row[3 * x0 as usize..3 * x1 as usize];
                     for (d, p) in dst.chunks_exact_mut(3).zip(line) {
-                        d.copy_from_slice(&p.map(linear_to_srgb8));
+                        d.copy_from_slice(&p.map(|c| srgb.encode(c)));
                     }
                 }
             }

@@ -8,26 +8,87 @@ use std::sync::OnceLock;
 /// the sRGB transfer function (12.92·c for c ≤ 0.0031308, otherwise
 /// 1.055·c^(1/2.4) − 0.055) and rounded to nearest as ⌊s·255 + 0.5⌋.
 ///
-/// Why a table: the closed form needs a `powf` per channel, which made PNG
+/// Why tables: the closed form needs a `powf` per channel, which made PNG
 /// stitching the coordinator's bottleneck. The code is a step function of the
-/// input, so it is found by a binary search among the 255 smallest `f32`
+/// input, so it is exact to compare the input with the 255 smallest `f32`
 /// inputs of each code (computed once from the closed form in
-/// [`linear_to_srgb8_exact`]): the result is bit-identical to the closed form
-/// for every `f32`.
+/// [`linear_to_srgb8_exact`]). Positive `f32`s sort like their bit patterns,
+/// so a second table indexed by the top bits of the input gives the code at
+/// the start of its bucket of 2^16 neighbouring floats; a bucket never spans
+/// more than one step of the curve, so at most one or two comparisons finish
+/// the job. The result is bit-identical to the closed form for every `f32`.
 #[inline]
 pub fn linear_to_srgb8(v: f32) -> u8 {
-    if !(v > 0.0) {
-        return 0; // NaN, negative, zero
-    }
-    thresholds().partition_point(|&t| t <= v) as u8
+    Srgb8::new().encode(v)
 }
 
-/// `thresholds()[k - 1]` is the smallest `f32` whose code is `k`.
-fn thresholds() -> &'static [f32; 255] {
-    static TABLE: OnceLock<[f32; 255]> = OnceLock::new();
+/// [`linear_to_srgb8`] with its tables fetched once, for loops over many
+/// pixels (the per-call `OnceLock` checks showed in the coordinator's
+/// profile).
+#[derive(Debug, Clone, Copy)]
+pub struct Srgb8 {
+    /// `steps[k]` is the smallest `f32` whose code is `k + 1`; `steps[255]`
+    /// is +inf, so the comparison below needs no bounds branch.
+    steps: &'static [f32; 256],
+    starts: &'static [u8; BUCKETS],
+}
+
+impl Default for Srgb8 {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Srgb8 {
+    pub fn new() -> Srgb8 {
+        Srgb8 {
+            steps: thresholds(),
+            starts: buckets(),
+        }
+    }
+
+    /// The code of `v`: the code at the start of its bucket, plus one if
+    /// the bucket's single step (if any) lies at or below `v`. Branch-free
+    /// apart from the clamping, which is predictable for image data.
+    #[inline]
+    pub fn encode(self, v: f32) -> u8 {
+        if !(v > 0.0) {
+            return 0; // NaN, negative, zero
+        }
+        if v >= 1.0 {
+            return 255;
+        }
+        let code = self.starts[(v.to_bits() >> BUCKET_SHIFT) as usize];
+        code + (v >= self.steps[code as usize]) as u8
+    }
+}
+
+/// Floats per bucket of [`buckets`]: 2^16.
+const BUCKET_SHIFT: u32 = 16;
+/// Buckets from 0 up to (not including) 1.0's.
+const BUCKETS: usize = (0x3F80_0000 >> BUCKET_SHIFT) as usize;
+
+/// `buckets()[b]` is the code of the smallest `f32` whose bits are `b << 16`.
+fn buckets() -> &'static [u8; BUCKETS] {
+    static TABLE: OnceLock<Box<[u8; BUCKETS]>> = OnceLock::new();
     TABLE.get_or_init(|| {
-        let mut t = [0f32; 255];
-        for (k, slot) in t.iter_mut().enumerate() {
+        let t = thresholds();
+        let mut b = Box::new([0u8; BUCKETS]);
+        for (i, slot) in b.iter_mut().enumerate() {
+            let v = f32::from_bits((i as u32) << BUCKET_SHIFT);
+            *slot = t[..255].partition_point(|&x| x <= v) as u8;
+        }
+        b
+    })
+}
+
+/// `thresholds()[k - 1]` is the smallest `f32` whose code is `k`
+/// (k = 1..=255); the last entry is +inf.
+fn thresholds() -> &'static [f32; 256] {
+    static TABLE: OnceLock<[f32; 256]> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut t = [f32::INFINITY; 256];
+        for (k, slot) in t.iter_mut().take(255).enumerate() {
             let code = k as u8 + 1;
             // Positive f32 order is bit-pattern order: binary search the bits.
             let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
@@ -114,7 +175,7 @@ mod tests {
 
     #[test]
     fn the_table_agrees_with_the_closed_form_at_every_step_and_between() {
-        for (k, &t) in thresholds().iter().enumerate() {
+        for (k, &t) in thresholds()[..255].iter().enumerate() {
             let code = k as u8 + 1;
             let below = f32::from_bits(t.to_bits() - 1);
             assert_eq!(linear_to_srgb8_exact(t), code);
@@ -129,6 +190,24 @@ mod tests {
             assert_eq!(linear_to_srgb8(v), linear_to_srgb8_exact(v), "v = {v:e}");
             bits += 997;
         }
+    }
+
+    #[test]
+    fn every_bucket_start_and_end_agrees_with_the_closed_form() {
+        // The two ends of each bucket, where the table lookup starts and
+        // where the comparisons must have carried it.
+        for b in 0..BUCKETS as u32 {
+            for bits in [b << BUCKET_SHIFT, ((b + 1) << BUCKET_SHIFT) - 1] {
+                let v = f32::from_bits(bits);
+                assert_eq!(linear_to_srgb8(v), linear_to_srgb8_exact(v), "v = {v:e}");
+            }
+        }
+        // No bucket holds two steps: the loop compares at most twice.
+        let mut per_bucket = std::collections::HashMap::new();
+        for t in &thresholds()[..255] {
+            *per_bucket.entry(t.to_bits() >> BUCKET_SHIFT).or_insert(0) += 1;
+        }
+        assert!(per_bucket.values().all(|&n| n == 1), "{per_bucket:?}");
     }
 
     #[test]
