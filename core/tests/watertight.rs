@@ -262,7 +262,7 @@ fn check(name: &str, scene: &Scene, targets: &[Target], origins: &[Vec3], inside
 fn a_million_rays_at_vertices_and_edges_never_leak() {
     let mut total = 0;
     let mut s = 17u64;
-    let mut random_dir =
+    let random_dir =
         |s: &mut u64| Vec3::new(lcg(s) - 0.5, lcg(s) - 0.5, lcg(s) - 0.5).normalize_or(Vec3::X);
     let rotated = DMat4::from_rotation_y(0.7) * DMat4::from_rotation_x(0.3);
     for level in 0..=3 {

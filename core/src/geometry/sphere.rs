@@ -60,7 +60,7 @@ mod tests {
         assert!(intersect(Vec3::ZERO, -Vec3::Z, c, 1.0, 3.0).is_none());
         // Tangent ray at distance r: hits (disc = 0) or misses, but no NaN.
         let r = intersect(Vec3::new(1.0, 0.0, 0.0), -Vec3::Z, c, 1.0, f32::INFINITY);
-        assert!(r.map_or(true, |(t, _)| t.is_finite()));
+        assert!(r.is_none_or(|(t, _)| t.is_finite()));
     }
 
     #[test]

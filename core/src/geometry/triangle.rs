@@ -293,8 +293,8 @@ mod tests {
                 if inside && t > 1e-3 * k as f64 {
                     let h = got.expect("f64 says hit, f32 missed");
                     proptest::prop_assert!(((h.t as f64) - t).abs() <= 1e-4 * t.abs().max(k as f64));
-                    for i in 0..3 {
-                        proptest::prop_assert!(((h.bary[i] as f64) - bary[i]).abs() < 1e-4);
+                    for (hb, b) in h.bary.iter().zip(bary) {
+                        proptest::prop_assert!(((*hb as f64) - b).abs() < 1e-4);
                     }
                 } else if outside || t < -1e-3 * k as f64 {
                     proptest::prop_assert!(got.is_none(), "f64 says miss (t {t}, bary {bary:?}), f32 hit {got:?}");
