@@ -188,15 +188,7 @@ impl Client {
             .await
             .map_err(status_error)?
             .into_inner();
-        let dir = out
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        tokio::fs::create_dir_all(dir)
-            .await
-            .with_context(|| format!("cannot create {}", dir.display()))?;
-        let name = out.file_name().and_then(|n| n.to_str()).unwrap_or("out");
-        let tmp = dir.join(format!(".{name}.{}.part", std::process::id()));
+        let tmp = part_file(out).await?;
         let result = async {
             let mut file = tokio::fs::File::create(&tmp)
                 .await
@@ -235,15 +227,7 @@ impl Client {
             .await
             .map_err(status_error)?
             .into_inner();
-        let dir = out
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let name = out
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("preview");
-        let tmp = dir.join(format!(".{name}.{}.part", std::process::id()));
+        let tmp = part_file(out).await?;
         let written = async {
             tokio::fs::write(&tmp, &p.png)
                 .await
@@ -356,6 +340,21 @@ impl Client {
         }
         Ok(())
     }
+}
+
+/// Where a file bound for `out` is written until it is complete: a hidden
+/// name beside it (the directory is created), so a rename moves it into
+/// place and nobody ever sees half a file under `out`.
+async fn part_file(out: &Path) -> Result<PathBuf> {
+    let dir = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    tokio::fs::create_dir_all(dir)
+        .await
+        .with_context(|| format!("cannot create {}", dir.display()))?;
+    let name = out.file_name().and_then(|n| n.to_str()).unwrap_or("out");
+    Ok(dir.join(format!(".{name}.{}.part", std::process::id())))
 }
 
 /// The `--preview` file while a job is watched: rewritten at most once a

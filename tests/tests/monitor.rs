@@ -23,22 +23,21 @@ use std::time::{Duration, Instant};
 const SUBMIT_TOKEN: &str = "submit-s3cret";
 const WORKER_TOKEN: &str = "worker-s3cret";
 
-/// A frame with enough work (one render thread) that the job is still
-/// running while the browser watches it (about two minutes of rendering on
-/// this project's 2-core machines): 1200 tiles of 32×32 at supersample 8 with
-/// soft shadows and ambient occlusion.
-const BROWSER_SCENE: &str = r#"<scene version="1">
-  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
-  <sphere id="ball" center="0 1 0" radius="1">
-    <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" reflectivity="0.2"/>
-  </sphere>
-  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
-  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
-  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
-    <render width="1280" height="960" supersample="8" shadow-samples="8" ao-samples="16" output="slow.png"/>
-  </camera>
-</scene>
-"#;
+/// The shared slow scene made bigger, so that the job is still running while
+/// the browser watches it (about two minutes of rendering on this project's
+/// 2-core machines): 1200 tiles of 32×32 at supersample 8 with soft shadows
+/// and ambient occlusion, on one render thread.
+fn browser_scene() -> String {
+    let scene = common::SLOW_SCENE.replace(
+        r#"width="96" height="64" supersample="6""#,
+        r#"width="1280" height="960" supersample="8""#,
+    );
+    assert!(
+        scene.contains(r#"width="1280""#),
+        "the shared scene changed"
+    );
+    scene
+}
 
 /// A small frame for the metrics test: 4×3 tiles of 16×16.
 const SMALL_SCENE: &str = r#"<scene version="1">
@@ -104,6 +103,17 @@ impl Farm {
     }
 }
 
+/// A PNG's width, height and pixels (RGB or RGBA bytes as stored).
+fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
 /// A plain HTTP/1.1 GET: (status code, body).
 fn http_get(addr: &str, path: &str, token: Option<&str>) -> (u16, String) {
     let mut s = TcpStream::connect(addr).unwrap();
@@ -128,7 +138,7 @@ fn http_get(addr: &str, path: &str, token: Option<&str>) -> (u16, String) {
 }
 
 #[test]
-fn metrics_parse_as_prometheus_text_and_count_the_job_s_tiles() {
+fn metrics_parse_as_prometheus_text_and_count_the_tiles_and_the_preview_file_shows_the_frame() {
     let farm = Farm::start();
     // Open endpoints: no token needed.
     let (code, body) = http_get(farm.http(), "/healthz", None);
@@ -143,6 +153,7 @@ fn metrics_parse_as_prometheus_text_and_count_the_job_s_tiles() {
 
     let scene = farm.dir.write("small.xml", SMALL_SCENE);
     let out = farm.dir.path().join("small.png");
+    let live = farm.dir.path().join("live.png");
     farm.submit(&[
         scene.to_str().unwrap(),
         "--quiet",
@@ -150,8 +161,27 @@ fn metrics_parse_as_prometheus_text_and_count_the_job_s_tiles() {
         "16",
         "-o",
         out.to_str().unwrap(),
+        "--preview",
+        live.to_str().unwrap(),
     ]);
     assert!(out.is_file(), "the image was downloaded");
+    // --preview kept the finished job's preview: the whole 64×48 frame
+    // (no shrinking below 512 pixels), every pixel reached, and the same
+    // picture as the frame itself.
+    let (w, h, rgba) = decode_png(&std::fs::read(&live).unwrap());
+    assert_eq!((w, h), (64, 48));
+    assert!(rgba.chunks(4).all(|p| p[3] == 255));
+    let (_, _, frame) = decode_png(&std::fs::read(&out).unwrap());
+    let rgb: Vec<u8> = rgba.chunks(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+    assert_eq!(rgb, frame, "at scale 1 the preview is the frame");
+    // `status ID --preview FILE` writes the same image once.
+    let again = farm.dir.path().join("again.png");
+    let said = farm.submit(&["status", "1", "--preview", again.to_str().unwrap()]);
+    assert!(said.contains("preview: 64x48, 12 tiles"), "{said}");
+    assert_eq!(
+        std::fs::read(&again).unwrap(),
+        std::fs::read(&live).unwrap()
+    );
     let status = farm.submit(&["status", "1"]);
     assert!(status.contains("done"), "{status}");
 
@@ -280,7 +310,7 @@ fn the_monitor_shows_a_live_preview_and_cancels_from_the_page() {
         return;
     };
     let farm = Farm::start();
-    let scene = farm.dir.write("slow.xml", BROWSER_SCENE);
+    let scene = farm.dir.write("slow.xml", &browser_scene());
     let out = farm.submit(&[scene.to_str().unwrap(), "--detach", "--tile", "32"]);
     let job: u64 = out.trim().parse().expect("--detach prints the job id");
 
