@@ -299,7 +299,7 @@ return [n, c.width * c.height];
 "#;
 
 #[test]
-fn the_monitor_shows_a_live_preview_and_cancels_from_the_page() {
+fn the_monitor_shows_a_live_preview_and_its_buttons_change_priority_and_cancel() {
     let Some((chromium, chromedriver)) = browser() else {
         let msg = "the browser test needs chromium and chromedriver \
                    (apt-get install chromium chromium-driver)";
@@ -462,6 +462,25 @@ async fn drive(c: &fantoccini::Client, farm: &Farm, job: u64) -> Result<Vec<u8>,
         "the job finished before the test could cancel it"
     );
     let shot = c.screenshot().await.map_err(err("the screenshot"))?;
+
+    // Raise the priority from the page: the coordinator takes it.
+    c.find(Locator::Css(&format!("#{card} .prio-up")))
+        .await
+        .map_err(err("the priority button"))?
+        .click()
+        .await
+        .map_err(err("clicking priority +"))?;
+    poll(c, "the coordinator to raise the priority", |_| async {
+        let (_, body) = http_get(farm.http(), "/api/state", Some(SUBMIT_TOKEN));
+        let s: serde_json::Value = serde_json::from_str(&body).ok()?;
+        let j = s["jobs"]
+            .as_array()?
+            .iter()
+            .find(|j| j["id"] == job)?
+            .clone();
+        (j["priority"] == 1).then_some(())
+    })
+    .await?;
 
     // Cancel from the page.
     c.find(Locator::Css(&format!("#{card} .cancel")))
