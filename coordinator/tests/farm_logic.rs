@@ -296,6 +296,8 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
         let info = f.info(job).unwrap();
         assert_eq!(info.tiles_done, first_half as u64);
         assert_eq!(info.rays, 10 * first_half as u64);
+        // The preview is rebuilt from the stored tiles too.
+        assert_eq!(f.preview(job).unwrap().tiles, first_half as u64);
         let w = f.register_worker();
         let rest = lease_all(&f, w);
         assert_eq!(
