@@ -147,7 +147,12 @@ async fn main() -> Result<()> {
             let l = tokio::net::TcpListener::bind(http_addr)
                 .await
                 .with_context(|| format!("cannot listen on {http_addr} (--http)"))?;
-            println!("monitor on http://{}/", l.local_addr()?);
+            let https = match (&args.tls_cert, &args.tls_key) {
+                (Some(c), Some(k)) => Some(trevi_coordinator::tls::https_acceptor(c, k)?),
+                _ => None,
+            };
+            let scheme = if https.is_some() { "https" } else { "http" };
+            println!("monitor on {scheme}://{}/", l.local_addr()?);
             let mut stop = stop_rx.clone();
             let stopped = async move {
                 let _ = stop.wait_for(|&s| s).await;
@@ -157,6 +162,7 @@ async fn main() -> Result<()> {
                 farm,
                 http_tokens,
                 l,
+                https,
                 stopped,
             )))
         }

@@ -12,7 +12,7 @@
 
 mod common;
 
-use common::{coordinator_with, submit, worker_with, Coordinator, Dir, Proc};
+use common::{coordinator_with, make_certs, submit, worker_with, Coordinator, Dir, Proc};
 use serde_json::json;
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -522,4 +522,111 @@ where
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
+}
+
+/// One HTTP/1.1 GET over TLS to the coordinator's monitor, trusting only
+/// `ca` and expecting the certificate to name `localhost`.
+async fn https_get(
+    addr: &str,
+    ca: &std::path::Path,
+    path: &str,
+    token: Option<&str>,
+) -> std::io::Result<(u16, String)> {
+    use rustls::pki_types::{pem::PemObject, CertificateDer, ServerName};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut roots = rustls::RootCertStore::empty();
+    for c in CertificateDer::pem_file_iter(ca).unwrap() {
+        roots.add(c.unwrap()).unwrap();
+    }
+    let config = rustls::ClientConfig::builder_with_provider(std::sync::Arc::new(
+        rustls::crypto::ring::default_provider(),
+    ))
+    .with_safe_default_protocol_versions()
+    .unwrap()
+    .with_root_certificates(roots)
+    .with_no_client_auth();
+    let connector = tokio_rustls::TlsConnector::from(std::sync::Arc::new(config));
+    let tcp = tokio::net::TcpStream::connect(addr).await?;
+    let mut tls = connector
+        .connect(ServerName::try_from("localhost").unwrap(), tcp)
+        .await?;
+    let auth = token
+        .map(|t| format!("Authorization: Bearer {t}\r\n"))
+        .unwrap_or_default();
+    tls.write_all(
+        format!("GET {path} HTTP/1.1\r\nHost: localhost\r\n{auth}Connection: close\r\n\r\n")
+            .as_bytes(),
+    )
+    .await?;
+    let mut raw = Vec::new();
+    // A server may close without close_notify; what arrived is enough.
+    let _ = tls.read_to_end(&mut raw).await;
+    let raw = String::from_utf8_lossy(&raw).to_string();
+    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((&raw, ""));
+    let code = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    Ok((code, body.to_string()))
+}
+
+#[test]
+fn with_tls_the_monitor_is_served_over_https_with_the_coordinator_s_certificate() {
+    let dir = Dir::new();
+    let Some(certs) = make_certs(&dir, "certs") else {
+        return;
+    };
+    let s = |f: &str| certs.join(f).to_str().unwrap().to_string();
+    let (cert, key) = (s("coordinator.pem"), s("coordinator.key"));
+    let c = coordinator_with(
+        &dir,
+        "127.0.0.1:0",
+        "coordinator",
+        &[
+            "--http",
+            "127.0.0.1:0",
+            "--tls-cert",
+            &cert,
+            "--tls-key",
+            &key,
+            "--submit-token",
+            SUBMIT_TOKEN,
+        ],
+        &[],
+    );
+    let http = c.http.clone().expect("--http");
+    let ca = certs.join("ca.pem");
+    let rt = common::runtime();
+    rt.block_on(async {
+        let (code, body) = https_get(&http, &ca, "/healthz", None).await.unwrap();
+        assert_eq!((code, body.starts_with("ok")), (200, true), "{body}");
+        let (code, _) = https_get(&http, &ca, "/api/state", None).await.unwrap();
+        assert_eq!(code, 401, "the API still wants the token");
+        let (code, body) = https_get(&http, &ca, "/api/state", Some(SUBMIT_TOKEN))
+            .await
+            .unwrap();
+        assert_eq!(code, 200, "{body}");
+        // A client that does not trust the farm's CA gets no answer.
+        let other = make_certs(&dir, "other").unwrap();
+        assert!(https_get(&http, &other.join("ca.pem"), "/healthz", None)
+            .await
+            .is_err());
+    });
+    // Plain HTTP to the monitor gets no page (the token would travel in
+    // the clear).
+    let mut s = TcpStream::connect(&http).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(15))).unwrap();
+    let _ = write!(
+        s,
+        "GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    );
+    let mut raw = Vec::new();
+    let _ = s.read_to_end(&mut raw);
+    assert!(
+        !String::from_utf8_lossy(&raw).contains("200 OK"),
+        "plain HTTP was served: {}",
+        String::from_utf8_lossy(&raw)
+    );
+    drop(c);
 }

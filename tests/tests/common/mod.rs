@@ -127,7 +127,8 @@ pub struct Coordinator {
     /// `http://127.0.0.1:PORT` (or `https://localhost:PORT`).
     pub url: String,
     pub addr: String,
-    /// The monitor's `host:port` when started with `--http`.
+    /// The monitor's `host:port` when started with `--http` (HTTPS when
+    /// started with `--tls-cert`).
     pub http: Option<String>,
     pub data: PathBuf,
     /// How test clients reach it over TLS (the CA to trust); set by the
@@ -175,8 +176,9 @@ pub fn coordinator_with(
     let http = args.contains(&"--http").then(|| {
         line.clear();
         out.read_line(&mut line).unwrap();
-        line.trim()
-            .strip_prefix("monitor on http://")
+        let l = line.trim();
+        l.strip_prefix("monitor on http://")
+            .or_else(|| l.strip_prefix("monitor on https://"))
             .unwrap_or_else(|| panic!("coordinator said {line:?}\n{}", dir.logs()))
             .trim_end_matches('/')
             .to_string()
