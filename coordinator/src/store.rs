@@ -4,27 +4,39 @@
 //! What is kept:
 //! - every job: its spec, who submitted it, its state, and when it ends its
 //!   result (error, finish order, time, tiles and rays);
-//! - every accepted tile of an unfinished job: its pixels as little-endian
-//!   f32 RGB (12 bytes a pixel) and its rays, written and committed before
-//!   the tile is acknowledged.
+//! - every accepted tile of an unfinished job: its rays and where its pixels
+//!   are, committed before the tile is acknowledged. The pixels themselves
+//!   (little-endian f32 RGB, 12 bytes a pixel) are appended to the job's
+//!   file `tiles/<job>.f32` just before that commit, with a CRC-32 in the
+//!   row. Kept out of the database because writing 48 KiB blobs into
+//!   SQLite's log and checkpointing them again cost the coordinator a third
+//!   of its time per tile (docs/benchmarks.md); a small row costs little.
 //!
 //! On start the coordinator reloads the jobs; for each unfinished one it
 //! starts the output file afresh and replays the stored tiles into it in band
-//! order (they stream from the database one at a time, so the replay holds
-//! no more rows than the live stitching does), then leases only the tiles that
-//! are not stored. A job's tiles are deleted when it ends (done, failed or
-//! cancelled): while it runs the database holds up to 12 bytes for each pixel
-//! of the frame (72 MB for 3000×2000), which is the price of never
-//! rendering a finished tile twice.
+//! order (they are read one at a time, so the replay holds no more rows than
+//! the live stitching does), then leases only the tiles that are not stored.
+//! A stored tile whose bytes do not match its CRC (a power cut between the
+//! file write and the disk) is dropped and rendered again. A job's tiles are
+//! deleted when it ends (done, failed or cancelled): while it runs the data
+//! directory holds up to 12 bytes for each pixel of the frame (72 MB for
+//! 3000×2000), which is the price of never rendering a finished tile twice.
 //!
 //! The journal is a write-ahead log with `synchronous=NORMAL`: a committed
-//! tile survives the coordinator being killed at any moment; on a power cut
-//! the last few commits may be lost, and those tiles are rendered again.
+//! tile survives the coordinator being killed at any moment (its pixels were
+//! handed to the kernel before the commit); on a power cut the last few
+//! commits may be lost, and those tiles are rendered again. Databases of
+//! earlier versions, with the pixels in a `tiles` table, are moved to the
+//! files when opened.
 
 use crate::error::FarmError;
 use crate::scheduler::{JobId, JobSpec, JobState};
 use rusqlite::{params, Connection, OptionalExtension};
-use std::path::Path;
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::Write;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::Duration;
 
@@ -45,9 +57,21 @@ pub struct StoredJob {
     pub rays: u64,
 }
 
-/// The database.
+/// A stored tile's row: (tile, rays, offset, len, crc) — where its pixels
+/// are in the job's file and their CRC-32.
+type TileRef = (u32, u64, u64, usize, u32);
+
+/// The database and the jobs' tile files.
 pub struct Store {
-    conn: Mutex<Connection>,
+    inner: Mutex<Inner>,
+}
+
+struct Inner {
+    conn: Connection,
+    /// `tiles/` in the data directory.
+    dir: PathBuf,
+    /// Open tile files of unfinished jobs, with their length.
+    files: HashMap<JobId, (File, u64)>,
 }
 
 fn db_err(e: rusqlite::Error) -> FarmError {
@@ -100,27 +124,107 @@ impl Store {
                  tiles_done INTEGER NOT NULL DEFAULT 0,
                  rays INTEGER NOT NULL DEFAULT 0
              );
-             CREATE TABLE IF NOT EXISTS tiles (
+             CREATE TABLE IF NOT EXISTS tile_refs (
                  job INTEGER NOT NULL,
                  tile INTEGER NOT NULL,
                  rays INTEGER NOT NULL,
-                 pixels BLOB NOT NULL,
+                 offset INTEGER NOT NULL,
+                 len INTEGER NOT NULL,
+                 crc INTEGER NOT NULL,
                  PRIMARY KEY (job, tile)
              );",
         )
         .map_err(db_err)?;
-        Ok(Store {
-            conn: Mutex::new(conn),
-        })
+        let tiles_dir = dir.join("tiles");
+        std::fs::create_dir_all(&tiles_dir)
+            .map_err(|e| FarmError::Io(format!("cannot create {}: {e}", tiles_dir.display())))?;
+        let store = Store {
+            inner: Mutex::new(Inner {
+                conn,
+                dir: tiles_dir,
+                files: HashMap::new(),
+            }),
+        };
+        store.migrate_blob_tiles()?;
+        store.remove_stray_files()?;
+        Ok(store)
     }
 
-    fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {
-        self.conn.lock().unwrap_or_else(|p| p.into_inner())
+    fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Moves the tiles of a database written by an earlier version (pixels
+    /// in a `tiles` table) to the tile files.
+    fn migrate_blob_tiles(&self) -> Result<(), FarmError> {
+        let legacy: bool = self
+            .lock()
+            .conn
+            .query_row(
+                "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table' AND name = 'tiles'",
+                [],
+                |r| r.get::<_, i64>(0),
+            )
+            .map_err(db_err)?
+            > 0;
+        if !legacy {
+            return Ok(());
+        }
+        let rows: Vec<(u64, u32, u64, Vec<u8>)> = {
+            let inner = self.lock();
+            let mut q = inner
+                .conn
+                .prepare("SELECT job, tile, rays, pixels FROM tiles ORDER BY job, tile")
+                .map_err(db_err)?;
+            let rows = q
+                .query_map([], |r| {
+                    Ok((
+                        r.get::<_, i64>(0)? as u64,
+                        r.get(1)?,
+                        r.get::<_, i64>(2)? as u64,
+                        r.get(3)?,
+                    ))
+                })
+                .map_err(db_err)?;
+            rows.collect::<Result<_, _>>().map_err(db_err)?
+        };
+        for (job, tile, rays, pixels) in rows {
+            self.put_tile(job, tile, rays, &pixels)?;
+        }
+        self.lock()
+            .conn
+            .execute_batch("DROP TABLE tiles")
+            .map_err(db_err)
+    }
+
+    /// Deletes tile files no stored tile points into (their job ended, and
+    /// the coordinator stopped before it removed the file).
+    fn remove_stray_files(&self) -> Result<(), FarmError> {
+        let inner = self.lock();
+        let mut q = inner
+            .conn
+            .prepare("SELECT DISTINCT job FROM tile_refs")
+            .map_err(db_err)?;
+        let live: std::collections::HashSet<String> = q
+            .query_map([], |r| r.get::<_, i64>(0))
+            .map_err(db_err)?
+            .filter_map(|r| r.ok())
+            .map(|j| format!("{j}.f32"))
+            .collect();
+        if let Ok(entries) = std::fs::read_dir(&inner.dir) {
+            for e in entries.flatten() {
+                if !live.contains(&*e.file_name().to_string_lossy()) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+        Ok(())
     }
 
     pub fn insert_job(&self, j: &StoredJob) -> Result<(), FarmError> {
         let s = &j.spec;
-        self.conn()
+        self.lock()
+            .conn
             .execute(
                 "INSERT INTO jobs (id, bundle_hash, camera, priority, width, height, tile_size,
                      output_name, submitter, state, submitted_ms)
@@ -143,7 +247,8 @@ impl Store {
         Ok(())
     }
 
-    /// Stores an accepted tile (a second copy of the same tile is ignored).
+    /// Stores an accepted tile (a second copy of the same tile is ignored):
+    /// its pixels appended to the job's file, then its row committed.
     pub fn put_tile(
         &self,
         job: JobId,
@@ -151,18 +256,92 @@ impl Store {
         rays: u64,
         pixels: &[u8],
     ) -> Result<(), FarmError> {
-        self.conn()
+        let mut guard = self.lock();
+        let inner = &mut *guard;
+        let known = inner
+            .conn
+            .query_row(
+                "SELECT 1 FROM tile_refs WHERE job = ?1 AND tile = ?2",
+                params![job as i64, tile],
+                |_| Ok(()),
+            )
+            .optional()
+            .map_err(db_err)?
+            .is_some();
+        if known {
+            return Ok(());
+        }
+        let path = inner.dir.join(format!("{job}.f32"));
+        let io = |e: std::io::Error| FarmError::Io(format!("tile file {}: {e}", path.display()));
+        let (file, len) = match inner.files.entry(job) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let f = std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .read(true)
+                    .open(&path)
+                    .map_err(io)?;
+                // Bytes past the last stored row (a write whose commit never
+                // happened) stay unreferenced: appending after them is safe.
+                let len = f.metadata().map_err(io)?.len();
+                e.insert((f, len))
+            }
+        };
+        let offset = *len;
+        file.write_all(pixels).map_err(io)?;
+        *len += pixels.len() as u64;
+        inner
+            .conn
             .execute(
-                "INSERT OR IGNORE INTO tiles (job, tile, rays, pixels) VALUES (?1, ?2, ?3, ?4)",
-                params![job as i64, tile, rays as i64, pixels],
+                "INSERT INTO tile_refs (job, tile, rays, offset, len, crc)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![
+                    job as i64,
+                    tile,
+                    rays as i64,
+                    offset as i64,
+                    pixels.len() as i64,
+                    crc32fast::hash(pixels)
+                ],
             )
             .map_err(db_err)?;
         Ok(())
     }
 
+    /// The bytes of a stored tile, if its file still holds them intact.
+    fn read_tile(dir: &Path, job: JobId, offset: u64, len: usize, crc: u32) -> Option<Vec<u8>> {
+        let f = File::open(dir.join(format!("{job}.f32"))).ok()?;
+        let mut buf = vec![0u8; len];
+        f.read_exact_at(&mut buf, offset).ok()?;
+        (crc32fast::hash(&buf) == crc).then_some(buf)
+    }
+
+    /// The rows of a job's stored tiles, in tile order.
+    fn refs(conn: &Connection, job: JobId) -> Result<Vec<TileRef>, FarmError> {
+        let mut q = conn
+            .prepare(
+                "SELECT tile, rays, offset, len, crc FROM tile_refs WHERE job = ?1 ORDER BY tile",
+            )
+            .map_err(db_err)?;
+        let rows = q
+            .query_map(params![job as i64], |r| {
+                Ok((
+                    r.get::<_, u32>(0)?,
+                    r.get::<_, i64>(1)? as u64,
+                    r.get::<_, i64>(2)? as u64,
+                    r.get::<_, i64>(3)? as usize,
+                    r.get::<_, u32>(4)?,
+                ))
+            })
+            .map_err(db_err)?;
+        rows.collect::<Result<Vec<_>, _>>().map_err(db_err)
+    }
+
     /// Changes a job's priority (the monitor's priority buttons).
     pub fn set_priority(&self, job: JobId, priority: i32) -> Result<(), FarmError> {
-        self.conn()
+        self.lock()
+            .conn
             .execute(
                 "UPDATE jobs SET priority = ?2 WHERE id = ?1",
                 params![job as i64, priority],
@@ -173,8 +352,9 @@ impl Store {
 
     /// Records a job's end and drops its stored tiles.
     pub fn finish_job(&self, j: &StoredJob) -> Result<(), FarmError> {
-        let mut conn = self.conn();
-        let tx = conn.transaction().map_err(db_err)?;
+        let mut guard = self.lock();
+        let inner = &mut *guard;
+        let tx = inner.conn.transaction().map_err(db_err)?;
         tx.execute(
             "UPDATE jobs SET state = ?2, elapsed_ms = ?3, error = ?4, finish_order = ?5,
                  tiles_done = ?6, rays = ?7 WHERE id = ?1",
@@ -189,15 +369,19 @@ impl Store {
             ],
         )
         .map_err(db_err)?;
-        tx.execute("DELETE FROM tiles WHERE job = ?1", params![j.id as i64])
+        tx.execute("DELETE FROM tile_refs WHERE job = ?1", params![j.id as i64])
             .map_err(db_err)?;
-        tx.commit().map_err(db_err)
+        tx.commit().map_err(db_err)?;
+        inner.files.remove(&j.id);
+        let _ = std::fs::remove_file(inner.dir.join(format!("{}.f32", j.id)));
+        Ok(())
     }
 
     /// Every job, by id.
     pub fn jobs(&self) -> Result<Vec<StoredJob>, FarmError> {
-        let conn = self.conn();
-        let mut q = conn
+        let inner = self.lock();
+        let mut q = inner
+            .conn
             .prepare(
                 "SELECT id, bundle_hash, camera, priority, width, height, tile_size, output_name,
                      submitter, state, submitted_ms, elapsed_ms, error, finish_order, tiles_done,
@@ -233,18 +417,27 @@ impl Store {
         rows.collect::<Result<Vec<_>, _>>().map_err(db_err)
     }
 
-    /// The stored tiles of a job: (tile index, rays), in tile order.
+    /// The stored tiles of a job: (tile index, rays), in tile order. A tile
+    /// whose pixels are missing or do not match their CRC is forgotten here,
+    /// so that it is rendered again.
     pub fn tile_list(&self, job: JobId) -> Result<Vec<(u32, u64)>, FarmError> {
-        let conn = self.conn();
-        let mut q = conn
-            .prepare("SELECT tile, rays FROM tiles WHERE job = ?1 ORDER BY tile")
-            .map_err(db_err)?;
-        let rows = q
-            .query_map(params![job as i64], |r| {
-                Ok((r.get::<_, u32>(0)?, r.get::<_, i64>(1)? as u64))
-            })
-            .map_err(db_err)?;
-        rows.collect::<Result<Vec<_>, _>>().map_err(db_err)
+        let inner = self.lock();
+        let mut good = Vec::new();
+        for (tile, rays, offset, len, crc) in Self::refs(&inner.conn, job)? {
+            if Self::read_tile(&inner.dir, job, offset, len, crc).is_some() {
+                good.push((tile, rays));
+            } else {
+                tracing::warn!(job, tile, "stored tile damaged; it will be rendered again");
+                inner
+                    .conn
+                    .execute(
+                        "DELETE FROM tile_refs WHERE job = ?1 AND tile = ?2",
+                        params![job as i64, tile],
+                    )
+                    .map_err(db_err)?;
+            }
+        }
+        Ok(good)
     }
 
     /// Calls `f` with each stored tile's index and pixel bytes, in tile
@@ -254,17 +447,14 @@ impl Store {
         job: JobId,
         mut f: impl FnMut(u32, &[u8]) -> Result<(), FarmError>,
     ) -> Result<(), FarmError> {
-        let conn = self.conn();
-        let mut q = conn
-            .prepare("SELECT tile, pixels FROM tiles WHERE job = ?1 ORDER BY tile")
-            .map_err(db_err)?;
-        let mut rows = q.query(params![job as i64]).map_err(db_err)?;
-        while let Some(r) = rows.next().map_err(db_err)? {
-            let tile: u32 = r.get(0).map_err(db_err)?;
-            let blob = r.get_ref(1).map_err(db_err)?.as_blob().map_err(|e| {
-                FarmError::Io(format!("state database: tile {tile} of job {job}: {e}"))
+        let inner = self.lock();
+        for (tile, _, offset, len, crc) in Self::refs(&inner.conn, job)? {
+            let bytes = Self::read_tile(&inner.dir, job, offset, len, crc).ok_or_else(|| {
+                FarmError::Io(format!(
+                    "tile {tile} of job {job}: its stored pixels are damaged"
+                ))
             })?;
-            f(tile, blob)?;
+            f(tile, &bytes)?;
         }
         Ok(())
     }
@@ -272,11 +462,130 @@ impl Store {
     /// Largest job id ever stored.
     pub fn max_job_id(&self) -> Result<u64, FarmError> {
         let v: Option<i64> = self
-            .conn()
+            .lock()
+            .conn
             .query_row("SELECT MAX(id) FROM jobs", [], |r| r.get(0))
             .optional()
             .map_err(db_err)?
             .flatten();
         Ok(v.unwrap_or(0).max(0) as u64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn job(id: JobId) -> StoredJob {
+        StoredJob {
+            id,
+            spec: JobSpec {
+                bundle_hash: "h".into(),
+                camera: "c".into(),
+                priority: 0,
+                width: 8,
+                height: 8,
+                tile_size: 4,
+                output_name: "o.png".into(),
+            },
+            submitter: String::new(),
+            state: JobState::Running,
+            submitted_ms: 1,
+            elapsed: None,
+            error: None,
+            finish_order: 0,
+            tiles_done: 0,
+            rays: 0,
+        }
+    }
+
+    fn replayed(s: &Store, id: JobId) -> Vec<(u32, Vec<u8>)> {
+        let mut out = Vec::new();
+        s.replay_tiles(id, |t, b| {
+            out.push((t, b.to_vec()));
+            Ok(())
+        })
+        .unwrap();
+        out
+    }
+
+    #[test]
+    fn tiles_survive_a_reopen_and_a_damaged_one_is_forgotten() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let s = Store::open(dir.path()).unwrap();
+            s.insert_job(&job(1)).unwrap();
+            s.put_tile(1, 2, 20, &[2; 48]).unwrap();
+            s.put_tile(1, 0, 10, &[0; 48]).unwrap();
+            s.put_tile(1, 1, 15, &[1; 48]).unwrap();
+            // A second copy is ignored: the first stays.
+            s.put_tile(1, 0, 99, &[9; 48]).unwrap();
+            // A write whose row was never committed (killed in between).
+            let mut f = std::fs::OpenOptions::new()
+                .append(true)
+                .open(dir.path().join("tiles/1.f32"))
+                .unwrap();
+            f.write_all(&[7; 100]).unwrap();
+        }
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(s.tile_list(1).unwrap(), vec![(0, 10), (1, 15), (2, 20)]);
+        s.put_tile(1, 3, 30, &[3; 48]).unwrap();
+        let r = replayed(&s, 1);
+        assert_eq!(r.iter().map(|t| t.0).collect::<Vec<_>>(), [0, 1, 2, 3]);
+        assert!(r.iter().all(|(t, b)| b.iter().all(|&x| x == *t as u8)));
+        drop(s);
+        // Damage tile 1's bytes on disk: it is dropped, the others stay.
+        let path = dir.path().join("tiles/1.f32");
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[48 * 2 + 5] ^= 0xff; // tile 1 was the third write (offset 96)
+        std::fs::write(&path, bytes).unwrap();
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(s.tile_list(1).unwrap(), vec![(0, 10), (2, 20), (3, 30)]);
+        assert_eq!(replayed(&s, 1).len(), 3);
+        // The job ends: its rows and its file go.
+        s.finish_job(&StoredJob {
+            state: JobState::Done,
+            ..job(1)
+        })
+        .unwrap();
+        assert!(s.tile_list(1).unwrap().is_empty());
+        assert!(!path.exists());
+    }
+
+    #[test]
+    fn a_database_with_pixels_in_a_tiles_table_is_moved_to_the_files() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let c = Connection::open(dir.path().join("state.db")).unwrap();
+            c.execute_batch(
+                "CREATE TABLE tiles (job INTEGER NOT NULL, tile INTEGER NOT NULL,
+                     rays INTEGER NOT NULL, pixels BLOB NOT NULL, PRIMARY KEY (job, tile));",
+            )
+            .unwrap();
+            for t in 0..3u32 {
+                c.execute(
+                    "INSERT INTO tiles VALUES (5, ?1, ?2, ?3)",
+                    params![t, t as i64 * 7, vec![t as u8; 24]],
+                )
+                .unwrap();
+            }
+        }
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(s.tile_list(5).unwrap(), vec![(0, 0), (1, 7), (2, 14)]);
+        let r = replayed(&s, 5);
+        assert_eq!(r[2], (2, vec![2u8; 24]));
+        drop(s);
+        // The old table is gone; opening again changes nothing.
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(replayed(&s, 5).len(), 3);
+    }
+
+    #[test]
+    fn stray_tile_files_are_removed_on_open() {
+        let dir = tempfile::tempdir().unwrap();
+        drop(Store::open(dir.path()).unwrap());
+        std::fs::write(dir.path().join("tiles/42.f32"), [1u8; 10]).unwrap();
+        drop(Store::open(dir.path()).unwrap());
+        assert!(!dir.path().join("tiles/42.f32").exists());
     }
 }
