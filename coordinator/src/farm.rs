@@ -848,6 +848,11 @@ impl Farm {
         }
     }
 
+    /// Unfinished jobs and their tiles waiting for a worker.
+    pub fn queue_depth(&self) -> QueueDepth {
+        lock(&self.state).sched.queue_depth()
+    }
+
     /// Every known worker.
     pub fn workers(&self) -> Vec<WorkerInfo> {
         lock(&self.state).sched.workers(Instant::now())

@@ -212,7 +212,7 @@ async fn monitor() -> impl IntoResponse {
 
 async fn healthz(State(app): State<App>) -> impl IntoResponse {
     // Taking the state lock shows the coordinator is not wedged.
-    let jobs = app.farm.snapshot().queue.jobs;
+    let jobs = app.farm.queue_depth().jobs;
     format!("ok: {jobs} unfinished jobs\n")
 }
 

@@ -76,7 +76,6 @@ impl WorkerState {
 pub struct WorkerEntry {
     pub name: String,
     pub threads: u32,
-    pub registered: Instant,
     pub last_seen: Instant,
     pub tiles_done: u64,
     pub rays: u64,
@@ -88,7 +87,6 @@ impl WorkerEntry {
         WorkerEntry {
             name: String::new(),
             threads: 0,
-            registered: now,
             last_seen: now,
             tiles_done: 0,
             rays: 0,

@@ -128,12 +128,17 @@ fn http_get(addr: &str, path: &str, token: Option<&str>) -> (u16, String) {
     .unwrap();
     let mut raw = String::new();
     s.read_to_string(&mut raw).unwrap();
-    let (head, body) = raw.split_once("\r\n\r\n").expect("an HTTP response");
+    parse_response(&raw)
+}
+
+/// (status code, body) of a raw HTTP/1.1 response; code 0 if there is none.
+fn parse_response(raw: &str) -> (u16, String) {
+    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((raw, ""));
     let code = head
         .split_whitespace()
         .nth(1)
         .and_then(|c| c.parse().ok())
-        .expect("a status code");
+        .unwrap_or(0);
     (code, body.to_string())
 }
 
@@ -561,14 +566,7 @@ async fn https_get(
     let mut raw = Vec::new();
     // A server may close without close_notify; what arrived is enough.
     let _ = tls.read_to_end(&mut raw).await;
-    let raw = String::from_utf8_lossy(&raw).to_string();
-    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((&raw, ""));
-    let code = head
-        .split_whitespace()
-        .nth(1)
-        .and_then(|c| c.parse().ok())
-        .unwrap_or(0);
-    Ok((code, body.to_string()))
+    Ok(parse_response(&String::from_utf8_lossy(&raw)))
 }
 
 #[test]

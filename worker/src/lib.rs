@@ -325,13 +325,6 @@ impl Session {
                     }
                 }
                 Ok(None) => {
-                    tracing::debug!(
-                        lease = lease.lease_id,
-                        job = lease.job_id,
-                        x = rect.x,
-                        y = rect.y,
-                        "tile rendered"
-                    );
                     tracing::info!(lease = lease.lease_id, "lease dropped by the coordinator")
                 }
                 Err(end) => return end,
