@@ -17,6 +17,7 @@ REPS=${REPS:-5}
 THREADS=${THREADS:-2}
 OUT=${OUT:-$(mktemp -d /tmp/trevi-bench.XXXXXX)}
 WHAT=${1:-all}
+mkdir -p "$OUT"
 
 if [ ! -f /usr/include/embree3/rtcore.h ]; then
     SUDO=""
