@@ -3,7 +3,7 @@
 #
 #   bench/run.sh            # micro-benchmarks + both full-size frames
 #   bench/run.sh micro      # build and traversal only (a few minutes)
-#   bench/run.sh render     # the two 3000x2250 frames only
+#   bench/run.sh render     # the two 3000x2250 frames only (trevi-bench, then trevi-submit)
 #
 # Needs ../shared/meshes/nefertiti.obj beside the checkout. Installs Debian's
 # libembree-dev (Embree 3) with apt-get when it is missing. Environment:
@@ -26,9 +26,10 @@ if [ ! -f /usr/include/embree3/rtcore.h ]; then
     $SUDO apt-get install -y libembree-dev
 fi
 cc -O2 -std=c11 -Wall -o "$OUT/embree_bench" bench/embree/embree_bench.c -lembree3 -lpthread -lm
-cargo build --release -p trevi-bench
+cargo build --release -p trevi-bench -p trevi-submit
 BIN="$ROOT/target/release/trevi-bench"
 [ -n "${CARGO_TARGET_DIR:-}" ] && BIN="$CARGO_TARGET_DIR/release/trevi-bench"
+SUBMIT="$(dirname "$BIN")/trevi-submit"
 
 echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) CPUs: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')"
 REV=$(git rev-parse --short HEAD 2>/dev/null || echo "${TREVI_REV:-?}")
@@ -48,6 +49,12 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
         /usr/bin/time -v "$BIN" render "$OUT/bundle/cornell-nefertiti.xml" "$cam" \
             --threads "$THREADS" 2> "$OUT/time-$cam.txt"
         grep -E "Elapsed|Maximum resident" "$OUT/time-$cam.txt"
+        # The same frame as users render it: trevi-submit's embedded farm,
+        # tiles stitched into a streamed PNG.
+        echo "trevi-submit $cam:"
+        /usr/bin/time -v "$SUBMIT" "$OUT/bundle/cornell-nefertiti.xml" --camera "$cam" \
+            -o "$OUT/$cam.png" --threads "$THREADS" --quiet 2> "$OUT/time-submit-$cam.txt"
+        grep -E "Elapsed|Maximum resident|User time|System time" "$OUT/time-submit-$cam.txt"
     done
 fi
 echo "# files in $OUT"

@@ -65,10 +65,12 @@ pub struct TriangleHit {
 /// Zero-area triangles and rays in the triangle's plane never hit.
 #[inline(always)]
 pub fn intersect(r: &ShearedRay, a: Vec3, b: Vec3, c: Vec3, t_max: f32) -> Option<TriangleHit> {
+    // Plain arrays: indexing one by the ray's axes is a load, where indexing
+    // a `Vec3` is a three-way match per component.
     let (kx, ky, kz) = (r.kx, r.ky, r.kz);
-    let aa = a - r.origin;
-    let bb = b - r.origin;
-    let cc = c - r.origin;
+    let aa = (a - r.origin).to_array();
+    let bb = (b - r.origin).to_array();
+    let cc = (c - r.origin).to_array();
     let ax = aa[kx] - r.sx * aa[kz];
     let ay = aa[ky] - r.sy * aa[kz];
     let bx = bb[kx] - r.sx * bb[kz];
