@@ -93,8 +93,11 @@ impl Pair {
 #[derive(Debug, Clone)]
 pub struct Bvh {
     pairs: Vec<Pair>,
-    /// Primitive indices in leaf order.
+    /// Primitive indices in leaf order; empty once the caller has taken
+    /// them ([`Bvh::take_leaf_order`]) and numbered its primitives so.
     prims: Vec<u32>,
+    /// Number of primitives.
+    len: u32,
     root: Ref,
     root_box: Aabb,
     /// Every box is finite: the SIMD box test may be used.
@@ -107,6 +110,7 @@ impl Default for Bvh {
         Bvh {
             pairs: Vec::new(),
             prims: Vec::new(),
+            len: 0,
             root: Ref::default(),
             root_box: Aabb::EMPTY,
             finite: false,
@@ -187,6 +191,7 @@ impl Bvh {
             });
         Bvh {
             pairs,
+            len: n as u32,
             prims,
             root,
             root_box: bounds,
@@ -196,6 +201,25 @@ impl Bvh {
 
     pub fn bounds(&self) -> Aabb {
         self.root_box
+    }
+
+    /// Hands over the primitive order of the leaves: `order[k]` is the
+    /// primitive the traversal visits as number `k`. The caller renumbers
+    /// its primitives so that primitive `k` is `order[k]` (leaf neighbours
+    /// become memory neighbours), and the tree reports `k` from then on,
+    /// without keeping an index array. The tree and its visits are unchanged.
+    pub fn take_leaf_order(&mut self) -> Vec<u32> {
+        std::mem::take(&mut self.prims)
+    }
+
+    /// The primitive in leaf position `i`.
+    #[inline(always)]
+    fn prim(&self, i: usize) -> u32 {
+        if self.prims.is_empty() {
+            i as u32
+        } else {
+            self.prims[i]
+        }
     }
 
     /// Heap bytes of the tree (nodes and primitive indices).
@@ -215,7 +239,7 @@ impl Bvh {
         t_max: f32,
         mut visit: F,
     ) -> (f32, bool) {
-        if self.prims.is_empty() {
+        if self.len == 0 {
             return (t_max, false);
         }
         let inv = dir.recip();
@@ -242,8 +266,8 @@ impl Bvh {
         visit: &mut F,
     ) -> bool {
         let first = r.first as usize;
-        for &p in &self.prims[first..first + r.count as usize] {
-            match visit(p, *t_max) {
+        for i in first..first + r.count as usize {
+            match visit(self.prim(i), *t_max) {
                 Visit::Miss => {}
                 Visit::Hit(t) => {
                     *hit = true;
@@ -444,8 +468,8 @@ impl Bvh {
         let mut hit = false;
         if r.count > 0 {
             let first = r.first as usize;
-            for &p in &self.prims[first..first + r.count as usize] {
-                match visit(p, t_max) {
+            for i in first..first + r.count as usize {
+                match visit(self.prim(i), t_max) {
                     Visit::Miss => {}
                     Visit::Hit(t) => {
                         hit = true;
@@ -469,7 +493,7 @@ impl Bvh {
     /// The tree's SAH cost (traversal 1, intersection 1), relative to the
     /// root's area: the usual measure of tree quality.
     pub fn sah_cost(&self) -> f32 {
-        if self.prims.is_empty() {
+        if self.len == 0 {
             return 0.0;
         }
         let root_area = self.root_box.half_area().max(f32::MIN_POSITIVE) as f64;

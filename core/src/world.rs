@@ -155,19 +155,36 @@ impl Scene {
     }
 
     /// Builds the acceleration structures of a parsed scene.
-    pub fn build(desc: SceneDesc) -> Scene {
-        let blas: Vec<Bvh> = desc
+    pub fn build(mut desc: SceneDesc) -> Scene {
+        // Each mesh is renumbered in its BVH's leaf order (see
+        // `Bvh::take_leaf_order`): the triangles a leaf visits, and mostly
+        // their vertices, then share cache lines, and no index array sits
+        // between leaf and triangle. Per-triangle surfaces follow.
+        let (blas, orders): (Vec<Bvh>, Vec<Vec<u32>>) = desc
             .meshes
-            .iter()
+            .iter_mut()
             .map(|m| {
                 let boxes: Vec<Aabb> = m
                     .triangles
                     .iter()
                     .map(|t| Aabb::from_points(&t.map(|i| m.positions[i as usize])))
                     .collect();
-                Bvh::build(&boxes, 4)
+                let mut bvh = Bvh::build(&boxes, 4);
+                let order = bvh.take_leaf_order();
+                m.reorder_triangles(&order);
+                (bvh, order)
             })
-            .collect();
+            .unzip();
+        for model in &mut desc.models {
+            if !model.triangle_surface.is_empty() {
+                let old = std::mem::take(&mut model.triangle_surface);
+                model.triangle_surface = orders[model.mesh]
+                    .iter()
+                    .map(|&t| old[t as usize])
+                    .collect();
+            }
+        }
+        drop(orders);
         let mut frames: Vec<Frame> = Vec::new();
         let mut camera_frame = Vec::with_capacity(desc.cameras.len());
         for c in &desc.cameras {

@@ -45,6 +45,48 @@ impl Mesh {
             .collect();
     }
 
+    /// Renumbers the triangles so that triangle `k` is the old `order[k]`,
+    /// and the vertices in order of first use by the renumbered triangles
+    /// (unused ones last, in their old order). The geometry is unchanged:
+    /// only which numbers name it, so that triangles the BVH visits
+    /// together lie together in memory.
+    pub fn reorder_triangles(&mut self, order: &[u32]) {
+        debug_assert_eq!(order.len(), self.triangles.len());
+        const NEW: u32 = u32::MAX;
+        let mut new_index = vec![NEW; self.positions.len()];
+        let mut old_of_new = Vec::with_capacity(self.positions.len());
+        let triangles: Vec<[u32; 3]> = order
+            .iter()
+            .map(|&t| {
+                self.triangles[t as usize].map(|v| {
+                    let n = &mut new_index[v as usize];
+                    if *n == NEW {
+                        *n = old_of_new.len() as u32;
+                        old_of_new.push(v);
+                    }
+                    *n
+                })
+            })
+            .collect();
+        for (v, n) in new_index.iter_mut().enumerate() {
+            if *n == NEW {
+                *n = old_of_new.len() as u32;
+                old_of_new.push(v as u32);
+            }
+        }
+        self.triangles = triangles;
+        self.positions = old_of_new
+            .iter()
+            .map(|&v| self.positions[v as usize])
+            .collect();
+        if !self.normals.is_empty() {
+            self.normals = old_of_new
+                .iter()
+                .map(|&v| self.normals[v as usize])
+                .collect();
+        }
+    }
+
     /// `invert="true"`: reverse every triangle's winding and negate every normal.
     pub fn invert(&mut self) {
         for t in &mut self.triangles {
@@ -59,6 +101,32 @@ impl Mesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reordering_renames_triangles_and_vertices_but_keeps_the_geometry() {
+        // A fan of four triangles round vertex 0, plus an unused vertex 6.
+        let p = |i: u32| Vec3::new(i as f32, (i * i) as f32, 1.0 - i as f32);
+        let old = Mesh {
+            positions: (0..7).map(p).collect(),
+            normals: (0..7).map(|i| p(i).normalize()).collect(),
+            triangles: vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]],
+        };
+        let order = [2u32, 0, 3, 1];
+        let mut m = old.clone();
+        m.reorder_triangles(&order);
+        for (k, &t) in order.iter().enumerate() {
+            let new_tri = m.triangles[k].map(|v| (m.positions[v as usize], m.normals[v as usize]));
+            let old_tri = old.triangles[t as usize]
+                .map(|v| (old.positions[v as usize], old.normals[v as usize]));
+            assert_eq!(new_tri, old_tri, "triangle {k}");
+        }
+        // Vertices numbered by first use: old triangle 2 = [0, 3, 4] first.
+        assert_eq!(m.triangles[0], [0, 1, 2]);
+        assert_eq!(m.triangles[1], [0, 3, 4]);
+        // The unused vertex is kept, last.
+        assert_eq!(m.positions.len(), 7);
+        assert_eq!(m.positions[6], p(6));
+    }
 
     #[test]
     fn smooth_normals_are_area_weighted() {
