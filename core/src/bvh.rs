@@ -1310,6 +1310,43 @@ mod tests {
     }
 
     #[test]
+    fn after_taking_the_leaf_order_the_walk_reports_leaf_positions() {
+        let boxes = random_boxes(2000, 21);
+        let rays = rays(5, 300, &boxes);
+        let modes = [Mode::Gather, Mode::Closest];
+        let mut bvh = Bvh::build(&boxes, 4);
+        let before: Vec<Trace> = rays
+            .iter()
+            .flat_map(|&(o, d, t_max)| {
+                let bvh = &bvh;
+                let boxes = &boxes;
+                modes.map(move |m| run(boxes, o, d, m, |f| bvh.traverse(o, d, t_max, f)))
+            })
+            .collect();
+        let order = bvh.take_leaf_order();
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert!(
+            sorted.iter().copied().eq(0..boxes.len() as u32),
+            "a permutation"
+        );
+        // Primitive k is now the old order[k]: the same visits, renamed.
+        let renumbered: Vec<Aabb> = order.iter().map(|&p| boxes[p as usize]).collect();
+        let mut i = 0;
+        for &(o, d, t_max) in &rays {
+            for m in modes {
+                let (seen, t, h) = run(&renumbered, o, d, m, |f| bvh.traverse(o, d, t_max, f));
+                let seen: Vec<(u32, u32)> = seen
+                    .iter()
+                    .map(|&(k, tm)| (order[k as usize], tm))
+                    .collect();
+                assert_eq!((seen, t, h), before[i], "ray {} {m:?}", i / 2);
+                i += 1;
+            }
+        }
+    }
+
+    #[test]
     fn every_primitive_is_in_exactly_one_leaf_and_inside_its_boxes() {
         let boxes = random_boxes(5000, 7);
         let bvh = Bvh::build(&boxes, 4);
