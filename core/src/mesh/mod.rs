@@ -68,12 +68,7 @@ impl Mesh {
                 })
             })
             .collect();
-        for (v, n) in new_index.iter_mut().enumerate() {
-            if *n == NEW {
-                *n = old_of_new.len() as u32;
-                old_of_new.push(v as u32);
-            }
-        }
+        old_of_new.extend((0..new_index.len() as u32).filter(|&v| new_index[v as usize] == NEW));
         self.triangles = triangles;
         self.positions = old_of_new
             .iter()
