@@ -17,7 +17,7 @@ use crate::camera::Camera;
 use crate::lights::{incident, jittered_position};
 use crate::sampling::{cosine_hemisphere, hash2, pixel_seed, PixelSampler, SamplerKind};
 use crate::scene::CameraDesc;
-use crate::world::{Scene, SurfacePoint, View};
+use crate::world::{Hit, Scene, SurfacePoint, View};
 use glam::Vec3;
 
 // Stream tags (dimension pairs). Changing any of these changes every image.
@@ -40,8 +40,25 @@ pub struct RenderOptions {
     pub sampler: SamplerKind,
 }
 
+/// Sees every ray the integrator traces, in the view's coordinates, just
+/// before it is traced. The default `()` does nothing and compiles away
+/// (the integrator is generic over it, not dynamic); `trevi-bench mix`
+/// records a frame's rays with it to time the traversal alone on exactly the
+/// rays a render traces.
+pub trait RayObserver: Sync {
+    /// A closest-hit ray (camera, reflection, refraction, AO, diffuse).
+    #[inline(always)]
+    fn closest(&self, _origin: Vec3, _dir: Vec3, _t_max: f32) {}
+    /// A shadow ray (transmittance towards a light).
+    #[inline(always)]
+    fn shadow(&self, _origin: Vec3, _dir: Vec3, _t_max: f32) {}
+}
+
+impl RayObserver for () {}
+
 /// Everything fixed for one camera's frame.
-pub struct Integrator<'a> {
+pub struct Integrator<'a, O: RayObserver = ()> {
+    observer: &'a O,
     scene: &'a Scene,
     /// The world relative to the camera: every ray below is in these
     /// coordinates (see world.rs).
@@ -64,7 +81,20 @@ pub struct PixelContext {
 
 impl<'a> Integrator<'a> {
     pub fn new(scene: &'a Scene, camera: usize, options: RenderOptions) -> Self {
+        Integrator::observed(scene, camera, options, &())
+    }
+}
+
+impl<'a, O: RayObserver> Integrator<'a, O> {
+    /// [`Integrator::new`] with every traced ray shown to `observer` first.
+    pub fn observed(
+        scene: &'a Scene,
+        camera: usize,
+        options: RenderOptions,
+        observer: &'a O,
+    ) -> Self {
         Integrator {
+            observer,
             scene,
             view: scene.view(camera),
             camera: &scene.cameras[camera],
@@ -136,6 +166,22 @@ impl<'a> Integrator<'a> {
         (value.to_array(), ctx.rays)
     }
 
+    /// Every closest-hit ray goes through here: counted, observed, traced.
+    #[inline(always)]
+    fn trace(&self, ctx: &mut PixelContext, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
+        ctx.rays += 1;
+        self.observer.closest(origin, dir, t_max);
+        self.view.intersect(origin, dir, t_max)
+    }
+
+    /// Every shadow ray goes through here: counted, observed, traced.
+    #[inline(always)]
+    fn trace_shadow(&self, ctx: &mut PixelContext, origin: Vec3, dir: Vec3, t_max: f32) -> f32 {
+        ctx.rays += 1;
+        self.observer.shadow(origin, dir, t_max);
+        self.view.transmittance(origin, dir, t_max)
+    }
+
     fn camera_sample(
         &self,
         ctx: &mut PixelContext,
@@ -176,8 +222,7 @@ impl<'a> Integrator<'a> {
         node: u64,
         weight: f32,
     ) -> Vec3 {
-        ctx.rays += 1;
-        let Some(hit) = self.view.intersect(origin, dir, f32::INFINITY) else {
+        let Some(hit) = self.trace(ctx, origin, dir, f32::INFINITY) else {
             return self.background;
         };
         let sp = self.view.surface_point(origin, dir, &hit);
@@ -310,9 +355,8 @@ impl<'a> Integrator<'a> {
     /// Transmittance from a surface point to a light position.
     fn visibility(&self, ctx: &mut PixelContext, sp: &SurfacePoint, light_pos: Vec3) -> f32 {
         let o = sp.spawn(light_pos - sp.p);
-        ctx.rays += 1;
         // dir spans the whole segment, so t < 1 is "before the light".
-        self.view.transmittance(o, light_pos - o, 1.0 - 1e-6)
+        self.trace_shadow(ctx, o, light_pos - o, 1.0 - 1e-6)
     }
 
     /// A(p): mean over cosine-distributed directions of min(1, s_k/s_max),
@@ -331,8 +375,7 @@ impl<'a> Integrator<'a> {
                 continue;
             }
             let o = sp.spawn(d);
-            ctx.rays += 1;
-            sum += match self.view.intersect(o, d, self.s_max) {
+            sum += match self.trace(ctx, o, d, self.s_max) {
                 Some(h) => (h.t / self.s_max).min(1.0),
                 None => 1.0,
             };
@@ -365,8 +408,7 @@ impl<'a> Integrator<'a> {
                 continue;
             }
             let o = sp.spawn(d);
-            ctx.rays += 1;
-            let Some(hit) = self.view.intersect(o, d, self.s_max) else {
+            let Some(hit) = self.trace(ctx, o, d, self.s_max) else {
                 continue;
             };
             let f = (1.0 - hit.t / self.s_max).max(0.0);

@@ -4,7 +4,7 @@
 //! band by band (top to bottom, left to right inside a band) so that an output
 //! writer can let rows go as soon as a band is complete.
 
-use crate::integrator::{Integrator, RenderOptions};
+use crate::integrator::{Integrator, RayObserver, RenderOptions};
 use crate::world::Scene;
 use rayon::prelude::*;
 
@@ -76,7 +76,20 @@ pub fn render_tile_with(
     rect: Rect,
     options: RenderOptions,
 ) -> TileResult {
-    let integrator = Integrator::new(scene, camera, options);
+    render_tile_observed(scene, camera, rect, options, &())
+}
+
+/// [`render_tile_with`], showing every traced ray to `observer` (the rows are
+/// rendered in parallel, so the observer sees them from several threads in
+/// no fixed order unless the rayon pool has one thread).
+pub fn render_tile_observed<O: RayObserver>(
+    scene: &Scene,
+    camera: usize,
+    rect: Rect,
+    options: RenderOptions,
+    observer: &O,
+) -> TileResult {
+    let integrator = Integrator::observed(scene, camera, options, observer);
     let mut pixels = vec![[0.0f32; 3]; rect.pixel_count()];
     let rays = pixels
         .par_chunks_mut(rect.w.max(1) as usize)

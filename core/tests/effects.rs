@@ -544,6 +544,48 @@ fn every_effect_on_is_deterministic_across_tile_sizes_and_threads() {
     assert_ne!(a, b);
 }
 
+/// Records the rays the integrator shows its observer.
+#[derive(Default)]
+struct Recorder {
+    closest: std::sync::Mutex<Vec<f32>>,
+    shadow: std::sync::Mutex<Vec<f32>>,
+}
+
+impl trevi_core::integrator::RayObserver for Recorder {
+    fn closest(&self, _o: glam::Vec3, _d: glam::Vec3, t_max: f32) {
+        self.closest.lock().unwrap().push(t_max);
+    }
+    fn shadow(&self, _o: glam::Vec3, _d: glam::Vec3, t_max: f32) {
+        self.shadow.lock().unwrap().push(t_max);
+    }
+}
+
+#[test]
+fn the_observer_sees_every_traced_ray_as_its_kind_and_changes_no_pixel() {
+    let scene = all_effects(
+        "supersample=\"2\" shadow-samples=\"3\" ao-samples=\"3\" diffuse-samples=\"2\" diffuse-depth=\"2\"",
+    );
+    let r = &scene.desc.cameras[0].render;
+    let rect = Rect::new(0, 0, r.width, r.height);
+    let rec = Recorder::default();
+    let seen =
+        trevi_core::tile::render_tile_observed(&scene, 0, rect, RenderOptions::default(), &rec);
+    assert_eq!(seen, whole(&scene, 0), "observing changed the tile");
+    let (closest, shadow) = (
+        rec.closest.into_inner().unwrap(),
+        rec.shadow.into_inner().unwrap(),
+    );
+    assert_eq!((closest.len() + shadow.len()) as u64, seen.rays);
+    // Shadow rays span the segment to the light (t < 1); closest-hit rays
+    // are camera/mirror rays (unbounded) or AO and gather rays (s_max).
+    let s_max = scene.ao_distance(0);
+    assert!(!shadow.is_empty() && shadow.iter().all(|&t| t == 1.0 - 1e-6));
+    assert!(closest.iter().all(|&t| t == f32::INFINITY || t == s_max));
+    let camera_rays = (r.width * r.height * 4) as usize;
+    assert!(closest.iter().filter(|t| t.is_infinite()).count() >= camera_rays);
+    assert!(closest.contains(&s_max));
+}
+
 // ---------------------------------------------------------------- adaptive
 
 #[test]
