@@ -22,5 +22,10 @@ for round in $(seq "${ROUNDS:-2}"); do
             grep -E '\| (primary|shadow|incoherent) \|' |
             awk -F'|' '{ printf "%-18s %-11s %s M rays/CPU-s\n", $2, $3, $10 }'
     done
-done
+done | tee "$OUT/ab.txt"
+# new/base per (round, mesh, ray type); their geometric mean, smallest, largest.
+awk '/^== round/ { side = (++runs % 2 == 1) ? "base" : "new"; next }
+     { key = $1 " " $2; if (side == "base") base[key] = $3; else { r = $3 / base[key]; n++; s += log(r);
+       if (min == "" || r < min) min = r; if (r > max) max = r } }
+     END { if (n) printf "new / base: geometric mean %.3f of %d ratios (%.2f-%.2f)\n", exp(s / n), n, min, max }' "$OUT/ab.txt"
 rm -rf "$OUT"

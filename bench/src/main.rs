@@ -5,6 +5,7 @@
 //! ```text
 //! trevi-bench micro --out DIR --meshes ../shared/meshes --embree bench/embree/embree_bench [--reps 5] [--threads 2]
 //! trevi-bench render SCENE.xml CAMERA [--threads 2]
+//! trevi-bench mix SCENE.xml CAMERA [--every 16] [--reps 3] [--threads 2]
 //! ```
 //!
 //! `micro` writes, per mesh, `DIR/<name>.mesh` (u32 vertex count, u32
@@ -13,6 +14,12 @@
 //! dz t_max per ray), which the Embree program reads. Each repetition times
 //! Trevi and then runs the Embree program on the same files, so the two are
 //! measured interleaved in one run; the best repetition of each is reported.
+//!
+//! `mix` answers "how much of a render is traversal": it renders every
+//! `every`-th 64×64 tile of a camera's frame (timed, as `render` does), then
+//! renders the same tiles again on one thread recording every ray the
+//! integrator traces ([`RayObserver`]), and times tracing exactly those rays,
+//! in the order they were traced, with nothing else: the same ray mix.
 
 use glam::{DMat4, Vec3};
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -22,6 +29,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 use trevi_core::bvh::Bvh;
 use trevi_core::geometry::{offset_ray_origin, Aabb};
+use trevi_core::integrator::{RayObserver, RenderOptions};
 use trevi_core::mesh::Mesh;
 use trevi_core::scene::{Model, Surface};
 use trevi_core::world::HitKind;
@@ -81,13 +89,20 @@ fn main() {
             std::fs::create_dir_all(&out).expect("create --out");
             micro(&out, &meshes, embree.as_deref(), reps, threads);
         }
+        Some("mix") => {
+            let scene = args.get(2).expect("mix SCENE.xml CAMERA");
+            let camera = args.get(3).expect("mix SCENE.xml CAMERA");
+            let every: usize = opt("--every").map_or(16, |s| s.parse().expect("--every"));
+            let reps: usize = opt("--reps").map_or(3, |s| s.parse().expect("--reps"));
+            mix(Path::new(scene), camera, every.max(1), reps.max(1), threads);
+        }
         Some("render") => {
             let scene = args.get(2).expect("render SCENE.xml CAMERA");
             let camera = args.get(3).expect("render SCENE.xml CAMERA");
             render(Path::new(scene), camera, threads);
         }
         _ => {
-            eprintln!("usage: trevi-bench micro --out DIR [--meshes DIR] [--embree PATH] [--reps N] [--threads N]\n       trevi-bench render SCENE.xml CAMERA [--threads N]");
+            eprintln!("usage: trevi-bench micro --out DIR [--meshes DIR] [--embree PATH] [--reps N] [--threads N]\n       trevi-bench render SCENE.xml CAMERA [--threads N]\n       trevi-bench mix SCENE.xml CAMERA [--every N] [--reps N] [--threads N]");
             std::process::exit(2);
         }
     }
@@ -299,6 +314,19 @@ fn process_cpu() -> f64 {
 /// Traces `rays` on `threads` threads (chunks of 256 handed out in order);
 /// returns (wall seconds, CPU seconds of the tracing threads, hits).
 fn trace(scene: &Scene, rays: &[R], q: Query, threads: usize) -> (f64, f64, usize) {
+    trace_with(rays, threads, |r| match q {
+        Query::Closest => scene.intersect(r.o, r.d, r.t_max).is_some(),
+        Query::AnyHit => scene.transmittance(r.o, r.d, r.t_max) == 0.0,
+    })
+}
+
+/// Runs `hit` over `rays` on `threads` threads, chunks of 256 handed out in
+/// order; returns (wall seconds, CPU seconds of those threads, hits).
+fn trace_with<T: Sync>(
+    rays: &[T],
+    threads: usize,
+    hit: impl Fn(&T) -> bool + Sync,
+) -> (f64, f64, usize) {
     const CHUNK: usize = 256;
     let next = AtomicUsize::new(0);
     let hits = AtomicUsize::new(0);
@@ -315,11 +343,7 @@ fn trace(scene: &Scene, rays: &[R], q: Query, threads: usize) -> (f64, f64, usiz
                         break;
                     }
                     for r in &rays[start..(start + CHUNK).min(rays.len())] {
-                        let hit = match q {
-                            Query::Closest => scene.intersect(r.o, r.d, r.t_max).is_some(),
-                            Query::AnyHit => scene.transmittance(r.o, r.d, r.t_max) == 0.0,
-                        };
-                        local += hit as usize;
+                        local += hit(r) as usize;
                     }
                 }
                 hits.fetch_add(local, Ordering::Relaxed);
@@ -627,5 +651,117 @@ fn render(scene_path: &Path, camera: &str, threads: usize) {
         t_build + t_render,
         rays as f64 / t_render / 1e6,
         sum / (w as f64 * h as f64 * 3.0)
+    );
+}
+
+// ---------------------------------------------------------------- same mix
+
+/// A ray as the integrator traced it (view coordinates).
+struct MixRay {
+    r: R,
+    shadow: bool,
+}
+
+/// Collects the traced rays; used on a one-thread pool, so in trace order.
+#[derive(Default)]
+struct Recorder(std::sync::Mutex<Vec<MixRay>>);
+
+impl RayObserver for Recorder {
+    fn closest(&self, o: Vec3, d: Vec3, t_max: f32) {
+        let r = R { o, d, t_max };
+        self.0.lock().unwrap().push(MixRay { r, shadow: false });
+    }
+    fn shadow(&self, o: Vec3, d: Vec3, t_max: f32) {
+        let r = R { o, d, t_max };
+        self.0.lock().unwrap().push(MixRay { r, shadow: true });
+    }
+}
+
+/// End-to-end rays per CPU-second on every `every`-th tile of the frame,
+/// against traversal alone on the very rays those tiles traced.
+fn mix(scene_path: &Path, camera: &str, every: usize, reps: usize, threads: usize) {
+    let bundle = trevi_core::Bundle::from_scene_file(scene_path).expect("read the scene bundle");
+    let scene = Scene::from_bundle(&bundle).expect("parse and build the scene");
+    let cam = scene.camera_index(camera).expect("camera id");
+    let rs = &scene.desc.cameras[cam].render;
+    let all = trevi_core::tile::band_order_tiles(rs.width, rs.height, 64);
+    let tiles: Vec<_> = all.iter().copied().step_by(every).collect();
+    let pixels: usize = tiles.iter().map(|t| t.pixel_count()).sum();
+
+    let mut render = Best::default();
+    let mut rays = 0u64;
+    for _ in 0..reps {
+        let (t0, c0) = (Instant::now(), process_cpu());
+        rays = tiles
+            .iter()
+            .map(|&rect| trevi_core::render_tile(&scene, cam, rect).rays)
+            .sum();
+        render.add(t0.elapsed().as_secs_f64(), rays as usize);
+        render.add_cpu(process_cpu() - c0);
+    }
+
+    let rec = Recorder::default();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("rayon pool");
+    one.install(|| {
+        for &rect in &tiles {
+            trevi_core::tile::render_tile_observed(
+                &scene,
+                cam,
+                rect,
+                RenderOptions::default(),
+                &rec,
+            );
+        }
+    });
+    let recorded = rec.0.into_inner().unwrap();
+    assert_eq!(
+        recorded.len() as u64,
+        rays,
+        "recorded and counted rays differ"
+    );
+    let shadow = recorded.iter().filter(|m| m.shadow).count();
+
+    let view = scene.view(cam);
+    let mut replay = Best::default();
+    for _ in 0..reps {
+        let (secs, cpu, hits) = trace_with(&recorded, threads, |m| {
+            if m.shadow {
+                view.transmittance(m.r.o, m.r.d, m.r.t_max) < 1.0
+            } else {
+                view.intersect(m.r.o, m.r.d, m.r.t_max).is_some()
+            }
+        });
+        replay.add(secs, hits);
+        replay.add_cpu(cpu);
+    }
+    let m = |secs: f64| rays as f64 / secs / 1e6;
+    println!(
+        "mix {camera}: {} of {} tiles (every {every}), {pixels} pixels, {rays} rays ({} closest-hit, {shadow} shadow), best of {reps}, {threads} threads",
+        tiles.len(),
+        all.len(),
+        rays as usize - shadow,
+    );
+    println!(
+        "mix {camera}: render      {:.3} s, {:.3} CPU-s: {:.2} M rays/s, {:.2} M rays/CPU-s",
+        render.secs,
+        render.cpu,
+        m(render.secs),
+        m(render.cpu)
+    );
+    println!(
+        "mix {camera}: traversal   {:.3} s, {:.3} CPU-s: {:.2} M rays/s, {:.2} M rays/CPU-s ({} hit or shadowed)",
+        replay.secs,
+        replay.cpu,
+        m(replay.secs),
+        m(replay.cpu),
+        replay.hits
+    );
+    println!(
+        "mix {camera}: render / traversal-only = {:.2} (wall), {:.2} (CPU)",
+        replay.secs / render.secs,
+        replay.cpu / render.cpu
     );
 }
