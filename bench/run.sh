@@ -3,7 +3,9 @@
 #
 #   bench/run.sh            # micro-benchmarks + both full-size frames
 #   bench/run.sh micro      # build and traversal only (a few minutes)
-#   bench/run.sh render     # the two 3000x2250 frames only (trevi-bench, then trevi-submit)
+#   bench/run.sh render     # the two 3000x2250 frames only (trevi-bench, then trevi-submit,
+#                           # then trevi-bench mix: a sample of their tiles end to end
+#                           # against traversal alone on the same recorded rays)
 #
 # Needs ../shared/meshes/nefertiti.obj beside the checkout. Installs Debian's
 # libembree-dev (Embree 3) with apt-get when it is missing. Environment:
@@ -56,5 +58,9 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
             -o "$OUT/$cam.png" --threads "$THREADS" --quiet 2> "$OUT/time-submit-$cam.txt"
         grep -E "Elapsed|Maximum resident|User time|System time" "$OUT/time-submit-$cam.txt"
     done
+    # Same ray mix: every 8th tile of the whitted frame, every 64th of the
+    # effects frame (about 12 M and 28 M rays, recorded in memory).
+    "$BIN" mix "$OUT/bundle/cornell-nefertiti.xml" whitted --every 8 --reps 3 --threads "$THREADS"
+    "$BIN" mix "$OUT/bundle/cornell-nefertiti.xml" effects --every 64 --reps 3 --threads "$THREADS"
 fi
 echo "# files in $OUT"
