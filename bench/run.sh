@@ -33,7 +33,10 @@ BIN="$ROOT/target/release/trevi-bench"
 [ -n "${CARGO_TARGET_DIR:-}" ] && BIN="$CARGO_TARGET_DIR/release/trevi-bench"
 SUBMIT="$(dirname "$BIN")/trevi-submit"
 
-echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) CPUs: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')"
+echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) CPUs: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')," \
+    "family $(grep -m1 'cpu family' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')" \
+    "model $(grep -m1 '^model[[:space:]]' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')," \
+    "$(grep -m1 '^flags' /proc/cpuinfo | grep -o -w -E 'avx2|avx512f' | tr '\n' ' ')"
 REV=$(git rev-parse --short HEAD 2>/dev/null || echo "${TREVI_REV:-?}")
 echo "# trevi $REV, embree $(dpkg-query -W -f='${Version}' libembree-dev 2>/dev/null || echo '?'), load average $(cut -d' ' -f1-3 /proc/loadavg)"
 
