@@ -719,3 +719,82 @@ fn tls_mistakes_get_clear_errors() {
     let o = submit(&dir, &["list", "--coordinator", &c.url, "--tls-ca", &ca]);
     assert!(o.status.success(), "{}", dir.logs());
 }
+
+/// Runs `deploy/trevi-health ADDR [SERVICE]` with `envs`: (exit ok, stderr).
+fn health(addr: &str, service: Option<&str>, envs: &[(&str, &str)]) -> (bool, String) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/trevi-health");
+    let mut cmd = Command::new("sh");
+    cmd.arg(&script)
+        .arg(addr)
+        .args(service)
+        .env_remove("TREVI_TLS_CA")
+        .env_remove("TREVI_TLS_DOMAIN")
+        .env("TREVI_HEALTH_TIMEOUT", "10");
+    for (k, v) in envs {
+        cmd.env(k, v);
+    }
+    let o = cmd.output().expect("run sh");
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into(),
+    )
+}
+
+/// The probe the compose file and the Kubernetes workers use answers yes
+/// only for a serving coordinator it can trust, plain or TLS.
+#[test]
+fn the_health_probe_checks_plain_and_tls_coordinators() {
+    let have_curl = Command::new("curl")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !have_curl {
+        eprintln!("SKIPPED: the curl command is missing, so deploy/trevi-health cannot run");
+        return;
+    }
+    let dir = Dir::new();
+    let plain = coordinator_with(&dir, "127.0.0.1:0", "plain", &[], &[]);
+    assert!(health(&plain.addr, None, &[]).0);
+    assert!(health(&plain.url, Some("trevi.v1.Jobs"), &[]).0);
+    let (ok, err) = health(&plain.addr, Some("no.such.Service"), &[]);
+    assert!(!ok && err.contains("is not serving"), "{err}");
+
+    let Some(certs) = make_certs(&dir, "certs") else {
+        return;
+    };
+    let f = |name: &str| certs.join(name).to_str().unwrap().to_string();
+    let tls_dir = Dir::new();
+    let tls = coordinator_with(
+        &tls_dir,
+        "127.0.0.1:0",
+        "tls",
+        &[
+            "--tls-cert",
+            &f("coordinator.pem"),
+            "--tls-key",
+            &f("coordinator.key"),
+        ],
+        &[],
+    );
+    let ca = f("ca.pem");
+    let port = tls.addr.rsplit(':').next().unwrap();
+    // Trusting the farm's CA: serving, for the URL's host or a named one.
+    assert!(health(&tls.url, None, &[("TREVI_TLS_CA", &ca)]).0);
+    let by_ip = format!("https://127.0.0.1:{port}");
+    let named = [
+        ("TREVI_TLS_CA", ca.as_str()),
+        ("TREVI_TLS_DOMAIN", "coordinator"),
+    ];
+    assert!(health(&by_ip, Some("trevi.v1.Workers"), &named).0);
+    // Not trusting it, the wrong name, or plain gRPC to a TLS port: no.
+    let (ok, err) = health(&tls.url, None, &[]);
+    assert!(!ok && err.contains("certificate"), "{err}");
+    let wrong = [
+        ("TREVI_TLS_CA", ca.as_str()),
+        ("TREVI_TLS_DOMAIN", "wrong.example"),
+    ];
+    let (ok, err) = health(&by_ip, None, &wrong);
+    assert!(!ok && err.contains("is not serving"), "{err}");
+    let (ok, err) = health(&tls.addr, None, &[]);
+    assert!(!ok && err.contains("is not serving"), "{err}");
+}
