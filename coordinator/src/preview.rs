@@ -212,7 +212,12 @@ mod tests {
         let png_bytes = encode_png(p.width, p.height, &p.to_rgba8()).unwrap();
         let dec = png::Decoder::new(std::io::Cursor::new(png_bytes));
         let mut reader = dec.read_info().unwrap();
-        let mut buf = vec![0; reader.output_buffer_size()];
+        let mut buf = vec![
+            0;
+            reader
+                .output_buffer_size()
+                .expect("the image fits in memory")
+        ];
         let info = reader.next_frame(&mut buf).unwrap();
         assert_eq!((info.width, info.height), (40, 30));
         assert_eq!(info.color_type, png::ColorType::Rgba);

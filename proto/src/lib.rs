@@ -94,6 +94,9 @@ pub fn rect_from(r: Option<pb::Rect>) -> Result<Rect, WireError> {
 
 /// Linear RGB pixels as little-endian f32 triples.
 pub fn pixels_to_bytes(pixels: &[[f32; 3]]) -> Vec<u8> {
+    if cfg!(target_endian = "little") {
+        return bytemuck::cast_slice(pixels).to_vec();
+    }
     let mut out = Vec::with_capacity(pixels.len() * 12);
     for p in pixels {
         for c in p {
@@ -107,6 +110,10 @@ pub fn pixels_to_bytes(pixels: &[[f32; 3]]) -> Vec<u8> {
 pub fn pixels_from_bytes(bytes: &[u8]) -> Result<Vec<[f32; 3]>, WireError> {
     if bytes.len() % 12 != 0 {
         return Err(WireError::RaggedPixels(bytes.len()));
+    }
+    if cfg!(target_endian = "little") {
+        // The bytes are the pixels: one copy (the buffer may be unaligned).
+        return Ok(bytemuck::pod_collect_to_vec(bytes));
     }
     Ok(bytes
         .chunks_exact(12)
@@ -146,7 +153,20 @@ mod tests {
     #[test]
     fn pixels_round_trip_bit_exactly() {
         let px = vec![[0.0, -1.5, f32::MAX], [f32::NAN, 1e-30, 3.25]];
-        let back = pixels_from_bytes(&pixels_to_bytes(&px)).unwrap();
+        let bytes = pixels_to_bytes(&px);
+        // The wire format: little-endian f32 R, G, B, pixel after pixel.
+        let expected: Vec<u8> = px
+            .iter()
+            .flatten()
+            .flat_map(|c| c.to_bits().to_le_bytes())
+            .collect();
+        assert_eq!(bytes, expected);
+        // Read back from an unaligned buffer too (protobuf gives no alignment).
+        let mut shifted = vec![0u8];
+        shifted.extend_from_slice(&bytes);
+        let bits = |p: &[[f32; 3]]| p.iter().flatten().map(|c| c.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&pixels_from_bytes(&shifted[1..]).unwrap()), bits(&px));
+        let back = pixels_from_bytes(&bytes).unwrap();
         for (a, b) in px.iter().zip(&back) {
             for i in 0..3 {
                 assert_eq!(a[i].to_bits(), b[i].to_bits());

@@ -172,7 +172,7 @@ fn png_reads_back_as_srgb8_of_the_input() {
     write_frame(&path, width, height, &pixels, &tiles);
 
     // Decode with the png crate directly to check the format itself.
-    let decoder = ::png::Decoder::new(File::open(&path).unwrap());
+    let decoder = ::png::Decoder::new(std::io::BufReader::new(File::open(&path).unwrap()));
     let reader = decoder.read_info().unwrap();
     let info = reader.info();
     assert_eq!((info.width, info.height), (width, height));
