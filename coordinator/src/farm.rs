@@ -360,7 +360,9 @@ impl Farm {
             let rect = *rects
                 .get(&idx)
                 .ok_or_else(|| FarmError::Io(format!("stored tile {idx} is not in the frame")))?;
-            let pixels = pixels_from_le_bytes(bytes);
+            // The wire's format; a ragged length reads as no pixels, which
+            // the pixel count check then refuses.
+            let pixels = trevi_proto::pixels_from_bytes(bytes).unwrap_or_default();
             validate_pixels(rect, &pixels)?;
             preview.add_tile(rect, &pixels);
             writer
@@ -664,7 +666,7 @@ impl Farm {
         // Committed before it is acknowledged: after a crash the tile is
         // replayed, not rendered again.
         if let Some(store) = &self.store {
-            if let Err(e) = store.put_tile(job, idx, rays, &pixels_to_le_bytes(pixels)) {
+            if let Err(e) = store.put_tile(job, idx, rays, &trevi_proto::pixels_as_bytes(pixels)) {
                 lock(&out).sink = None;
                 self.end_job(job, Err(format!("storing tile {idx}: {e}")));
                 return Err(e);
@@ -893,34 +895,6 @@ fn preview_image(p: &Preview) -> Result<PreviewImage, String> {
     })
 }
 
-/// Pixels as little-endian f32 RGB triples (how the database keeps them).
-fn pixels_to_le_bytes(pixels: &[[f32; 3]]) -> std::borrow::Cow<'_, [u8]> {
-    // On little-endian machines (all the farm runs on) the pixels already
-    // are those bytes: no copy per stored tile.
-    if cfg!(target_endian = "little") {
-        return std::borrow::Cow::Borrowed(bytemuck::cast_slice(pixels));
-    }
-    let mut out = Vec::with_capacity(pixels.len() * 12);
-    for p in pixels {
-        for c in p {
-            out.extend_from_slice(&c.to_le_bytes());
-        }
-    }
-    std::borrow::Cow::Owned(out)
-}
-
-/// The inverse of [`pixels_to_le_bytes`] (a ragged tail is dropped, and the
-/// pixel count check then refuses the tile).
-fn pixels_from_le_bytes(bytes: &[u8]) -> Vec<[f32; 3]> {
-    bytes
-        .chunks_exact(12)
-        .map(|c| {
-            let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
-            [f(0), f(4), f(8)]
-        })
-        .collect()
-}
-
 /// The file name of a camera's `output`, checked to be PNG or EXR.
 fn output_name(output: &str) -> Result<String, FarmError> {
     let name = Path::new(output)
@@ -936,31 +910,5 @@ fn output_name(output: &str) -> Result<String, FarmError> {
         _ => Err(FarmError::BadScene(format!(
             "output \"{output}\" must end in .png or .exr"
         ))),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn stored_pixel_bytes_are_little_endian_f32_triples_and_read_back() {
-        let pixels = [
-            [1.0f32, -0.5, 3.25e-7],
-            [f32::MAX, 0.0, -0.0],
-            [0.1, 0.2, 0.3],
-        ];
-        let bytes = pixels_to_le_bytes(&pixels);
-        let expected: Vec<u8> = pixels
-            .iter()
-            .flatten()
-            .flat_map(|c| c.to_bits().to_le_bytes())
-            .collect();
-        assert_eq!(&*bytes, &expected[..]);
-        let back = pixels_from_le_bytes(&bytes);
-        assert_eq!(back.len(), 3);
-        for (a, b) in back.iter().flatten().zip(pixels.iter().flatten()) {
-            assert_eq!(a.to_bits(), b.to_bits());
-        }
     }
 }

@@ -94,8 +94,14 @@ pub fn rect_from(r: Option<pb::Rect>) -> Result<Rect, WireError> {
 
 /// Linear RGB pixels as little-endian f32 triples.
 pub fn pixels_to_bytes(pixels: &[[f32; 3]]) -> Vec<u8> {
+    pixels_as_bytes(pixels).into_owned()
+}
+
+/// [`pixels_to_bytes`] without the copy where the pixels already are those
+/// bytes (little-endian machines, all a farm runs on).
+pub fn pixels_as_bytes(pixels: &[[f32; 3]]) -> std::borrow::Cow<'_, [u8]> {
     if cfg!(target_endian = "little") {
-        return bytemuck::cast_slice(pixels).to_vec();
+        return std::borrow::Cow::Borrowed(bytemuck::cast_slice(pixels));
     }
     let mut out = Vec::with_capacity(pixels.len() * 12);
     for p in pixels {
@@ -103,7 +109,7 @@ pub fn pixels_to_bytes(pixels: &[[f32; 3]]) -> Vec<u8> {
             out.extend_from_slice(&c.to_le_bytes());
         }
     }
-    out
+    std::borrow::Cow::Owned(out)
 }
 
 /// The inverse of [`pixels_to_bytes`].
@@ -154,6 +160,7 @@ mod tests {
     fn pixels_round_trip_bit_exactly() {
         let px = vec![[0.0, -1.5, f32::MAX], [f32::NAN, 1e-30, 3.25]];
         let bytes = pixels_to_bytes(&px);
+        assert_eq!(&*pixels_as_bytes(&px), &bytes[..]);
         // The wire format: little-endian f32 R, G, B, pixel after pixel.
         let expected: Vec<u8> = px
             .iter()

@@ -744,12 +744,7 @@ fn health(addr: &str, service: Option<&str>, envs: &[(&str, &str)]) -> (bool, St
 /// only for a serving coordinator it can trust, plain or TLS.
 #[test]
 fn the_health_probe_checks_plain_and_tls_coordinators() {
-    let have_curl = Command::new("curl")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !have_curl {
-        eprintln!("SKIPPED: the curl command is missing, so deploy/trevi-health cannot run");
+    if !have_command("curl", "--version", "deploy/trevi-health") {
         return;
     }
     let dir = Dir::new();

@@ -199,17 +199,25 @@ pub fn coordinator_with(
     }
 }
 
+/// Whether `cmd ARG` runs; if not, says that the test needing it for `what`
+/// is skipped.
+pub fn have_command(cmd: &str, arg: &str, what: &str) -> bool {
+    let ok = Command::new(cmd)
+        .arg(arg)
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        eprintln!("SKIPPED: the {cmd} command is missing, so {what} cannot run");
+    }
+    ok
+}
+
 /// Certificates for a local farm made by `deploy/make-certs.sh` in
 /// `dir/NAME` (`ca.pem`, `coordinator.pem`, `coordinator.key`, for
 /// localhost and 127.0.0.1); `None`, after saying why, when the `openssl`
 /// command is missing.
 pub fn make_certs(dir: &Dir, name: &str) -> Option<PathBuf> {
-    let have_openssl = Command::new("openssl")
-        .arg("version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !have_openssl {
-        eprintln!("SKIPPED: the openssl command is missing, so deploy/make-certs.sh cannot run");
+    if !have_command("openssl", "version", "deploy/make-certs.sh") {
         return None;
     }
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/make-certs.sh");
