@@ -981,7 +981,9 @@ fn headers_and_indices_that_claim_too_much_are_errors_not_allocations() {
 // docs/numerics.md.
 
 #[test]
-#[ignore]
+#[ignore = "a measurement that prints docs/numerics.md's tables, asserts nothing: \
+            cargo test --release -p trevi-core --test numerics -- --ignored \
+            --nocapture --test-threads 1 measure"]
 fn measure_image_psnr_against_distance_and_scale() {
     let reference = render(&scene(&far_scene([0.0; 3], 1.0)), 0);
     println!("| distance from the origin | PSNR (dB) vs the scene at the origin |");
@@ -1029,7 +1031,9 @@ fn exact_plane(o: [f64; 3], d: [f64; 3], p: [f64; 3], n: [f64; 3]) -> [f64; 3] {
 /// view, against an f64 reference: rays from a camera 5 units from a plane,
 /// a sphere and a triangle, all moved `d` from the origin.
 #[test]
-#[ignore]
+#[ignore = "a measurement that prints docs/numerics.md's tables, asserts nothing: \
+            cargo test --release -p trevi-core --test numerics -- --ignored --nocapture \
+            --test-threads 1 measure"]
 fn measure_hit_point_error_against_distance() {
     println!("| distance | world f32: max error | camera-relative: max error |");
     println!("|---|---|---|");

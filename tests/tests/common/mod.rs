@@ -39,20 +39,89 @@ pub fn tiny_scene(seed: u32) -> String {
     )
 }
 
+/// The workspace's binaries the end-to-end tests start.
+pub const BINARIES: [&str; 3] = ["trevi-coordinator", "trevi-worker", "trevi-submit"];
+
+/// The path of workspace binary `name` (one of [`BINARIES`]), up to date.
+///
+/// `cargo test` builds a package's binaries only for that package's own
+/// integration tests, so the first call in each test process runs
+/// `cargo build` for [`BINARIES`] with the profile the tests were built with
+/// (target/debug holds the `test` profile's artifacts under `cargo test`),
+/// into the same target directory: a no-op when they are up to date. Cargo
+/// has released its lock on the target directory by the time tests run.
 pub fn bin(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("current_exe");
-    let dir = exe
+    assert!(
+        BINARIES.contains(&name),
+        "{name} is not one of {BINARIES:?}"
+    );
+    let dir = BUILT.get_or_init(build_binaries);
+    let dir = match dir {
+        Ok(d) => d,
+        Err(e) => panic!("{e}"),
+    };
+    dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX))
+}
+
+static BUILT: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
+
+/// Builds [`BINARIES`] once per test process; returns the directory they
+/// are in (the test executable's target/<profile>).
+fn build_binaries() -> Result<PathBuf, String> {
+    let exe = std::env::current_exe().map_err(|e| format!("current_exe: {e}"))?;
+    // target/<profile>/deps/<test>-<hash>
+    let profile_dir = exe
         .parent()
         .and_then(Path::parent)
-        .expect("the test runs from target/<profile>/deps");
-    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
-    assert!(
-        path.exists(),
-        "{} is missing: run the tests with `cargo test --workspace` (or build the \
-         workspace's binaries first with `cargo build --workspace --bins` using the same profile)",
-        path.display()
-    );
-    path
+        .ok_or("the test does not run from target/<profile>/deps")?
+        .to_path_buf();
+    let target_dir = profile_dir
+        .parent()
+        .ok_or("the test's target/<profile> has no parent")?;
+    // The profile whose artifacts live in this directory: `cargo test`
+    // builds with `test` into target/debug, `cargo test --release` with
+    // `release`, `--profile NAME` into target/NAME.
+    let profile = match profile_dir.file_name().and_then(|n| n.to_str()) {
+        Some("debug") => "test",
+        Some(other) => other,
+        None => return Err(format!("unexpected {}", profile_dir.display())),
+    };
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let mut cmd = Command::new(&cargo);
+    cmd.arg("build")
+        .arg("--manifest-path")
+        .arg(&manifest)
+        .arg("--target-dir")
+        .arg(target_dir)
+        .args(["--profile", profile]);
+    for b in BINARIES {
+        cmd.args(["--bin", b]);
+    }
+    // The targets `cargo test --workspace` builds (tests and examples of
+    // every member) come along so that cargo resolves the same features:
+    // the dependencies' artifacts are then the test run's, up to date, and
+    // only the binaries are compiled (a narrower build would rebuild the
+    // dependencies with other features over the same files).
+    cmd.args(["--workspace", "--tests", "--examples"]);
+    eprintln!("building the binaries the test starts: {cmd:?}");
+    let out = cmd
+        .output()
+        .map_err(|e| format!("cannot run {}: {e}", Path::new(&cargo).display()))?;
+    if !out.status.success() {
+        return Err(format!(
+            "{cmd:?} failed ({})\n{}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr)
+        ));
+    }
+    for b in BINARIES {
+        let p = profile_dir.join(format!("{b}{}", std::env::consts::EXE_SUFFIX));
+        if !p.is_file() {
+            return Err(format!("{cmd:?} succeeded but left no {}", p.display()));
+        }
+    }
+    Ok(profile_dir)
 }
 
 /// A test's working directory; its logs are shown when an assertion fails.
@@ -199,15 +268,37 @@ pub fn coordinator_with(
     }
 }
 
+/// The one switch that turns every "SKIPPED" into a failure: set
+/// `TREVI_REQUIRE_ALL=1` (`.ci/run` does) and a test whose tool (chromium,
+/// openssl, curl) or data is missing fails instead of passing without
+/// having checked anything.
+pub const REQUIRE_ALL: &str = "TREVI_REQUIRE_ALL";
+
+/// Whether [`REQUIRE_ALL`] is set to `1`.
+pub fn require_all() -> bool {
+    std::env::var_os(REQUIRE_ALL).is_some_and(|v| v == "1")
+}
+
+/// Says that a test cannot run because of `why` and returns, so the caller
+/// can return early; panics instead under [`REQUIRE_ALL`].
+pub fn skip(why: &str) {
+    if require_all() {
+        panic!("{why} ({REQUIRE_ALL}=1: nothing may be skipped)");
+    }
+    eprintln!("SKIPPED: {why} (set {REQUIRE_ALL}=1 to fail instead)");
+}
+
 /// Whether `cmd ARG` runs; if not, says that the test needing it for `what`
-/// is skipped.
+/// is skipped (see [`skip`]: under [`REQUIRE_ALL`] it fails).
 pub fn have_command(cmd: &str, arg: &str, what: &str) -> bool {
     let ok = Command::new(cmd)
         .arg(arg)
         .output()
         .is_ok_and(|o| o.status.success());
     if !ok {
-        eprintln!("SKIPPED: the {cmd} command is missing, so {what} cannot run");
+        skip(&format!(
+            "the {cmd} command is missing, so {what} cannot run"
+        ));
     }
     ok
 }
