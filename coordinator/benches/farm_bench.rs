@@ -170,6 +170,7 @@ fn ingest(args: &[String]) {
                 camera: String::new(),
                 priority: 0,
                 tile_size: tile,
+                output_format: String::new(),
             })
             .await
             .unwrap()

@@ -896,6 +896,24 @@ fn preview_image(p: &Preview) -> Result<PreviewImage, String> {
 }
 
 /// The file name of a camera's `output`, checked to be PNG or EXR.
+/// The output file name `name` (as [`Farm::job_spec`] made it) with the
+/// extension of `format` (`png` or `exr`, any case; empty keeps `name`): a
+/// submitter's `-o` decides the format, not the scene's `output`.
+pub fn output_name_as(name: &str, format: &str) -> Result<String, FarmError> {
+    if format.is_empty() {
+        return Ok(name.to_string());
+    }
+    let f = trevi_core::output::Format::from_extension(format).ok_or_else(|| {
+        FarmError::BadScene(format!(
+            "output format \"{format}\" is not supported (png or exr)"
+        ))
+    })?;
+    Ok(Path::new(name)
+        .with_extension(f.extension())
+        .to_string_lossy()
+        .into_owned())
+}
+
 fn output_name(output: &str) -> Result<String, FarmError> {
     let name = Path::new(output)
         .file_name()

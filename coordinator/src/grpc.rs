@@ -149,7 +149,8 @@ impl pb::jobs_server::Jobs for JobsService {
         let r = req.into_inner();
         let farm = self.farm.clone();
         let info = blocking(move || {
-            let spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
+            let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
+            spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
             farm.submit_as(spec, &who)
         })
         .await?;

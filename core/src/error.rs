@@ -96,4 +96,8 @@ pub enum OutputError {
     },
     #[error("the frame is incomplete: {missing} rows were never written")]
     Incomplete { missing: u32 },
+    /// The output path names something a rename would replace but must not:
+    /// a directory, a device (`/dev/full`), a FIFO, a socket.
+    #[error("{path} exists and is {what}, not a regular file: refusing to replace it")]
+    NotARegularFile { path: String, what: &'static str },
 }

@@ -4,6 +4,7 @@
 //! so the output is byte-identical to the farm's.
 
 use anyhow::{Context, Result};
+use std::path::Path;
 use std::sync::Arc;
 use tokio::sync::{oneshot, watch};
 use tokio::task::JoinHandle;
@@ -17,17 +18,91 @@ pub struct Embedded {
     stop_worker: watch::Sender<bool>,
     server: JoinHandle<()>,
     worker: JoinHandle<()>,
-    _data: tempfile::TempDir,
+}
+
+/// The embedded coordinator's data directory: a `trevi-submit-*` directory
+/// in the system's temporary directory, removed when dropped. Made before
+/// the async runtime and dropped after it, so no task of the embedded farm
+/// still writes into it while it is removed.
+pub fn data_dir() -> Result<tempfile::TempDir> {
+    tempfile::Builder::new()
+        .prefix("trevi-submit-")
+        .tempdir()
+        .context("cannot create a temporary directory")
+}
+
+/// A signal that ends a local render early: SIGINT (Ctrl-C) or SIGTERM.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Interrupted {
+    pub name: &'static str,
+    /// The exit status that tells a shell which signal it was: 128 + the
+    /// signal's number.
+    pub code: i32,
+}
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "interrupted by {}: the render stopped; its temporary files and any \
+             half-written output were removed",
+            self.name
+        )
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// SIGINT and SIGTERM, caught from now on (instead of ending the process
+/// where it stands) so that a local render can clean up after itself.
+pub struct Signals {
+    #[cfg(unix)]
+    int: tokio::signal::unix::Signal,
+    #[cfg(unix)]
+    term: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    /// Must run inside the runtime.
+    pub fn catch() -> Result<Signals> {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            Ok(Signals {
+                int: signal(SignalKind::interrupt()).context("cannot catch SIGINT")?,
+                term: signal(SignalKind::terminate()).context("cannot catch SIGTERM")?,
+            })
+        }
+        #[cfg(not(unix))]
+        Ok(Signals {})
+    }
+
+    /// The next SIGINT or SIGTERM (including one that arrived since
+    /// [`Signals::catch`]).
+    pub async fn next(&mut self) -> Interrupted {
+        #[cfg(unix)]
+        {
+            tokio::select! {
+                _ = self.int.recv() => Interrupted { name: "SIGINT", code: 130 },
+                _ = self.term.recv() => Interrupted { name: "SIGTERM", code: 143 },
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = tokio::signal::ctrl_c().await;
+            Interrupted {
+                name: "Ctrl-C",
+                code: 130,
+            }
+        }
+    }
 }
 
 impl Embedded {
-    /// `threads` render threads (0: every core); `tile` the default tile edge.
-    pub async fn start(threads: usize, tile: u32) -> Result<Embedded> {
-        let data = tempfile::Builder::new()
-            .prefix("trevi-submit-")
-            .tempdir()
-            .context("cannot create a temporary directory")?;
-        let mut cfg = FarmConfig::new(data.path());
+    /// `threads` render threads (0: every core); `tile` the default tile
+    /// edge; `data` its data directory (see [`data_dir`]).
+    pub async fn start(threads: usize, tile: u32, data: &Path) -> Result<Embedded> {
+        let mut cfg = FarmConfig::new(data);
         cfg.default_tile = tile;
         // The data directory dies with this process: nothing to resume.
         cfg.durable = false;
@@ -60,7 +135,6 @@ impl Embedded {
             stop_worker,
             server,
             worker,
-            _data: data,
         })
     }
 

@@ -4,7 +4,12 @@
 //! the scene (or the one named) to its `output` file. With `--coordinator
 //! URL` the frames are rendered on a farm; without it, by a coordinator and a
 //! worker embedded in this process with every core, through the same client
-//! code. `trevi-submit status|list|cancel` manage a farm's jobs.
+//! code. `trevi-submit status|list|cancel|fetch` manage a farm's jobs.
+//!
+//! The output's format follows its name (`-o FILE`, else the camera's
+//! `output`): `.png` or `.exr`, anything else is refused before rendering.
+//! A local render stopped by SIGINT or SIGTERM removes its temporary files
+//! and any half-written output, and exits with 128 + the signal's number.
 
 mod local;
 mod remote;
@@ -61,7 +66,7 @@ struct Args {
     #[arg(long, default_value_t = 64)]
     tile: u32,
     /// No progress output.
-    #[arg(short, long)]
+    #[arg(short, long, global = true)]
     quiet: bool,
     /// Keep the live preview of the frame being rendered in this PNG file
     /// (at most 512 pixels a side, updated about once a second); with
@@ -78,12 +83,25 @@ enum Command {
     List,
     /// Cancel a job: it takes no more worker time and leaves no output.
     Cancel { id: u64 },
+    /// Download a finished job's image, e.g. of a job submitted with
+    /// --detach.
+    Fetch {
+        id: u64,
+        /// Where to write it (default: the job's output file name, in the
+        /// current directory). Its extension must be the job's format.
+        #[arg(short = 'o', long = "output")]
+        output: Option<PathBuf>,
+    },
 }
 
 fn main() {
     let args = Args::parse();
     let url = args.coordinator.clone();
     if let Err(e) = run(args) {
+        if let Some(sig) = e.downcast_ref::<local::Interrupted>() {
+            eprintln!("trevi-submit: {sig}");
+            std::process::exit(sig.code);
+        }
         let text = format!("{e:#}");
         eprintln!("trevi-submit: error: {text}");
         if let Some(hint) = url.and_then(|u| trevi_proto::connect::hint(&u, &text)) {
@@ -94,12 +112,27 @@ fn main() {
 }
 
 fn run(args: Args) -> Result<()> {
+    // A local render: the embedded coordinator's data directory, declared
+    // before the runtime so that it is removed after the runtime (and every
+    // task that could write into it) has shut down.
+    let local = args.command.is_none() && args.coordinator.is_none();
+    let data = if local {
+        Some(local::data_dir()?)
+    } else {
+        None
+    };
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
+    // Caught from here on, so that a local render interrupted at any point
+    // still returns through the code that removes what it wrote.
+    let mut signals = if local {
+        Some(runtime.block_on(async { local::Signals::catch() })?)
+    } else {
+        None
+    };
     if let Some(cmd) = &args.command {
-        let url = args
-            .coordinator
-            .as_deref()
-            .context("status, list and cancel need --coordinator URL (or TREVI_COORDINATOR)")?;
+        let url = args.coordinator.as_deref().context(
+            "status, list, cancel and fetch need --coordinator URL (or TREVI_COORDINATOR)",
+        )?;
         return runtime.block_on(async {
             let mut client =
                 remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
@@ -125,12 +158,24 @@ fn run(args: Args) -> Result<()> {
                 Command::Cancel { id } => {
                     println!("{}", remote::describe(&client.cancel(*id).await?))
                 }
+                Command::Fetch { id, output } => {
+                    let (out, s) = client.fetch(*id, output.as_deref()).await?;
+                    if !args.quiet {
+                        eprintln!(
+                            "job {id}: camera {}, {}x{} -> {}",
+                            s.camera,
+                            s.width,
+                            s.height,
+                            out.display()
+                        );
+                    }
+                }
             }
             Ok(())
         });
     }
     let Some(scene_path) = args.scene.clone() else {
-        bail!("name a scene file (or one of status, list, cancel); see --help");
+        bail!("name a scene file (or one of status, list, cancel, fetch); see --help");
     };
     if args.tile == 0 {
         bail!("--tile must be at least 1");
@@ -169,19 +214,20 @@ fn run(args: Args) -> Result<()> {
     } else {
         remote::Progress::Lines
     };
+    // Every output is checked (format, not a device or directory) before
+    // anything renders.
     let targets: Vec<remote::Target> = cameras
         .iter()
         .map(|&cam| {
             let desc = &scene.desc.cameras[cam];
-            remote::Target {
-                camera: desc.id.clone(),
-                out: match &args.output {
-                    Some(o) => o.clone(),
-                    None => scene_dir.join(&desc.render.output),
-                },
-            }
+            let out = match &args.output {
+                Some(o) => o.clone(),
+                None => scene_dir.join(&desc.render.output),
+            };
+            remote::Target::new(desc.id.clone(), out)
+                .with_context(|| format!("camera \"{}\"", desc.id))
         })
-        .collect();
+        .collect::<Result<_>>()?;
     drop(scene);
     runtime.block_on(async {
         match &args.coordinator {
@@ -201,16 +247,26 @@ fn run(args: Args) -> Result<()> {
                     .await
             }
             None => {
-                let farm = local::Embedded::start(args.threads.unwrap_or(0), args.tile).await?;
-                let result = async {
+                let data = data.as_ref().expect("made for a local render");
+                let signals = signals.as_mut().expect("caught for a local render");
+                let farm =
+                    local::Embedded::start(args.threads.unwrap_or(0), args.tile, data.path())
+                        .await?;
+                let render = async {
                     let mut client = remote::Client::connect(&farm.url, None).await?;
                     client.announce = false;
                     client.preview = args.preview.clone();
                     client
                         .render(&bundle, &targets, args.priority, args.tile, false, progress)
                         .await
-                }
-                .await;
+                };
+                // A signal drops the render, and with it the half-written
+                // output (see remote::PartFile); `data` goes after the
+                // runtime.
+                let result = tokio::select! {
+                    r = render => r,
+                    sig = signals.next() => Err(anyhow::Error::new(sig)),
+                };
                 farm.stop().await;
                 result
             }

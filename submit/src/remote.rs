@@ -8,6 +8,7 @@ use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
+use trevi_core::output::Format;
 use trevi_core::Bundle;
 use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient, JobState};
 use trevi_proto::{AuthChannel, Bearer, ClientTls, CHUNK_SIZE, MAX_MESSAGE_SIZE};
@@ -36,7 +37,24 @@ pub struct Client {
 /// One camera to render and where its image goes.
 pub struct Target {
     pub camera: String,
+    /// Its extension decides the format the coordinator writes (see
+    /// [`Target::new`]).
     pub out: PathBuf,
+    pub format: Format,
+}
+
+impl Target {
+    /// Checks `out` before anything is rendered: its extension must name a
+    /// format (.png or .exr) and it must not be anything but a regular file
+    /// if it exists (see [`trevi_core::output::check_output`]).
+    pub fn new(camera: String, out: PathBuf) -> Result<Target> {
+        let format = trevi_core::output::check_output(&out)?;
+        Ok(Target {
+            camera,
+            out,
+            format,
+        })
+    }
 }
 
 impl Client {
@@ -99,6 +117,7 @@ impl Client {
         camera: &str,
         priority: i32,
         tile_size: u32,
+        format: Format,
     ) -> Result<pb::JobStatus> {
         Ok(self
             .jobs
@@ -107,6 +126,7 @@ impl Client {
                 camera: camera.to_string(),
                 priority,
                 tile_size,
+                output_format: format.extension().to_string(),
             })
             .await
             .map_err(status_error)
@@ -178,9 +198,10 @@ impl Client {
         Ok(last.expect("checked above"))
     }
 
-    /// Downloads a finished job's image to `out` (through a temporary file
-    /// beside it, renamed into place when complete).
-    pub async fn download(&mut self, id: u64, out: &Path) -> Result<u64> {
+    /// Downloads a finished job's image, which must be a `format` file, to
+    /// `out` (through a temporary file beside it, renamed into place when
+    /// complete; removed on failure, or when this future is dropped).
+    pub async fn download(&mut self, id: u64, out: &Path, format: Format) -> Result<u64> {
         use tokio::io::AsyncWriteExt;
         let mut stream = self
             .jobs
@@ -188,34 +209,40 @@ impl Client {
             .await
             .map_err(status_error)?
             .into_inner();
-        let tmp = part_file(out).await?;
-        let result = async {
-            let mut file = tokio::fs::File::create(&tmp)
-                .await
-                .with_context(|| format!("cannot write {}", tmp.display()))?;
-            let mut size = None;
-            let mut got = 0u64;
-            while let Some(c) = stream.message().await.map_err(status_error)? {
-                if size.is_none() {
-                    size = Some(c.size);
+        let mut tmp = PartFile::new(out).await?;
+        let mut file = tokio::fs::File::create(&tmp.path)
+            .await
+            .with_context(|| format!("cannot write {}", tmp.path.display()))?;
+        let mut size = None;
+        let mut got = 0u64;
+        while let Some(c) = stream.message().await.map_err(status_error)? {
+            if size.is_none() {
+                size = Some(c.size);
+                // A coordinator that ignores `output_format` (older than
+                // it) sends the scene's format: never store those bytes
+                // under a name that promises another.
+                let is = Format::sniff(&c.data);
+                if is != Some(format) {
+                    bail!(
+                        "job {id}'s output is {}, not the {} file {} must be; \
+                         submit again with -o FILE.{}, or to a newer coordinator",
+                        is.map_or("not an image", |f| f.extension()),
+                        format.extension(),
+                        out.display(),
+                        is.map_or("png", |f| f.extension()),
+                    );
                 }
-                got += c.data.len() as u64;
-                file.write_all(&c.data).await?;
             }
-            file.sync_all().await?;
-            if size != Some(got) {
-                bail!("the download of job {id} stopped at {got} of {size:?} bytes");
-            }
-            tokio::fs::rename(&tmp, out)
-                .await
-                .with_context(|| format!("cannot move the image to {}", out.display()))?;
-            Ok(got)
+            got += c.data.len() as u64;
+            file.write_all(&c.data).await?;
         }
-        .await;
-        if result.is_err() {
-            let _ = tokio::fs::remove_file(&tmp).await;
+        file.sync_all().await?;
+        drop(file);
+        if size != Some(got) {
+            bail!("the download of job {id} stopped at {got} of {size:?} bytes");
         }
-        result
+        tmp.persist(out).await?;
+        Ok(got)
     }
 
     /// Writes job `id`'s live preview (a PNG) to `out`, through a temporary
@@ -227,20 +254,50 @@ impl Client {
             .await
             .map_err(status_error)?
             .into_inner();
-        let tmp = part_file(out).await?;
-        let written = async {
-            tokio::fs::write(&tmp, &p.png)
-                .await
-                .with_context(|| format!("cannot write {}", tmp.display()))?;
-            tokio::fs::rename(&tmp, out)
-                .await
-                .with_context(|| format!("cannot move the preview to {}", out.display()))
+        let mut tmp = PartFile::new(out).await?;
+        tokio::fs::write(&tmp.path, &p.png)
+            .await
+            .with_context(|| format!("cannot write {}", tmp.path.display()))?;
+        tmp.persist(out).await?;
+        Ok(p)
+    }
+
+    /// `trevi-submit fetch`: downloads finished job `id`'s image to `out`,
+    /// by default the job's output file name in the current directory.
+    /// Returns where it went and the job's status.
+    pub async fn fetch(&mut self, id: u64, out: Option<&Path>) -> Result<(PathBuf, pb::JobStatus)> {
+        let s = self.status(id).await?;
+        match s.state() {
+            JobState::Done => {}
+            JobState::Failed => bail!("job {id} failed, it has no image: {}", s.error),
+            JobState::Cancelled => bail!("job {id} was cancelled, it has no image"),
+            other => bail!(
+                "job {id} is {} ({}/{} tiles): fetch it once it is done \
+                 (trevi-submit status {id})",
+                other.label(),
+                s.tiles_done,
+                s.tiles_total
+            ),
         }
-        .await;
-        if written.is_err() {
-            let _ = tokio::fs::remove_file(&tmp).await;
+        // Only the name: the coordinator does not choose the directory.
+        let name = Path::new(&s.output_name)
+            .file_name()
+            .map(PathBuf::from)
+            .with_context(|| format!("job {id} names no output file ({:?})", s.output_name))?;
+        let format = Format::from_path(&name)
+            .with_context(|| format!("job {id}'s output {} is not .png or .exr", name.display()))?;
+        let out = out.map_or(name, Path::to_path_buf);
+        let want = trevi_core::output::check_output(&out)?;
+        if want != format {
+            bail!(
+                "job {id}'s image is a {} file ({}): -o must end in .{}",
+                format.extension(),
+                s.output_name,
+                format.extension()
+            );
         }
-        written.map(|()| p)
+        self.download(id, &out, format).await?;
+        Ok((out, s))
     }
 
     pub async fn status(&mut self, id: u64) -> Result<pb::JobStatus> {
@@ -285,7 +342,9 @@ impl Client {
         let hash = self.upload(bundle).await?;
         let mut jobs = Vec::new();
         for t in targets {
-            let s = self.submit(&hash, &t.camera, priority, tile_size).await?;
+            let s = self
+                .submit(&hash, &t.camera, priority, tile_size, t.format)
+                .await?;
             if detach || (self.announce && progress != Progress::Quiet) {
                 eprintln!(
                     "job {} queued: camera {} ({}x{}, {} tiles) on {}",
@@ -314,7 +373,7 @@ impl Client {
             }
             // The coordinator may restart between the end and the download.
             let mut tries = 0;
-            while let Err(e) = self.download(id, &t.out).await {
+            while let Err(e) = self.download(id, &t.out, t.format).await {
                 tries += 1;
                 let again = e
                     .downcast_ref::<StatusError>()
@@ -344,17 +403,48 @@ impl Client {
 
 /// Where a file bound for `out` is written until it is complete: a hidden
 /// name beside it (the directory is created), so a rename moves it into
-/// place and nobody ever sees half a file under `out`.
-async fn part_file(out: &Path) -> Result<PathBuf> {
-    let dir = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    tokio::fs::create_dir_all(dir)
-        .await
-        .with_context(|| format!("cannot create {}", dir.display()))?;
-    let name = out.file_name().and_then(|n| n.to_str()).unwrap_or("out");
-    Ok(dir.join(format!(".{name}.{}.part", std::process::id())))
+/// place and nobody ever sees half a file under `out`. Removed when dropped
+/// unless [`PartFile::persist`] moved it into place: after an error, and
+/// when the future writing it is dropped (a signal, a cancelled render).
+struct PartFile {
+    path: PathBuf,
+    armed: bool,
+}
+
+impl PartFile {
+    async fn new(out: &Path) -> Result<PartFile> {
+        let dir = out
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        tokio::fs::create_dir_all(dir)
+            .await
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        let name = out.file_name().and_then(|n| n.to_str()).unwrap_or("out");
+        Ok(PartFile {
+            path: dir.join(format!(".{name}.{}.part", std::process::id())),
+            armed: true,
+        })
+    }
+
+    /// Renames the finished file onto `out`, unless `out` exists and is not
+    /// a regular file (a rename would replace a device or a directory).
+    async fn persist(&mut self, out: &Path) -> Result<()> {
+        trevi_core::output::check_target(out)?;
+        tokio::fs::rename(&self.path, out)
+            .await
+            .with_context(|| format!("cannot move the file to {}", out.display()))?;
+        self.armed = false;
+        Ok(())
+    }
+}
+
+impl Drop for PartFile {
+    fn drop(&mut self) {
+        if self.armed {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
 }
 
 /// The `--preview` file while a job is watched: rewritten at most once a

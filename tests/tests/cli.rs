@@ -1,21 +1,10 @@
 //! `trevi-submit` on this machine, as a user runs it: real process, real files.
 
+mod common;
+
+use common::bin;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-
-/// A workspace binary, built by `cargo test --workspace` next to the test
-/// executable's directory (target/<profile>/).
-fn bin(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe.parent().and_then(Path::parent).expect("target dir");
-    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
-    assert!(
-        path.exists(),
-        "{} is missing: run the tests with `cargo test --workspace` so the binaries are built",
-        path.display()
-    );
-    path
-}
 
 fn submit(args: &[&str], cwd: &Path) -> Output {
     Command::new(bin("trevi-submit"))
@@ -149,4 +138,175 @@ fn a_reference_outside_the_scene_directory_is_refused() {
         "{err}"
     );
     assert_eq!(files_in(&sub), vec!["s.xml"]);
+}
+
+/// `-o y.exr` for a scene whose `output` is `.png` once wrote PNG bytes
+/// under the EXR name (and the reverse), and `-o x.jpg` got PNG bytes: the
+/// format follows `-o`, and an extension that names none is refused before
+/// anything renders.
+#[test]
+fn the_format_follows_dash_o_and_an_unknown_extension_is_refused() {
+    use trevi_core::output::{read_exr_rgb, read_png_rgb8, Format};
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("two.xml"), TWO_CAMERAS).unwrap();
+    // Camera a's output is out/a.png, b's is out/b.exr.
+    for (camera, out, format) in [
+        ("a", "a.exr", Format::Exr),
+        ("a", "a.PNG", Format::Png),
+        ("b", "b.png", Format::Png),
+        ("b", "b.Exr", Format::Exr),
+    ] {
+        let o = submit(
+            &["two.xml", "--camera", camera, "-o", out, "-q"],
+            dir.path(),
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let bytes = std::fs::read(dir.path().join(out)).unwrap();
+        assert_eq!(Format::sniff(&bytes), Some(format), "{out}");
+    }
+    // The same pixels either way: the PNG is the EXR's values in sRGB.
+    let (w, h, exr) = read_exr_rgb(&dir.path().join("a.exr")).unwrap();
+    let (_, _, png) = read_png_rgb8(&dir.path().join("a.PNG")).unwrap();
+    assert_eq!((w, h), (24, 16));
+    let srgb = trevi_core::output::Srgb8::new();
+    let from_exr: Vec<u8> = exr.iter().flat_map(|p| p.map(|c| srgb.encode(c))).collect();
+    assert!(from_exr == png.concat(), "the EXR and the PNG differ");
+
+    for bad in ["x.jpg", "x.bmp", "x", "x.png.part"] {
+        let o = submit(&["two.xml", "--camera", "a", "-o", bad], dir.path());
+        assert_eq!(o.status.code(), Some(1), "{bad}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains(bad) && err.contains("expected .png or .exr"),
+            "{bad}: {err}"
+        );
+    }
+    assert_eq!(
+        files_in(dir.path()),
+        ["a.PNG", "a.exr", "b.Exr", "b.png", "two.xml"]
+    );
+}
+
+/// `-o /dev/full` once replaced the device node with the image (a rename
+/// over the target). A target that exists and is not a regular file (a
+/// device behind a link, a FIFO, a directory) is refused before rendering
+/// and left as it was.
+#[cfg(unix)]
+#[test]
+fn a_target_that_is_not_a_regular_file_is_refused_and_left_alone() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("two.xml"), TWO_CAMERAS).unwrap();
+    std::os::unix::fs::symlink("/dev/null", dir.path().join("null.png")).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(dir.path().join("fifo.exr"))
+        .status()
+        .unwrap()
+        .success());
+    std::fs::create_dir(dir.path().join("folder.png")).unwrap();
+    for (out, what) in [
+        ("null.png", "a character device"),
+        ("fifo.exr", "a FIFO"),
+        ("folder.png", "a directory"),
+    ] {
+        let o = submit(&["two.xml", "--camera", "a", "-o", out], dir.path());
+        assert_eq!(o.status.code(), Some(1), "{out}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains(&format!("{out} exists and is {what}, not a regular file")),
+            "{out}: {err}"
+        );
+    }
+    // The scene's own outputs are checked the same way, before rendering.
+    std::fs::create_dir_all(dir.path().join("out/b.exr")).unwrap();
+    let o = submit(&["two.xml"], dir.path());
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("b.exr exists and is a directory"));
+    assert_eq!(files_in(&dir.path().join("out")), ["b.exr"]);
+
+    let meta = |n: &str| std::fs::symlink_metadata(dir.path().join(n)).unwrap();
+    assert!(meta("null.png").file_type().is_symlink());
+    assert!(meta("fifo.exr").file_type().is_fifo());
+    assert!(meta("folder.png").is_dir());
+    assert!(std::fs::metadata("/dev/null")
+        .unwrap()
+        .file_type()
+        .is_char_device());
+    assert_eq!(
+        files_in(dir.path()),
+        ["fifo.exr", "folder.png", "null.png", "out", "two.xml"]
+    );
+}
+
+/// A local render stopped by SIGINT or SIGTERM once left its
+/// `trevi-submit-*` directory in the temporary directory. Now it removes
+/// it, writes no output, and exits with 128 + the signal's number.
+#[cfg(unix)]
+#[test]
+fn a_local_render_interrupted_by_a_signal_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    // Hundreds of slow tiles on one thread: still rendering when signalled.
+    let scene =
+        common::SLOW_SCENE.replace(r#"width="96" height="64""#, r#"width="384" height="256""#);
+    assert_ne!(scene, common::SLOW_SCENE);
+    std::fs::write(dir.path().join("slow.xml"), scene).unwrap();
+    for (signal, code) in [("INT", 130), ("TERM", 143)] {
+        let tmp = dir.path().join(format!("tmp-{signal}"));
+        std::fs::create_dir(&tmp).unwrap();
+        let mut child = Command::new(bin("trevi-submit"))
+            .args(["slow.xml", "--threads", "1", "--tile", "16", "-q"])
+            .current_dir(dir.path())
+            .env("TMPDIR", &tmp)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // The job is on the embedded coordinator: its output is being
+        // written in the data directory.
+        let started = std::time::Instant::now();
+        let writing = || {
+            let Ok(mut data) = std::fs::read_dir(&tmp) else {
+                return false;
+            };
+            let Some(Ok(data)) = data.next() else {
+                return false;
+            };
+            std::fs::read_dir(data.path().join("jobs/1")).is_ok_and(|mut d| {
+                d.any(|e| {
+                    e.unwrap()
+                        .file_name()
+                        .to_string_lossy()
+                        .contains(".trevi-tmp-")
+                })
+            })
+        };
+        while !writing() {
+            assert!(
+                started.elapsed() < std::time::Duration::from_secs(60),
+                "the render never started"
+            );
+            assert!(
+                child.try_wait().unwrap().is_none(),
+                "trevi-submit ended early"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let kill = Command::new("kill")
+            .args([&format!("-{signal}"), &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(code), "SIG{signal}: {err}");
+        assert!(
+            err.contains(&format!("interrupted by SIG{signal}")),
+            "{err}"
+        );
+        assert_eq!(files_in(&tmp), Vec::<String>::new(), "SIG{signal}");
+        assert_eq!(
+            files_in(dir.path()).len(),
+            2 + usize::from(signal == "TERM")
+        );
+        assert!(!dir.path().join("slow.png").exists());
+    }
 }

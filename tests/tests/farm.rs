@@ -533,3 +533,143 @@ fn a_worker_survives_a_coordinator_restart() {
     assert!(std::fs::read(&out1).unwrap() == expected);
     assert!(std::fs::read(&out2).unwrap() == expected);
 }
+
+/// `-o y.exr` for a scene whose `output` is `.png` once got PNG bytes under
+/// the EXR name, on the farm as on this machine: the format follows `-o`.
+#[test]
+fn the_farm_writes_the_format_that_dash_o_names() {
+    let dir = Dir::new();
+    let scene = dir.write("scene/s.xml", SCENE);
+    let expected = embedded(&dir, &scene, "embedded.exr");
+    assert_eq!(
+        trevi_core::output::Format::sniff(&expected),
+        Some(trevi_core::output::Format::Exr)
+    );
+    let c = coordinator(&dir, 10_000);
+    let _w = worker(&dir, &c.url, "worker");
+    let out = dir.path().join("farm.exr");
+    let s = scene.to_str().unwrap();
+    let o = submit(
+        &dir,
+        &[s, "--coordinator", &c.url, "-o", out.to_str().unwrap()],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(std::fs::read(&out).unwrap() == expected, "{}", dir.logs());
+    // An extension that names no format is refused before a job exists.
+    let jpg = dir.path().join("x.jpg");
+    let o = submit(
+        &dir,
+        &[s, "--coordinator", &c.url, "-o", jpg.to_str().unwrap()],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("x.jpg") && err.contains(".png or .exr"),
+        "{err}"
+    );
+    assert!(!jpg.exists());
+    let list = submit(&dir, &["list", "--coordinator", &c.url]);
+    assert_eq!(String::from_utf8_lossy(&list.stdout).lines().count(), 1);
+}
+
+/// A detached job's image could only be taken off the coordinator's disk:
+/// `trevi-submit fetch ID` downloads it later.
+#[test]
+fn fetch_downloads_a_detached_job_s_image_once_it_is_done() {
+    let dir = Dir::new();
+    let scene = dir.write("scene/s.xml", SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    let c = coordinator(&dir, 10_000);
+    let s = scene.to_str().unwrap();
+    let o = submit(&dir, &[s, "--coordinator", &c.url, "--detach"]);
+    assert!(o.status.success(), "{}", dir.logs());
+    let id = String::from_utf8_lossy(&o.stdout).trim().to_string();
+    assert_eq!(id, "1");
+    let fetch = |args: &[&str]| {
+        let mut cmd = submit_cmd(&[&["fetch", &id, "--coordinator", &c.url], args].concat());
+        let o = cmd.current_dir(dir.path()).output().unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+
+    // No worker yet: the job is queued, and there is nothing to fetch.
+    let (code, err) = fetch(&[]);
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains("job 1 is queued") && err.contains("once it is done"),
+        "{err}"
+    );
+    assert!(!dir.path().join("main.png").exists());
+
+    let _w = worker(&dir, &c.url, "worker");
+    let rt = runtime();
+    wait_for(&dir, "job 1 to finish", 60, || {
+        job(&rt, &c.url, 1).state() == pb::JobState::Done
+    });
+    // By default the job's output name, in the current directory.
+    let (code, err) = fetch(&[]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(std::fs::read(dir.path().join("main.png")).unwrap() == expected);
+    let (code, err) = fetch(&["-o", "sub/again.png", "-q"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(std::fs::read(dir.path().join("sub/again.png")).unwrap() == expected);
+
+    // The image is a PNG: another extension is refused, nothing written.
+    let (code, err) = fetch(&["-o", "x.exr"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("-o must end in .png"), "{err}");
+    assert!(!dir.path().join("x.exr").exists());
+    // An unknown job.
+    let mut cmd = submit_cmd(&["fetch", "99", "--coordinator", &c.url]);
+    let o = cmd.current_dir(dir.path()).output().unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("99"));
+}
+
+/// `-o /dev/full` once replaced the device node: the downloaded file was
+/// renamed over it. A target that exists and is not a regular file is
+/// refused, by `fetch` as by a render.
+#[cfg(unix)]
+#[test]
+fn fetch_and_render_refuse_a_target_that_is_not_a_regular_file() {
+    let dir = Dir::new();
+    let scene = dir.write("scene/s.xml", SCENE);
+    let c = coordinator(&dir, 10_000);
+    let _w = worker(&dir, &c.url, "worker");
+    let fifo = dir.path().join("fifo.png");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let is_fifo = || {
+        use std::os::unix::fs::FileTypeExt;
+        std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo()
+    };
+    let s = scene.to_str().unwrap();
+    let f = fifo.to_str().unwrap();
+    let o = submit(&dir, &[s, "--coordinator", &c.url, "-o", f]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("is a FIFO, not a regular file"), "{err}");
+    assert!(is_fifo());
+
+    let done = dir.path().join("done.png");
+    let d = done.to_str().unwrap();
+    let o = submit(&dir, &[s, "--coordinator", &c.url, "-o", d, "-q"]);
+    assert!(o.status.success(), "{}", dir.logs());
+    let o = submit(&dir, &["fetch", "1", "--coordinator", &c.url, "-o", f]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("is a FIFO, not a regular file"), "{err}");
+    assert!(is_fifo());
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".part"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}

@@ -70,7 +70,11 @@ pub enum Format {
 impl Format {
     /// The format chosen by `path`'s extension (case-insensitive), if any.
     pub fn from_path(path: &Path) -> Option<Format> {
-        let ext = path.extension()?.to_str()?;
+        Format::from_extension(path.extension()?.to_str()?)
+    }
+
+    /// The format named by `ext` (`png` or `exr`, any case), if any.
+    pub fn from_extension(ext: &str) -> Option<Format> {
         if ext.eq_ignore_ascii_case("png") {
             Some(Format::Png)
         } else if ext.eq_ignore_ascii_case("exr") {
@@ -79,6 +83,93 @@ impl Format {
             None
         }
     }
+
+    /// The format whose signature `bytes` start with, if any: what a file
+    /// really holds, whatever its name says.
+    pub fn sniff(bytes: &[u8]) -> Option<Format> {
+        const PNG: &[u8] = b"\x89PNG\r\n\x1a\n";
+        const EXR: &[u8] = &[0x76, 0x2f, 0x31, 0x01];
+        if bytes.starts_with(PNG) {
+            Some(Format::Png)
+        } else if bytes.starts_with(EXR) {
+            Some(Format::Exr)
+        } else {
+            None
+        }
+    }
+
+    /// The file name extension, lower case: `png` or `exr`.
+    pub fn extension(self) -> &'static str {
+        match self {
+            Format::Png => "png",
+            Format::Exr => "exr",
+        }
+    }
+}
+
+/// Checks, before anything is rendered, that a frame can be written to
+/// `path`: its extension names a [`Format`] ([`OutputError::UnsupportedFormat`]
+/// if not) and [`check_target`] accepts it. Returns the format.
+pub fn check_output(path: &Path) -> Result<Format, OutputError> {
+    let format = Format::from_path(path).ok_or_else(|| OutputError::UnsupportedFormat {
+        path: path.display().to_string(),
+    })?;
+    check_target(path)?;
+    Ok(format)
+}
+
+/// Checks that a finished file may be renamed onto `path`: nothing is
+/// there, or a regular file (symbolic links followed) that it replaces.
+/// Anything else, a directory, a device such as `/dev/full`, a FIFO or a
+/// socket, is [`OutputError::NotARegularFile`]: a rename would replace the
+/// node itself. Every writer that renames a finished file into place calls
+/// this first.
+pub fn check_target(path: &Path) -> Result<(), OutputError> {
+    let meta = match fs::metadata(path) {
+        Ok(m) => m,
+        // Nothing there (or a dangling link, which the rename replaces).
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(source) => {
+            return Err(OutputError::Io {
+                path: path.display().to_string(),
+                source,
+            })
+        }
+    };
+    let kind = meta.file_type();
+    if kind.is_file() {
+        return Ok(());
+    }
+    let what = if kind.is_dir() {
+        "a directory"
+    } else {
+        special_kind(&kind)
+    };
+    Err(OutputError::NotARegularFile {
+        path: path.display().to_string(),
+        what,
+    })
+}
+
+#[cfg(unix)]
+fn special_kind(kind: &fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    if kind.is_char_device() {
+        "a character device"
+    } else if kind.is_block_device() {
+        "a block device"
+    } else if kind.is_fifo() {
+        "a FIFO"
+    } else if kind.is_socket() {
+        "a socket"
+    } else {
+        "not a regular file"
+    }
+}
+
+#[cfg(not(unix))]
+fn special_kind(_kind: &fs::FileType) -> &'static str {
+    "a special file"
 }
 
 /// The temporary file, removed when dropped unless it was renamed into place.
@@ -145,12 +236,13 @@ impl FrameWriter {
     /// Opens a writer for a `width`×`height` frame (each 1 ..= 2³¹−1) to be
     /// stored at `path`, creating missing parent directories. The format comes
     /// from the extension; anything but `.png` / `.exr` is
-    /// [`OutputError::UnsupportedFormat`] (and nothing is created).
+    /// [`OutputError::UnsupportedFormat`], and a `path` that exists but is not
+    /// a regular file is [`OutputError::NotARegularFile`] (see
+    /// [`check_target`]); in both cases nothing is created.
     pub fn create(path: &Path, width: u32, height: u32) -> Result<Self, OutputError> {
         let display = path.display().to_string();
-        let format = Format::from_path(path).ok_or_else(|| OutputError::UnsupportedFormat {
-            path: display.clone(),
-        })?;
+        // Refused now rather than after the whole frame is rendered.
+        let format = check_output(path)?;
         let io_err = |source| OutputError::Io {
             path: display.clone(),
             source,
@@ -372,6 +464,8 @@ impl FrameWriter {
         };
         sync.sync_all().map_err(io_err)?;
         drop(sync);
+        // Something may have appeared under the name while rendering.
+        check_target(&path)?;
         temp.persist(&path).map_err(io_err)?;
         // Make the rename itself durable; the file is already in place, so
         // a failure here is not worth reporting.

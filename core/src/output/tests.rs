@@ -417,6 +417,80 @@ fn format_comes_from_the_extension() {
 }
 
 #[test]
+fn the_bytes_written_carry_the_signature_of_the_extension() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, format) in [("a.png", Format::Png), ("a.exr", Format::Exr)] {
+        let path = dir.path().join(name);
+        write_frame(&path, 2, 1, &[[0.5; 3]; 2], &[Rect::new(0, 0, 2, 1)]);
+        assert_eq!(Format::sniff(&fs::read(&path).unwrap()), Some(format));
+        assert_eq!(check_output(&path).unwrap(), format);
+        assert_eq!(format.extension(), name.rsplit('.').next().unwrap());
+    }
+    assert_eq!(Format::sniff(b"GIF89a"), None);
+    assert_eq!(Format::sniff(b""), None);
+}
+
+/// `-o /dev/full` once replaced the device node: the finished file was
+/// renamed over it. A target that exists and is not a regular file is
+/// refused, before anything is written and again before the rename.
+#[cfg(unix)]
+#[test]
+fn a_target_that_is_not_a_regular_file_is_refused_and_left_alone() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    // A link named like an image to a device node, and a directory.
+    let device = dir.path().join("full.png");
+    std::os::unix::fs::symlink("/dev/null", &device).unwrap();
+    let folder = dir.path().join("folder.exr");
+    fs::create_dir(&folder).unwrap();
+    for (path, what) in [(&device, "a character device"), (&folder, "a directory")] {
+        match FrameWriter::create(path, 2, 1) {
+            Err(OutputError::NotARegularFile { what: w, .. }) => assert_eq!(w, what),
+            other => panic!("{}: {:?}", path.display(), other.map(|_| ())),
+        }
+        assert!(check_target(path).is_err());
+    }
+    assert!(fs::symlink_metadata(&device)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    assert!(fs::metadata("/dev/null")
+        .unwrap()
+        .file_type()
+        .is_char_device());
+    assert!(folder.is_dir());
+    assert_eq!(
+        dir_entries(dir.path()),
+        ["folder.exr", "full.png"].map(String::from).into()
+    );
+
+    // A directory that appears under the name while the frame renders.
+    let late = dir.path().join("late.png");
+    let mut writer = FrameWriter::create(&late, 2, 1).unwrap();
+    writer
+        .write_tile(Rect::new(0, 0, 2, 1), &[[0.5; 3]; 2])
+        .unwrap();
+    fs::create_dir(&late).unwrap();
+    assert!(matches!(
+        writer.finish(),
+        Err(OutputError::NotARegularFile { .. })
+    ));
+    assert!(late.is_dir());
+    assert_eq!(
+        dir_entries(dir.path()),
+        ["folder.exr", "full.png", "late.png"]
+            .map(String::from)
+            .into()
+    );
+
+    // A regular file is replaced as before.
+    let old = dir.path().join("old.exr");
+    fs::write(&old, b"old").unwrap();
+    write_frame(&old, 2, 1, &[[0.5; 3]; 2], &[Rect::new(0, 0, 2, 1)]);
+    assert_eq!(Format::sniff(&fs::read(&old).unwrap()), Some(Format::Exr));
+}
+
+#[test]
 fn zero_sized_frames_are_rejected() {
     let dir = tempfile::tempdir().unwrap();
     for (w, h) in [(0, 4), (4, 0)] {
