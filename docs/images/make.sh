@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Renders the README's example images from examples/*.xml with the current
+# code, so that they cannot drift from what trevi-submit makes. Run it after
+# any change to rendering and commit the images it writes:
+#
+#   docs/images/make.sh
+#
+# Environment: TREVI_SUBMIT, a trevi-submit binary to use (default: built
+# here with `cargo build --release -p trevi-submit`; any profile renders the
+# same bytes, e.g. target/debug/trevi-submit after `cargo test --workspace`).
+#
+# docs/images/monitor.png is not a render but a screenshot of the web
+# monitor; the browser test takes one (tests/tests/monitor.rs; with
+# TREVI_ARTIFACTS_DIR=DIR it is written to DIR/monitor.png).
+#
+# tests/tests/ci.rs checks that this list and the README's image links agree.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+
+# scene, camera, image in docs/images
+images=(
+    "examples/cornell.xml front cornell-front.png"
+    "examples/cornell.xml corner cornell-corner.png"
+    "examples/instancing.xml main instancing.png"
+)
+
+submit=${TREVI_SUBMIT:-}
+if [ -z "$submit" ]; then
+    cargo build --release -p trevi-submit
+    submit=target/release/trevi-submit
+fi
+for line in "${images[@]}"; do
+    read -r scene camera image <<<"$line"
+    echo "== $scene, camera $camera -> docs/images/$image"
+    "$submit" "$scene" --camera "$camera" -o "docs/images/$image" --quiet
+done

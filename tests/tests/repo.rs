@@ -1,0 +1,172 @@
+//! What the repository promises about itself: CI runs the README's test
+//! command and nothing may be skipped there, the README's images come from a
+//! script, and its farm commands can be found.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn read(rel: &str) -> String {
+    std::fs::read_to_string(root().join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"))
+}
+
+/// The README's test command once failed on a fresh clone (no test built
+/// the binaries the end-to-end tests start) and CI ran an extra
+/// `cargo build` first. CI now runs that command and no other cargo command.
+#[test]
+fn ci_runs_exactly_the_readme_s_test_command() {
+    let readme = read("README.md");
+    assert!(
+        readme.contains("\ncargo test --workspace "),
+        "the README's test command"
+    );
+    let ci = read(".ci/run");
+    let cargo: Vec<&str> = ci
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.starts_with('#') && !l.starts_with("echo"))
+        .filter(|l| l.contains("cargo "))
+        .collect();
+    assert_eq!(
+        cargo,
+        ["cargo test --workspace"],
+        ".ci/run's cargo commands"
+    );
+    assert!(ci.contains(&format!("export {}=1", common::REQUIRE_ALL)));
+}
+
+/// A test that lacks a tool printed "SKIPPED" and passed, in CI too. With
+/// TREVI_REQUIRE_ALL=1 it fails. This test runs itself as a child that
+/// checks for a command that does not exist, with and without the switch.
+#[test]
+fn a_missing_tool_fails_the_test_under_trevi_require_all() {
+    const CHILD: &str = "TREVI_TEST_SKIP_CHILD";
+    if std::env::var_os(CHILD).is_some() {
+        let have = common::have_command("trevi-no-such-command", "--version", "this check");
+        assert!(!have);
+        return;
+    }
+    let run = |all: &str| {
+        Command::new(std::env::current_exe().unwrap())
+            .args([
+                "--exact",
+                "a_missing_tool_fails_the_test_under_trevi_require_all",
+                "--nocapture",
+            ])
+            .env(CHILD, "1")
+            .env(common::REQUIRE_ALL, all)
+            .output()
+            .unwrap()
+    };
+    let skipped = run("0");
+    let text = String::from_utf8_lossy(&skipped.stderr);
+    assert!(skipped.status.success(), "{text}");
+    assert!(
+        text.contains("SKIPPED: the trevi-no-such-command command is missing"),
+        "{text}"
+    );
+    let failed = run("1");
+    let text = String::from_utf8_lossy(&failed.stderr);
+    assert!(!failed.status.success(), "{text}");
+    assert!(text.contains("nothing may be skipped"), "{text}");
+}
+
+/// Two measurements were `#[ignore]`d without saying why or how to run
+/// them: every ignored test in the workspace gives its reason.
+#[test]
+fn no_test_is_ignored_without_a_reason() {
+    let mut bare = Vec::new();
+    let mut dirs = vec![root()];
+    while let Some(dir) = dirs.pop() {
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            let p = e.path();
+            let name = e.file_name().to_string_lossy().into_owned();
+            if p.is_dir() {
+                if !name.starts_with('.') && name != "target" {
+                    dirs.push(p);
+                }
+            } else if name.ends_with(".rs") {
+                let text = std::fs::read_to_string(&p).unwrap_or_default();
+                for (i, line) in text.lines().enumerate() {
+                    if line.trim() == "#[ignore]" {
+                        bare.push(format!("{}:{}", p.display(), i + 1));
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        bare.is_empty(),
+        "say why and how to run them (#[ignore = \"…\"]): {bare:?}"
+    );
+}
+
+/// The README's images were renders of older code. `docs/images/make.sh`
+/// renders them from the examples; every README image but the monitor's
+/// screenshot is one of the script's, and every one of the script's is
+/// shown.
+#[test]
+fn the_readme_s_images_are_the_ones_docs_images_make_sh_renders() {
+    let script = read("docs/images/make.sh");
+    let list = script
+        .split_once("images=(")
+        .and_then(|(_, rest)| rest.split_once("\n)"))
+        .expect("make.sh's images=( … ) list")
+        .0;
+    let mut made: Vec<String> = Vec::new();
+    for line in list.lines().map(|l| l.trim().trim_matches('"')) {
+        if line.is_empty() {
+            continue;
+        }
+        let parts: Vec<&str> = line.split_whitespace().collect();
+        let [scene, camera, image] = parts[..] else {
+            panic!("make.sh: {line:?} is not `scene camera image`");
+        };
+        let xml = read(scene);
+        assert!(
+            xml.contains(&format!("<camera id=\"{camera}\"")),
+            "{scene} has no camera {camera}"
+        );
+        assert!(root().join("docs/images").join(image).is_file(), "{image}");
+        made.push(image.to_string());
+    }
+    made.sort();
+
+    let readme = read("README.md");
+    let mut shown: Vec<String> = readme
+        .split("](docs/images/")
+        .skip(1)
+        .map(|rest| rest.split(')').next().unwrap().to_string())
+        .filter(|image| image != "monitor.png")
+        .collect();
+    shown.sort();
+    shown.dedup();
+    assert_eq!(made, shown, "make.sh's images and the README's");
+}
+
+/// The README's farm section ran `trevi-coordinator` and `trevi-worker` as
+/// if installed, without saying how to install them.
+#[test]
+fn the_readme_installs_the_farm_s_programs_before_running_them() {
+    let readme = read("README.md");
+    let farm = readme
+        .split_once("## A render farm")
+        .expect("the README's farm section")
+        .1;
+    let first_run = farm
+        .find("trevi-coordinator --")
+        .expect("the coordinator's command line");
+    for package in ["coordinator", "worker", "submit"] {
+        let install = format!("cargo install --path {package}");
+        let at = farm
+            .find(&install)
+            .unwrap_or_else(|| panic!("the farm section lacks `{install}`"));
+        assert!(at < first_run, "`{install}` comes after the first command");
+        assert!(root().join(package).join("Cargo.toml").is_file());
+    }
+}
