@@ -187,18 +187,22 @@ fn ingest(args: &[String]) {
             let (full, sent) = (full.clone(), sent.clone());
             tasks.push(tokio::spawn(async move {
                 let mut wc = WorkersClient::new(channel);
-                let id = wc
+                let reg = wc
                     .register(pb::RegisterRequest {
                         name: "synthetic".into(),
                         threads: 1,
                     })
                     .await
                     .unwrap()
-                    .into_inner()
-                    .worker_id;
+                    .into_inner();
+                let (id, session) = (reg.worker_id, reg.session);
                 loop {
                     let lease = wc
-                        .lease_tile(pb::LeaseRequest { worker_id: id })
+                        .lease_tile(pb::LeaseRequest {
+                            worker_id: id,
+                            session: session.clone(),
+                            ..Default::default()
+                        })
                         .await
                         .unwrap()
                         .into_inner()
@@ -219,6 +223,7 @@ fn ingest(args: &[String]) {
                                 job_id: lease.job_id,
                                 rect: lease.rect,
                                 rays: rect.pixel_count() as u64,
+                                session: session.clone(),
                             })),
                         },
                         pb::TileUpload {

@@ -201,7 +201,11 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Checks a result's pixels against its rectangle: right count, all finite.
+/// Checks a result's pixels against its rectangle: right count, every
+/// component finite and not negative. The renderer only ever produces linear
+/// radiance ≥ 0; there is no upper bound short of `f32::MAX`, because a scene
+/// may legitimately have lights and colors that large (AISXML allows any
+/// finite value ≥ 0), so anything finite and ≥ 0 could be a true result.
 pub fn validate_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), FarmError> {
     if pixels.len() != rect.pixel_count() {
         return Err(FarmError::BadTile(format!(
@@ -217,6 +221,15 @@ pub fn validate_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), FarmError>
     if let Some(i) = pixels.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
         return Err(FarmError::BadTile(format!(
             "pixel ({}, {}) is not finite: {:?}",
+            rect.x + (i as u32 % rect.w),
+            rect.y + (i as u32 / rect.w),
+            pixels[i]
+        )));
+    }
+    // `-0.0 < 0.0` is false: a negative zero is a zero.
+    if let Some(i) = pixels.iter().position(|p| p.iter().any(|&c| c < 0.0)) {
+        return Err(FarmError::BadTile(format!(
+            "pixel ({}, {}) is negative: {:?} (radiance is never below 0)",
             rect.x + (i as u32 % rect.w),
             rect.y + (i as u32 / rect.w),
             pixels[i]
@@ -275,7 +288,7 @@ impl Farm {
             let rays = if j.state.is_final() {
                 j.rays
             } else {
-                done_tiles.iter().map(|t| t.1).sum()
+                done_tiles.iter().fold(0u64, |a, t| a.saturating_add(t.1))
             };
             let id = j.id;
             let mut st = lock(&self.state);
@@ -547,6 +560,61 @@ impl Farm {
         let id = st.sched.register_worker(Instant::now());
         st.sched.describe_worker(id, name, threads);
         id
+    }
+
+    /// Registers a worker as [`Farm::register_worker_as`] does, with a
+    /// session secret from the operating system's random source that its
+    /// every later call must present (see [`Farm::check_session`]), so one
+    /// worker cannot act under another's id.
+    pub fn register_worker_session(
+        &self,
+        name: &str,
+        threads: u32,
+    ) -> Result<(WorkerId, [u8; 32]), FarmError> {
+        let mut secret = [0u8; 32];
+        getrandom::getrandom(&mut secret)
+            .map_err(|e| FarmError::Io(format!("no random session secret: {e}")))?;
+        let mut st = lock(&self.state);
+        let id = st.sched.register_worker_session(Instant::now(), secret);
+        st.sched.describe_worker(id, name, threads);
+        Ok((id, secret))
+    }
+
+    /// Checks that `session` is the secret `worker` registered with: an
+    /// unknown worker must register (again), a wrong secret is refused.
+    pub fn check_session(&self, worker: WorkerId, session: &[u8]) -> Result<(), FarmError> {
+        match lock(&self.state).sched.session_is(worker, session) {
+            None => Err(FarmError::UnknownWorker(worker)),
+            Some(true) => Ok(()),
+            Some(false) => Err(FarmError::NotYourLease(format!(
+                "the session secret is not worker {worker}'s (a worker may only act under \
+                 the id its own registration gave it)"
+            ))),
+        }
+    }
+
+    /// `worker` gives `lease` back unfinished: re-queued at once, and with
+    /// `error` (its render failed) counted against the tile, which may fail
+    /// the job (see [`Scheduler::return_lease`]).
+    pub fn return_tile(
+        &self,
+        worker: WorkerId,
+        lease: LeaseId,
+        error: Option<&str>,
+    ) -> Result<(), FarmError> {
+        let failed = {
+            let mut st = lock(&self.state);
+            st.sched
+                .return_lease(worker, lease, error, Instant::now())?;
+            st.sched.take_failed()
+        };
+        match error {
+            Some(e) => tracing::warn!(worker, lease, error = %e, "tile failed; re-queued"),
+            None => tracing::info!(worker, lease, "tile returned unrendered; re-queued"),
+        }
+        self.work.notify_waiters();
+        self.fail_jobs(failed);
+        Ok(())
     }
 
     pub fn lease(&self, worker: WorkerId) -> Result<Option<Lease>, FarmError> {

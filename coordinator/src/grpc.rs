@@ -21,8 +21,13 @@ use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
 /// [`crate::farm::Limits`]).
 pub const MAX_BUNDLE_BYTES: usize = 256 << 20;
 
-/// How long a `LeaseTile` call waits for work before answering "none".
+/// How long a `LeaseTile` call waits for work before answering "none" (a
+/// worker may ask for less).
 const LEASE_WAIT: Duration = Duration::from_secs(2);
+
+/// Characters of a worker's render error kept (in the log and the job's
+/// error).
+const MAX_RETURN_ERROR_CHARS: usize = 500;
 
 fn join_error(e: tokio::task::JoinError) -> Status {
     Status::internal(format!("task failed: {e}"))
@@ -272,11 +277,12 @@ impl pb::workers_server::Workers for WorkersService {
         req: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterResponse>, Status> {
         let r = req.into_inner();
-        let id = self.farm.register_worker_as(&r.name, r.threads);
+        let (id, session) = self.farm.register_worker_session(&r.name, r.threads)?;
         tracing::info!(worker = id, name = %r.name, threads = r.threads, "worker registered");
         Ok(Response::new(pb::RegisterResponse {
             worker_id: id,
             lease_ttl_ms: self.farm.config().sched.lease_ttl.as_millis() as u64,
+            session: session.to_vec(),
         }))
     }
 
@@ -284,8 +290,13 @@ impl pb::workers_server::Workers for WorkersService {
         &self,
         req: Request<pb::LeaseRequest>,
     ) -> Result<Response<pb::LeaseResponse>, Status> {
-        let worker = req.into_inner().worker_id;
-        let lease = self.farm.lease_wait(worker, LEASE_WAIT).await?;
+        let r = req.into_inner();
+        self.farm.check_session(r.worker_id, &r.session)?;
+        let wait = match r.max_wait_ms {
+            0 => LEASE_WAIT,
+            ms => Duration::from_millis(ms.into()).min(LEASE_WAIT),
+        };
+        let lease = self.farm.lease_wait(r.worker_id, wait).await?;
         Ok(Response::new(pb::LeaseResponse {
             lease: lease.map(|l| pb::Lease {
                 lease_id: l.id,
@@ -302,6 +313,7 @@ impl pb::workers_server::Workers for WorkersService {
         req: Request<pb::HeartbeatRequest>,
     ) -> Result<Response<pb::HeartbeatResponse>, Status> {
         let r = req.into_inner();
+        self.farm.check_session(r.worker_id, &r.session)?;
         let dropped = self.farm.heartbeat(r.worker_id, &r.lease_ids)?;
         Ok(Response::new(pb::HeartbeatResponse { dropped }))
     }
@@ -319,6 +331,7 @@ impl pb::workers_server::Workers for WorkersService {
                 ))
             }
         };
+        self.farm.check_session(header.worker_id, &header.session)?;
         let rect = rect_from(header.rect).map_err(|e| Status::invalid_argument(e.to_string()))?;
         // A rectangle that is not one of the job's tiles is refused before
         // any pixel is read (so a huge one cannot make us allocate).
@@ -356,6 +369,20 @@ impl pb::workers_server::Workers for WorkersService {
         Ok(Response::new(pb::TileAck {
             accepted: outcome == TileOutcome::Accepted,
         }))
+    }
+
+    async fn return_tile(
+        &self,
+        req: Request<pb::TileReturn>,
+    ) -> Result<Response<pb::TileReturnAck>, Status> {
+        let r = req.into_inner();
+        self.farm.check_session(r.worker_id, &r.session)?;
+        // The error comes from the network: keep what is logged short.
+        let error: String = r.error.chars().take(MAX_RETURN_ERROR_CHARS).collect();
+        let error = (!error.is_empty()).then_some(error);
+        self.farm
+            .return_tile(r.worker_id, r.lease_id, error.as_deref())?;
+        Ok(Response::new(pb::TileReturnAck {}))
     }
 }
 

@@ -43,6 +43,10 @@ struct Args {
     /// A worker failing this many tiles of a job gets no more of its tiles.
     #[arg(long, env = "TREVI_MAX_WORKER_FAILURES", default_value_t = 3)]
     max_worker_failures: u32,
+    /// A tile whose lease runs out this many times (the worker holding it
+    /// crashed, hung or was cut off) fails its job, naming the tile.
+    #[arg(long, env = "TREVI_MAX_TILE_LOSSES", default_value_t = SchedulerConfig::default().max_tile_losses)]
+    max_tile_losses: u32,
     /// Token submitters must present (`trevi-submit --token`); without it
     /// anyone who reaches the coordinator may submit and read jobs.
     #[arg(long, env = "TREVI_SUBMIT_TOKEN", hide_env_values = true)]
@@ -99,6 +103,7 @@ async fn main() -> Result<()> {
             window_bytes: args.window_mib.max(1) << 20,
             max_tile_failures: args.max_tile_failures.max(1),
             max_worker_failures: args.max_worker_failures.max(1),
+            max_tile_losses: args.max_tile_losses.max(1),
         },
         default_tile: args.tile_size,
         durable: true,

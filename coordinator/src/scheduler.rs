@@ -11,6 +11,12 @@
 //!   its tile back in the queue (ahead of later tiles of the same job).
 //! - The first valid result for a tile wins; later and duplicate results are
 //!   ignored. An invalid result re-queues the tile at once.
+//! - A tile that fails too often fails its job, naming the tile: after
+//!   `max_tile_failures` failures of any kind, or sooner, after
+//!   `max_tile_losses` times its lease ran out (the worker holding it crashed,
+//!   hung or was cut off), so a tile that kills every worker that takes it
+//!   cannot keep its job running for ever. A lease the worker gives back
+//!   without an error (it is stopping) re-queues the tile and counts nothing.
 
 use crate::workers::{WorkerEntry, WorkerInfo};
 use std::cmp::Reverse;
@@ -181,6 +187,9 @@ pub struct SchedulerConfig {
     pub max_tile_failures: u32,
     /// A worker that fails this many tiles of a job takes no more of them.
     pub max_worker_failures: u32,
+    /// A tile whose lease runs out this many times (the worker holding it
+    /// was lost) fails its job; these count towards `max_tile_failures` too.
+    pub max_tile_losses: u32,
 }
 
 impl Default for SchedulerConfig {
@@ -190,6 +199,7 @@ impl Default for SchedulerConfig {
             window_bytes: 16 << 20,
             max_tile_failures: 5,
             max_worker_failures: 3,
+            max_tile_losses: 3,
         }
     }
 }
@@ -225,8 +235,9 @@ struct Job {
     finished: Option<Instant>,
     error: Option<String>,
     finish_order: u64,
-    /// Failures of tiles not done yet: how many, and the last cause.
-    failures: HashMap<u32, (u32, String)>,
+    /// Failures of tiles not done yet: how many, how many of them were
+    /// lost workers, and the last cause.
+    failures: HashMap<u32, (u32, u32, String)>,
     /// Failures per worker on this job.
     worker_failures: HashMap<WorkerId, u32>,
     /// Leases that ran out or were refused while their tile is not done
@@ -317,6 +328,17 @@ struct LeaseEntry {
     deadline: Instant,
 }
 
+/// Why a lease ends before its tile is done.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Release {
+    /// It ran out: the worker holding it was lost.
+    Lost,
+    /// Its result was invalid, or the worker's render failed.
+    Failed,
+    /// The worker gave it back unrendered (it is stopping): no one's fault.
+    Returned,
+}
+
 /// The job queue and leases.
 pub struct Scheduler {
     cfg: SchedulerConfig,
@@ -367,6 +389,21 @@ impl Scheduler {
         self.next_worker += 1;
         self.workers.insert(id, WorkerEntry::new(now));
         id
+    }
+
+    /// Registers a worker whose every later call must present `session`.
+    pub fn register_worker_session(&mut self, now: Instant, session: [u8; 32]) -> WorkerId {
+        let id = self.register_worker(now);
+        if let Some(w) = self.workers.get_mut(&id) {
+            w.session = Some(session);
+        }
+        id
+    }
+
+    /// Whether `presented` is `worker`'s session secret (`None`: no such
+    /// worker).
+    pub fn session_is(&self, worker: WorkerId, presented: &[u8]) -> Option<bool> {
+        self.workers.get(&worker).map(|w| w.session_is(presented))
     }
 
     /// Records what a worker said about itself when it registered.
@@ -545,7 +582,8 @@ impl Scheduler {
             .collect();
         for &id in &expired {
             let worker = self.leases[&id].worker;
-            self.release(id, &format!("lease expired (worker {worker} went silent)"));
+            let cause = format!("lease expired (worker {worker} went silent)");
+            self.release(id, &cause, Release::Lost);
         }
         self.counters.lease_expiries += expired.len() as u64;
         // Workers silent for ten lease lifetimes are forgotten; one that
@@ -585,8 +623,10 @@ impl Scheduler {
             let last = j
                 .failures
                 .iter()
-                .max_by_key(|(tile, (n, _))| (*n, std::cmp::Reverse(**tile)))
-                .map(|(tile, (n, cause))| format!("; tile {tile} failed {n} times, last: {cause}"))
+                .max_by_key(|(tile, (n, _, _))| (*n, std::cmp::Reverse(**tile)))
+                .map(|(tile, (n, _, cause))| {
+                    format!("; tile {tile} failed {n} times, last: {cause}")
+                })
                 .unwrap_or_default();
             let msg = format!(
                 "every live worker ({}) failed {max} or more tiles of this job and is kept \
@@ -597,10 +637,11 @@ impl Scheduler {
         }
     }
 
-    /// Removes a lease, counts a failure of its tile and worker, and puts the
-    /// tile back in the queue if it is not done. A tile failing too often
-    /// fails its job (see [`Scheduler::take_failed`]).
-    fn release(&mut self, lease: LeaseId, cause: &str) {
+    /// Removes a lease, counts a failure of its tile and worker (unless it
+    /// was returned), and puts the tile back in the queue if it is not done.
+    /// A tile failing too often fails its job (see
+    /// [`Scheduler::take_failed`]).
+    fn release(&mut self, lease: LeaseId, cause: &str, why: Release) {
         let Some(e) = self.leases.remove(&lease) else {
             return;
         };
@@ -614,17 +655,69 @@ impl Scheduler {
         job.requeued.insert(e.tile);
         self.counters.tiles_requeued += 1;
         job.past_leases.insert(lease, (e.tile, e.worker));
+        if why == Release::Returned {
+            return;
+        }
         *job.worker_failures.entry(e.worker).or_default() += 1;
         let r = job.rect(e.tile);
-        let f = job.failures.entry(e.tile).or_insert((0, String::new()));
+        let f = job.failures.entry(e.tile).or_insert((0, 0, String::new()));
         f.0 += 1;
-        f.1 = cause.to_string();
-        if f.0 >= self.cfg.max_tile_failures.max(1) {
-            let msg = format!(
-                "tile {} ({}x{} at ({}, {})) failed {} times; last: {}",
-                e.tile, r.w, r.h, r.x, r.y, f.0, f.1
-            );
-            self.failed.push((e.job, msg));
+        if why == Release::Lost {
+            f.1 += 1;
+        }
+        f.2 = cause.to_string();
+        let tile = format!("tile {} ({}x{} at ({}, {}))", e.tile, r.w, r.h, r.x, r.y);
+        let msg = if f.1 >= self.cfg.max_tile_losses.max(1) {
+            format!(
+                "{tile} lost the worker rendering it {} times (it crashed, hung or was cut \
+                 off while holding the tile); last: {}",
+                f.1, f.2
+            )
+        } else if f.0 >= self.cfg.max_tile_failures.max(1) {
+            format!("{tile} failed {} times; last: {}", f.0, f.2)
+        } else {
+            return;
+        };
+        // Several tiles may reach their limit at once (a worker lost while
+        // holding more than one): the job's error names them all.
+        match self.failed.iter_mut().find(|(j, _)| *j == e.job) {
+            Some((_, m)) => {
+                m.push_str("; also ");
+                m.push_str(&msg);
+            }
+            None => self.failed.push((e.job, msg)),
+        }
+    }
+
+    /// `worker` gives `lease` back before its tile is done: without `error`
+    /// (it is stopping) the tile is re-queued and nothing is counted; with
+    /// one (its render failed) the failure counts against the tile and the
+    /// worker like an invalid result. A lease that is not `worker`'s, or is
+    /// gone already, is refused or left alone.
+    pub fn return_lease(
+        &mut self,
+        worker: WorkerId,
+        lease: LeaseId,
+        error: Option<&str>,
+        now: Instant,
+    ) -> Result<(), SchedError> {
+        self.touch(worker, now)?;
+        match self.leases.get(&lease) {
+            Some(e) if e.worker != worker => {
+                let (job, rect) = (e.job, self.jobs[&e.job].rect(e.tile));
+                Err(SchedError::NotYourLease(lease, worker, rect, job))
+            }
+            Some(_) => {
+                match error {
+                    None => self.release(lease, "returned", Release::Returned),
+                    Some(e) => {
+                        let cause = format!("worker {worker}: {e}");
+                        self.release(lease, &cause, Release::Failed);
+                    }
+                }
+                Ok(())
+            }
+            None => Ok(()),
         }
     }
 
@@ -717,14 +810,15 @@ impl Scheduler {
         };
         j.set_done(idx);
         j.done += 1;
-        j.rays += rays;
+        // Ray counts come from workers: a huge one saturates, never wraps.
+        j.rays = j.rays.saturating_add(rays);
         let last = j.done == j.tiles_total as u64;
         self.counters.tiles_accepted += 1;
-        self.counters.rays += rays;
+        self.counters.rays = self.counters.rays.saturating_add(rays);
         let sec = now_sec(self.epoch, now);
         if let Some(w) = worker.and_then(|w| self.workers.get_mut(&w)) {
             w.tiles_done += 1;
-            w.rays += rays;
+            w.rays = w.rays.saturating_add(rays);
             w.rate.add(sec, 1, rays);
         }
         Ok(Accepted::New { last })
@@ -734,7 +828,7 @@ impl Scheduler {
     /// (unless someone else holds it or it is done).
     pub fn reject_tile(&mut self, lease: LeaseId, cause: &str) {
         self.counters.tiles_rejected += 1;
-        self.release(lease, cause);
+        self.release(lease, cause, Release::Failed);
     }
 
     /// Moves an unfinished job to priority `priority` (its place among jobs
@@ -1239,5 +1333,113 @@ mod tests {
         assert!(failed[0].1.contains("NaN in pixel"), "{}", failed[0].1);
         // w2 comes back: too late, the job is over once the farm ends it.
         assert_eq!(s.heartbeat(w2, &[], t1), Ok(vec![]));
+    }
+
+    #[test]
+    fn a_tile_that_loses_its_worker_three_times_fails_its_job_naming_the_tile() {
+        // The scene crashes every worker that renders tile 1: each one's
+        // lease runs out. Tile 0 is rendered fine.
+        let (mut s, mut now, w) = sched();
+        let j = s.submit(spec(0, 8, 4, 4), now);
+        let first = s.lease(w, now).unwrap().unwrap();
+        s.accept_tile(j, first.rect, 1, now).unwrap();
+        for n in 1..=3 {
+            let w = s.register_worker(now);
+            let l = s.lease(w, now).unwrap().unwrap();
+            assert_eq!(l.rect, Rect::new(4, 0, 4, 4));
+            now += Duration::from_secs(6);
+            assert_eq!(s.expire(now), 1);
+            let failed = s.take_failed();
+            if n < 3 {
+                assert!(failed.is_empty(), "after {n} losses: {failed:?}");
+            } else {
+                assert_eq!(failed.len(), 1, "{failed:?}");
+                assert_eq!(failed[0].0, j);
+                let m = &failed[0].1;
+                assert!(m.contains("tile 1 (4x4 at (4, 0))"), "{m}");
+                assert!(m.contains("lost the worker rendering it 3 times"), "{m}");
+            }
+        }
+    }
+
+    #[test]
+    fn tiles_lost_together_are_all_named() {
+        let now = Instant::now();
+        let mut s = Scheduler::new(
+            SchedulerConfig {
+                lease_ttl: Duration::from_secs(5),
+                max_tile_losses: 1,
+                ..SchedulerConfig::default()
+            },
+            1,
+        );
+        let w = s.register_worker(now);
+        let j = s.submit(spec(0, 8, 4, 4), now);
+        s.lease(w, now).unwrap().unwrap();
+        s.lease(w, now).unwrap().unwrap();
+        s.expire(now + Duration::from_secs(6));
+        let failed = s.take_failed();
+        assert_eq!(failed.len(), 1, "one entry per job: {failed:?}");
+        assert_eq!(failed[0].0, j);
+        let m = &failed[0].1;
+        assert!(m.contains("at (0, 0)") && m.contains("at (4, 0)"), "{m}");
+    }
+
+    #[test]
+    fn a_returned_lease_requeues_for_free_and_a_failed_render_counts() {
+        let (mut s, t0, w) = sched();
+        let w2 = s.register_worker(t0);
+        let j = s.submit(spec(0, 4, 4, 4), t0);
+        // Given back unrendered (the worker is stopping), many times over:
+        // the tile is re-queued at once and nothing is counted.
+        for _ in 0..10 {
+            let l = s.lease(w, t0).unwrap().unwrap();
+            assert_eq!(
+                s.return_lease(w2, l.id, None, t0),
+                Err(SchedError::NotYourLease(l.id, w2, l.rect, j)),
+                "only the holder may give a lease back"
+            );
+            s.return_lease(w, l.id, None, t0).unwrap();
+            assert!(s.take_failed().is_empty());
+        }
+        assert_eq!(s.info(j, t0).unwrap().state, JobState::Running);
+        // A render that panicked counts like an invalid result: five fail
+        // the job (max_tile_failures), with the worker's own words. Two
+        // workers, so neither is benched before the tile's limit (3 each).
+        for i in 0..5 {
+            let who = if i % 2 == 0 { w } else { w2 };
+            let l = s.lease(who, t0).unwrap().unwrap();
+            s.return_lease(who, l.id, Some("the render panicked: boom"), t0)
+                .unwrap();
+        }
+        let failed = s.take_failed();
+        assert_eq!(failed.len(), 1, "{failed:?}");
+        assert!(
+            failed[0]
+                .1
+                .contains("tile 0 (4x4 at (0, 0)) failed 5 times"),
+            "{}",
+            failed[0].1
+        );
+        assert!(
+            failed[0].1.contains("the render panicked: boom"),
+            "{}",
+            failed[0].1
+        );
+        // A lease that is gone already is left alone.
+        assert_eq!(s.return_lease(w, 12345, Some("late"), t0), Ok(()));
+    }
+
+    #[test]
+    fn ray_counts_saturate_instead_of_wrapping() {
+        let (mut s, t0, w) = sched();
+        let j = s.submit(spec(0, 8, 4, 4), t0);
+        for _ in 0..2 {
+            let l = s.lease(w, t0).unwrap().unwrap();
+            s.accept_tile(j, l.rect, u64::MAX, t0).unwrap();
+        }
+        assert_eq!(s.info(j, t0).unwrap().rays, u64::MAX);
+        assert_eq!(s.counters().rays, u64::MAX);
+        assert_eq!(s.workers(t0)[0].rays, u64::MAX);
     }
 }

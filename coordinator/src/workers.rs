@@ -28,8 +28,9 @@ impl Rate {
         if b.0 != sec {
             *b = (sec, 0, 0);
         }
-        b.1 += tiles;
-        b.2 += rays;
+        // Rays come from the network: a huge count must not wrap.
+        b.1 = b.1.saturating_add(tiles);
+        b.2 = b.2.saturating_add(rays);
     }
 
     /// (tiles/s, rays/s) over the [`RATE_WINDOW_S`] whole seconds before
@@ -39,8 +40,8 @@ impl Rate {
         let (mut tiles, mut rays) = (0, 0);
         for &(s, t, r) in &self.buckets {
             if s >= from && s < sec && (t > 0 || r > 0) {
-                tiles += t;
-                rays += r;
+                tiles = u64::saturating_add(tiles, t);
+                rays = u64::saturating_add(rays, r);
             }
         }
         let w = RATE_WINDOW_S as f64;
@@ -80,6 +81,9 @@ pub struct WorkerEntry {
     pub tiles_done: u64,
     pub rays: u64,
     pub rate: Rate,
+    /// The secret its registration was given, which every later call must
+    /// present (none: registered in-process, not reachable over gRPC).
+    pub session: Option<[u8; 32]>,
 }
 
 impl WorkerEntry {
@@ -91,7 +95,24 @@ impl WorkerEntry {
             tiles_done: 0,
             rays: 0,
             rate: Rate::default(),
+            session: None,
         }
+    }
+
+    /// Whether `presented` is this worker's session secret, compared in
+    /// time that does not depend on where they differ.
+    pub fn session_is(&self, presented: &[u8]) -> bool {
+        let Some(secret) = &self.session else {
+            return false;
+        };
+        if presented.len() != secret.len() {
+            return false;
+        }
+        let diff = secret
+            .iter()
+            .zip(presented)
+            .fold(0u8, |acc, (a, b)| acc | (a ^ b));
+        std::hint::black_box(diff) == 0
     }
 
     /// Busy, idle or lost, given how many leases it holds.
@@ -150,6 +171,27 @@ mod tests {
         // Second 12 lands in second 1's bucket: the old count must go.
         r.add(12, 2, 2);
         assert_eq!(r.per_second(13), (0.2, 0.2));
+    }
+
+    #[test]
+    fn a_session_matches_only_its_own_secret() {
+        let mut w = WorkerEntry::new(Instant::now());
+        assert!(!w.session_is(&[]), "no session: nothing matches");
+        w.session = Some([7; 32]);
+        assert!(w.session_is(&[7; 32]));
+        let mut other = [7; 32];
+        other[31] = 8;
+        assert!(!w.session_is(&other));
+        assert!(!w.session_is(&[7; 31]));
+        assert!(!w.session_is(&[]));
+    }
+
+    #[test]
+    fn rate_saturates_instead_of_wrapping() {
+        let mut r = Rate::default();
+        r.add(1, 1, u64::MAX);
+        r.add(1, 1, u64::MAX);
+        assert_eq!(r.per_second(2).1, u64::MAX as f64 / RATE_WINDOW_S as f64);
     }
 
     #[test]

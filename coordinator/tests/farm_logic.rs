@@ -331,6 +331,7 @@ fn a_tile_failing_too_often_fails_its_job_and_a_failing_worker_is_benched() {
             window_bytes: 1 << 30,
             max_tile_failures: 3,
             max_worker_failures: 2,
+            max_tile_losses: 3,
         },
         ..FarmConfig::new(dir.path())
     })
@@ -477,4 +478,62 @@ fn metrics_count_the_job_s_tiles_and_priority_changes_reorder_jobs() {
     assert_eq!(value("trevi_workers{state=\"idle\"}"), 1.0);
     assert_eq!(value("trevi_queue_depth_jobs"), 0.0);
     assert!(matches!(f.set_priority(a, 1), Err(FarmError::JobOver(_))));
+}
+
+#[test]
+fn huge_ray_counts_saturate_and_negative_or_infinite_pixels_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+    let job = f.submit(spec(32, 16, 16, "o.png", 0)).unwrap().id;
+    let w = f.register_worker();
+    let l = f.lease(w).unwrap().unwrap();
+    for (bad, what) in [(-1e30f32, "negative"), (f32::INFINITY, "not finite")] {
+        let mut px = pixels(l.rect);
+        px[5][1] = bad;
+        let e = f.put_tile(l.id, job, l.rect, 1, &px).unwrap_err();
+        assert!(
+            matches!(&e, FarmError::BadTile(m) if m.contains(what) && m.contains("(5, 0)")),
+            "{e}"
+        );
+    }
+    // A negative zero is a zero: taken. Both tiles claim 2^64-1 rays.
+    let again = f.lease(w).unwrap().unwrap();
+    assert_eq!(again.rect, l.rect, "the refused tile comes back first");
+    let mut px = pixels(again.rect);
+    px[0] = [-0.0, 0.0, 0.0];
+    f.put_tile(again.id, job, again.rect, u64::MAX, &px)
+        .unwrap();
+    let last = f.lease(w).unwrap().unwrap();
+    f.put_tile(last.id, job, last.rect, u64::MAX, &pixels(last.rect))
+        .unwrap();
+    let info = f.info(job).unwrap();
+    assert_eq!((info.state, info.rays), (JobState::Done, u64::MAX));
+    let snap = f.snapshot();
+    assert_eq!(snap.counters.rays, u64::MAX, "trevi_rays_total wrapped");
+    assert_eq!(snap.workers[0].rays, u64::MAX);
+}
+
+#[test]
+fn a_worker_acts_only_with_its_own_session_secret() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
+    let (a, sa) = f.register_worker_session("a", 1).unwrap();
+    let (b, sb) = f.register_worker_session("b", 1).unwrap();
+    assert_ne!(sa, sb, "secrets are random");
+    assert_ne!(sa, [0u8; 32]);
+    f.check_session(a, &sa).unwrap();
+    f.check_session(b, &sb).unwrap();
+    for wrong in [&sb[..], &[][..], &sa[..31]] {
+        let e = f.check_session(a, wrong).unwrap_err();
+        assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e}");
+    }
+    let e = f.check_session(b + 100, &sb).unwrap_err();
+    assert_eq!(
+        e.code(),
+        tonic::Code::Unauthenticated,
+        "unknown: register again"
+    );
+    // A worker registered in-process has no secret: nothing matches it.
+    let c = f.register_worker();
+    assert!(f.check_session(c, &[0u8; 32]).is_err());
 }

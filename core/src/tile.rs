@@ -7,6 +7,7 @@
 use crate::integrator::{Integrator, RayObserver, RenderOptions};
 use crate::world::Scene;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// A rectangle of pixels: columns `x..x+w`, rows `y..y+h` (row 0 at the top).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -89,6 +90,36 @@ pub fn render_tile_observed<O: RayObserver>(
     options: RenderOptions,
     observer: &O,
 ) -> TileResult {
+    let never = AtomicBool::new(false);
+    render_rows(scene, camera, rect, options, observer, &never).expect("never cancelled")
+}
+
+/// The render of a tile was stopped by its cancellation flag.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the render of the tile was cancelled")]
+pub struct Cancelled;
+
+/// [`render_tile`] that gives up soon after `cancel` turns true: the flag is
+/// read before every pixel, so a tile stops within one pixel's work per
+/// thread however expensive the tile. An uncancelled render returns exactly
+/// the pixels of [`render_tile`].
+pub fn render_tile_cancellable(
+    scene: &Scene,
+    camera: usize,
+    rect: Rect,
+    cancel: &AtomicBool,
+) -> Result<TileResult, Cancelled> {
+    render_rows(scene, camera, rect, RenderOptions::default(), &(), cancel)
+}
+
+fn render_rows<O: RayObserver>(
+    scene: &Scene,
+    camera: usize,
+    rect: Rect,
+    options: RenderOptions,
+    observer: &O,
+    cancel: &AtomicBool,
+) -> Result<TileResult, Cancelled> {
     let integrator = Integrator::observed(scene, camera, options, observer);
     let mut pixels = vec![[0.0f32; 3]; rect.pixel_count()];
     let rays = pixels
@@ -98,6 +129,9 @@ pub fn render_tile_observed<O: RayObserver>(
             let y = rect.y + row as u32;
             let mut rays = 0;
             for (i, px) in out.iter_mut().enumerate() {
+                if cancel.load(Ordering::Relaxed) {
+                    break;
+                }
                 let (v, r) = integrator.pixel(rect.x + i as u32, y);
                 *px = v;
                 rays += r;
@@ -105,7 +139,10 @@ pub fn render_tile_observed<O: RayObserver>(
             rays
         })
         .sum();
-    TileResult { pixels, rays }
+    if cancel.load(Ordering::Relaxed) {
+        return Err(Cancelled);
+    }
+    Ok(TileResult { pixels, rays })
 }
 
 #[cfg(test)]
@@ -135,5 +172,34 @@ mod tests {
             // Band order: rows never go back up.
             assert!(tiles.windows(2).all(|p| p[0].y <= p[1].y));
         }
+    }
+
+    fn scene() -> Scene {
+        let xml = r#"<scene version="1">
+  <sphere id="s" center="0 0 0" radius="1"> <surface diffuse="0.8 0.3 0.2"/> </sphere>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1"/>
+  <camera id="c" position="0 0 5" lookat="0 0 0" up="0 1 0" fov="50">
+    <render width="8" height="6" output="o.png"/>
+  </camera>
+</scene>"#;
+        let bundle = crate::Bundle {
+            scene: "s.xml".into(),
+            files: [("s.xml".to_string(), xml.as_bytes().to_vec())].into(),
+        };
+        Scene::from_bundle(&bundle).unwrap()
+    }
+
+    #[test]
+    fn a_cancellable_render_matches_render_tile_unless_cancelled() {
+        let scene = scene();
+        let rect = Rect::new(0, 0, 8, 6);
+        let flag = AtomicBool::new(false);
+        let r = render_tile_cancellable(&scene, 0, rect, &flag).unwrap();
+        assert_eq!(r, render_tile(&scene, 0, rect));
+        flag.store(true, Ordering::Relaxed);
+        assert_eq!(
+            render_tile_cancellable(&scene, 0, rect, &flag),
+            Err(Cancelled)
+        );
     }
 }

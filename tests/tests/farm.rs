@@ -219,29 +219,30 @@ fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
     let rt = runtime();
     rt.block_on(async {
         let mut w = WorkersClient::connect(c.url.clone()).await.unwrap();
-        let id = w
+        let reg = w
             .register(pb::RegisterRequest {
                 name: "liar".into(),
                 threads: 1,
             })
             .await
             .unwrap()
-            .into_inner()
-            .worker_id;
+            .into_inner();
+        let (id, session) = (reg.worker_id, reg.session);
+        let lease_req = || pb::LeaseRequest {
+            worker_id: id,
+            session: session.clone(),
+            ..Default::default()
+        };
         let mut lease = None;
         while lease.is_none() {
-            lease = w
-                .lease_tile(pb::LeaseRequest { worker_id: id })
-                .await
-                .unwrap()
-                .into_inner()
-                .lease;
+            lease = w.lease_tile(lease_req()).await.unwrap().into_inner().lease;
         }
         let lease = lease.unwrap();
         let rect: trevi_core::Rect = lease.rect.unwrap().into();
         let sender = w.clone();
         let send = |pixels: Vec<[f32; 3]>, lease: pb::Lease| {
             let mut w = sender.clone();
+            let session = session.clone();
             async move {
                 let msgs = vec![
                     pb::TileUpload {
@@ -251,6 +252,7 @@ fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
                             job_id: lease.job_id,
                             rect: lease.rect,
                             rays: 1,
+                            session,
                         })),
                     },
                     pb::TileUpload {
@@ -268,7 +270,7 @@ fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
         // The tile is back in the queue, first.
         let again = w
-            .lease_tile(pb::LeaseRequest { worker_id: id })
+            .lease_tile(lease_req())
             .await
             .unwrap()
             .into_inner()

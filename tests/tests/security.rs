@@ -390,23 +390,31 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
             .unwrap()
             .into_inner()
             .id;
-        let me = w
+        let reg = w
             .register(pb::RegisterRequest {
                 name: "liar".into(),
                 threads: 1,
             })
             .await
             .unwrap()
+            .into_inner();
+        let (me, session) = (reg.worker_id, reg.session);
+        let other = w
+            .register(pb::RegisterRequest {
+                name: "other".into(),
+                threads: 1,
+            })
+            .await
+            .unwrap()
             .into_inner()
             .worker_id;
+        let lease_req = || pb::LeaseRequest {
+            worker_id: me,
+            session: session.clone(),
+            ..Default::default()
+        };
         let lease = loop {
-            if let Some(l) = w
-                .lease_tile(pb::LeaseRequest { worker_id: me })
-                .await
-                .unwrap()
-                .into_inner()
-                .lease
-            {
+            if let Some(l) = w.lease_tile(lease_req()).await.unwrap().into_inner().lease {
                 break l;
             }
         };
@@ -414,6 +422,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
         let sender = w.clone();
         let send = |worker_id: u64, lease_id: u64, rect: pb::Rect, pixels: Vec<Vec<u8>>| {
             let mut w = sender.clone();
+            let session = session.clone();
             async move {
                 let mut msgs = vec![pb::TileUpload {
                     part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
@@ -422,6 +431,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
                         job_id: job,
                         rect: Some(rect),
                         rays: 1,
+                        session,
                     })),
                 }];
                 msgs.extend(pixels.into_iter().map(|p| pb::TileUpload {
@@ -442,8 +452,9 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
         .await
         .unwrap_err();
         assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        // Another registration's id (with this one's session secret).
         let e = send(
-            me + 1,
+            other,
             lease.lease_id,
             lease.rect.unwrap(),
             vec![full.clone()],
@@ -478,13 +489,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
             Code::InvalidArgument
         );
         let again = loop {
-            if let Some(l) = w
-                .lease_tile(pb::LeaseRequest { worker_id: me })
-                .await
-                .unwrap()
-                .into_inner()
-                .lease
-            {
+            if let Some(l) = w.lease_tile(lease_req()).await.unwrap().into_inner().lease {
                 break l;
             }
         };

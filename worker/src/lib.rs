@@ -6,9 +6,17 @@
 //! heartbeating the lease, and stream the pixels back. It keeps nothing that
 //! matters: kill it at any moment and the coordinator re-queues its tile when
 //! the lease runs out. It survives a coordinator restart by reconnecting and
-//! registering again. When `shutdown` turns true it finishes the tile in
-//! hand, sends it, and returns.
+//! registering again.
+//!
+//! A lease is held only by a tile being worked on: a loop takes the render
+//! threads before it asks for a lease, so no tile waits behind another while
+//! its lease is kept alive. A render stops within a pixel once its lease is
+//! dropped (the job was cancelled) or `shutdown` turns true; then the worker
+//! gives the lease back unrendered and returns. A render that panics is
+//! reported to the coordinator (which counts it against the tile) and the
+//! worker goes on.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::watch;
@@ -36,6 +44,55 @@ pub struct WorkerConfig {
     pub token: Option<String>,
     /// The CA to trust and the name to expect for an `https://` coordinator.
     pub tls: trevi_proto::ClientTls,
+    /// How often a lease is heartbeated while its tile renders (at most a
+    /// third of the lease's lifetime), and the longest one `LeaseTile` call
+    /// waits: how soon a cancelled job or a stop ends a render.
+    pub poll: Duration,
+    /// Tests only: make the render of one tile fail (see [`TestFault`]).
+    #[doc(hidden)]
+    pub test_fault: Option<TestFault>,
+}
+
+/// The default [`WorkerConfig::poll`].
+pub const POLL: Duration = Duration::from_millis(500);
+
+/// Tests only: a deliberate failure when rendering the tile whose top-left
+/// corner is at (`x`, `y`), standing in for a scene that crashes the
+/// renderer. Set by `trevi-worker` from `TREVI_TEST_ABORT_ON_TILE=x,y` or
+/// `TREVI_TEST_PANIC_ON_TILE=x,y`.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TestFault {
+    pub x: u32,
+    pub y: u32,
+    /// Abort the process (like a stack overflow) rather than panic.
+    pub abort: bool,
+}
+
+impl TestFault {
+    /// Reads `x,y` from `var`; `None` when it is unset or malformed.
+    pub fn from_env(var: &str, abort: bool) -> Option<TestFault> {
+        let v = std::env::var(var).ok()?;
+        let (x, y) = v.split_once(',')?;
+        Some(TestFault {
+            x: x.trim().parse().ok()?,
+            y: y.trim().parse().ok()?,
+            abort,
+        })
+    }
+
+    fn strike(&self, rect: Rect) {
+        if (rect.x, rect.y) == (self.x, self.y) {
+            if self.abort {
+                eprintln!(
+                    "test fault: aborting on the tile at ({}, {})",
+                    rect.x, rect.y
+                );
+                std::process::abort();
+            }
+            panic!("test fault: panic on the tile at ({}, {})", rect.x, rect.y);
+        }
+    }
 }
 
 impl WorkerConfig {
@@ -48,6 +105,8 @@ impl WorkerConfig {
             tiles_in_flight: 2,
             token: None,
             tls: trevi_proto::ClientTls::default(),
+            poll: POLL,
+            test_fault: None,
         }
     }
 }
@@ -148,6 +207,7 @@ pub async fn run(
                         .max_decoding_message_size(MAX_MESSAGE_SIZE),
                     pool: pool.clone(),
                     threads,
+                    render: Arc::new(tokio::sync::Semaphore::new(1)),
                 };
                 s.serve(&cfg, &cache, &shutdown, &mut backoff).await
             }
@@ -194,6 +254,40 @@ struct Session {
     bundles: BundlesClient<AuthChannel>,
     pool: Arc<rayon::ThreadPool>,
     threads: usize,
+    /// One permit: the tile that has the render threads. A loop takes it
+    /// before leasing and gives it up once its tile is rendered, so the
+    /// others send their results meanwhile but never hold a lease they are
+    /// not working on.
+    render: Arc<tokio::sync::Semaphore>,
+}
+
+/// Who the coordinator registered us as.
+#[derive(Clone)]
+struct Me {
+    id: u64,
+    session: Vec<u8>,
+}
+
+/// How working on one leased tile ended.
+enum TileEnd {
+    Rendered(Vec<[f32; 3]>, u64),
+    /// The coordinator no longer wants it (the job was cancelled or the
+    /// lease expired): the render was stopped.
+    Dropped,
+    /// `shutdown` turned true: the render was stopped.
+    Stopped,
+    /// The scene could not be loaded, or the render panicked.
+    Failed(String),
+}
+
+/// Sets a render's cancellation flag when dropped, so a loop aborted midway
+/// (the session ends) does not leave its render running.
+struct CancelOnDrop(Arc<AtomicBool>);
+
+impl Drop for CancelOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
 }
 
 fn reconnect(what: &str, s: tonic::Status) -> End {
@@ -206,6 +300,14 @@ fn reconnect(what: &str, s: tonic::Status) -> End {
         }
     }
     End::Reconnect(why)
+}
+
+/// The message of a caught panic.
+fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".to_string())
 }
 
 impl Session {
@@ -228,14 +330,21 @@ impl Session {
             Err(s) => return reconnect("register", s),
         };
         *backoff = Duration::from_millis(100);
-        let worker = reg.worker_id;
-        let beat = Duration::from_millis((reg.lease_ttl_ms / 3).max(10));
-        tracing::info!(worker, coordinator = %cfg.coordinator, threads = self.threads, "registered");
+        let me = Me {
+            id: reg.worker_id,
+            session: reg.session,
+        };
+        let beat = cfg
+            .poll
+            .min(Duration::from_millis(reg.lease_ttl_ms / 3))
+            .max(Duration::from_millis(10));
+        tracing::info!(worker = me.id, coordinator = %cfg.coordinator, threads = self.threads, "registered");
         let mut slots = tokio::task::JoinSet::new();
         for _ in 0..cfg.tiles_in_flight.max(1) {
             let mut slot = self.clone();
-            let (cache, shutdown) = (cache.clone(), shutdown.clone());
-            slots.spawn(async move { slot.work(worker, beat, cache, shutdown).await });
+            let (cache, shutdown, me) = (cache.clone(), shutdown.clone(), me.clone());
+            let (poll, fault) = (cfg.poll, cfg.test_fault);
+            slots.spawn(async move { slot.work(me, beat, poll, fault, cache, shutdown).await });
         }
         let mut end = End::Shutdown;
         while let Some(r) = slots.join_next().await {
@@ -253,22 +362,38 @@ impl Session {
     /// One lease → render → send loop.
     async fn work(
         &mut self,
-        worker: u64,
+        me: Me,
         beat: Duration,
+        poll: Duration,
+        fault: Option<TestFault>,
         cache: Arc<tokio::sync::Mutex<SceneCache>>,
-        shutdown: watch::Receiver<bool>,
+        mut shutdown: watch::Receiver<bool>,
     ) -> End {
         loop {
             if *shutdown.borrow() {
                 return End::Shutdown;
             }
+            let permit = tokio::select! {
+                p = self.render.clone().acquire_owned() => match p {
+                    Ok(p) => p,
+                    Err(_) => return End::Shutdown,
+                },
+                // A closed channel: no one can stop us any more, so stop.
+                r = shutdown.changed() => match r {
+                    Ok(()) => continue,
+                    Err(_) => return End::Shutdown,
+                },
+            };
             // Not interrupted by `shutdown`: a lease granted while the answer
             // is on its way would be lost until it expires. The call returns
-            // within the coordinator's short wait, and a tile it brings is
-            // finished before stopping.
+            // within `poll`, and a tile it brings is given back at once.
             let lease = self
                 .workers
-                .lease_tile(pb::LeaseRequest { worker_id: worker })
+                .lease_tile(pb::LeaseRequest {
+                    worker_id: me.id,
+                    session: me.session.clone(),
+                    max_wait_ms: poll.as_millis().clamp(1, u32::MAX as u128) as u32,
+                })
                 .await;
             let lease = match lease {
                 Ok(r) => match r.into_inner().lease {
@@ -284,50 +409,164 @@ impl Session {
                     continue;
                 }
             };
-            let scene = {
-                let mut cache = cache.lock().await;
-                self.scene(&mut cache, &lease.bundle_hash).await
+            let end = if *shutdown.borrow() {
+                TileEnd::Stopped
+            } else {
+                self.tile(&me, &lease, rect, beat, fault, &cache, &mut shutdown)
+                    .await
             };
-            let scene = match scene {
-                Ok(s) => s,
-                Err(e) => {
-                    // The lease runs out and the tile goes to someone else;
-                    // pause so a broken bundle is not fetched in a tight loop.
-                    tracing::error!(bundle = %lease.bundle_hash, "cannot load the scene: {e}");
-                    tokio::time::sleep(Duration::from_secs(1)).await;
-                    continue;
-                }
-            };
-            let Some(camera) = scene.camera_index(&lease.camera) else {
-                tracing::error!(camera = %lease.camera, "the scene has no such camera");
-                tokio::time::sleep(Duration::from_secs(1)).await;
-                continue;
-            };
-            match self.render(worker, &lease, scene, camera, rect, beat).await {
-                Ok(Some((pixels, rays))) => {
-                    tracing::debug!(
-                        lease = lease.lease_id,
-                        job = lease.job_id,
-                        x = rect.x,
-                        y = rect.y,
-                        "tile rendered"
-                    );
-                    if let Err(s) = self.send(worker, &lease, rect, rays, &pixels).await {
+            drop(permit);
+            let (x, y, id) = (rect.x, rect.y, lease.lease_id);
+            match end {
+                TileEnd::Rendered(pixels, rays) => {
+                    tracing::debug!(lease = id, job = lease.job_id, x, y, "tile rendered");
+                    if let Err(s) = self.send(&me, &lease, rect, rays, &pixels).await {
                         if s.code() == Code::InvalidArgument {
-                            tracing::error!(
-                                lease = lease.lease_id,
-                                "tile rejected: {}",
-                                s.message()
-                            );
+                            tracing::error!(lease = id, "tile rejected: {}", s.message());
                         } else {
                             return reconnect("sending a tile", s);
                         }
                     }
                 }
-                Ok(None) => {
-                    tracing::info!(lease = lease.lease_id, "lease dropped by the coordinator")
+                TileEnd::Dropped => {
+                    tracing::info!(
+                        lease = id,
+                        x,
+                        y,
+                        "lease dropped by the coordinator; render cancelled"
+                    )
                 }
-                Err(end) => return end,
+                TileEnd::Stopped => {
+                    tracing::info!(
+                        lease = id,
+                        x,
+                        y,
+                        "stopping: render cancelled, lease given back"
+                    );
+                    self.give_back(&me, id, String::new()).await;
+                    return End::Shutdown;
+                }
+                TileEnd::Failed(why) => {
+                    tracing::error!(lease = id, job = lease.job_id, x, y, "tile failed: {why}");
+                    self.give_back(&me, id, why).await;
+                    // Do not take the next tile of a broken job in a tight loop.
+                    tokio::select! {
+                        _ = tokio::time::sleep(Duration::from_secs(1)) => {}
+                        _ = shutdown.changed() => {}
+                    }
+                }
+            }
+        }
+    }
+
+    /// Returns a lease unfinished (`error` empty: unrendered, no fault).
+    async fn give_back(&mut self, me: &Me, lease: u64, error: String) {
+        let r = self
+            .workers
+            .return_tile(pb::TileReturn {
+                worker_id: me.id,
+                session: me.session.clone(),
+                lease_id: lease,
+                error,
+            })
+            .await;
+        if let Err(s) = r {
+            // The lease then runs out on its own.
+            tracing::warn!(lease, "cannot give the lease back: {}", s.message());
+        }
+    }
+
+    /// Loads the scene and renders the tile while heartbeating its lease;
+    /// stops the render when the lease is dropped or `shutdown` turns true.
+    #[allow(clippy::too_many_arguments)]
+    async fn tile(
+        &mut self,
+        me: &Me,
+        lease: &pb::Lease,
+        rect: Rect,
+        beat: Duration,
+        fault: Option<TestFault>,
+        cache: &Arc<tokio::sync::Mutex<SceneCache>>,
+        shutdown: &mut watch::Receiver<bool>,
+    ) -> TileEnd {
+        let cancel = Arc::new(AtomicBool::new(false));
+        let _guard = CancelOnDrop(cancel.clone());
+        let work = {
+            let mut s = self.clone();
+            let (cache, cancel) = (cache.clone(), cancel.clone());
+            let (hash, camera) = (lease.bundle_hash.clone(), lease.camera.clone());
+            async move {
+                let scene = {
+                    let mut cache = cache.lock().await;
+                    s.scene(&mut cache, &hash).await
+                };
+                let scene = match scene {
+                    Ok(s) => s,
+                    Err(e) => return TileEnd::Failed(format!("cannot load the scene: {e}")),
+                };
+                let Some(camera) = scene.camera_index(&camera) else {
+                    return TileEnd::Failed(format!("the scene has no camera \"{camera}\""));
+                };
+                let pool = s.pool.clone();
+                let job = tokio::task::spawn_blocking(move || {
+                    pool.install(|| {
+                        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                            if let Some(f) = fault {
+                                f.strike(rect);
+                            }
+                            trevi_core::tile::render_tile_cancellable(&scene, camera, rect, &cancel)
+                        }))
+                    })
+                });
+                match job.await {
+                    Ok(Ok(Ok(r))) => TileEnd::Rendered(r.pixels, r.rays),
+                    Ok(Ok(Err(trevi_core::tile::Cancelled))) => TileEnd::Dropped,
+                    Ok(Err(panic)) => TileEnd::Failed(format!(
+                        "the render panicked: {}",
+                        panic_message(panic.as_ref())
+                    )),
+                    Err(e) => TileEnd::Failed(format!("the render task failed: {e}")),
+                }
+            }
+        };
+        tokio::pin!(work);
+        let (mut dropped, mut stopping) = (false, false);
+        let mut tick = tokio::time::interval(beat);
+        tick.tick().await;
+        loop {
+            tokio::select! {
+                end = &mut work => {
+                    return match end {
+                        _ if stopping => TileEnd::Stopped,
+                        TileEnd::Rendered(..) if dropped => TileEnd::Dropped,
+                        end => end,
+                    };
+                }
+                _ = tick.tick(), if !dropped && !stopping => {
+                    let hb = self.workers.heartbeat(pb::HeartbeatRequest {
+                        worker_id: me.id,
+                        lease_ids: vec![lease.lease_id],
+                        session: me.session.clone(),
+                    }).await;
+                    dropped = match hb {
+                        Ok(r) => !r.into_inner().dropped.is_empty(),
+                        Err(s) if matches!(s.code(), Code::Unauthenticated | Code::PermissionDenied) => true,
+                        Err(s) => {
+                            tracing::warn!("heartbeat failed: {}", s.message());
+                            false
+                        }
+                    };
+                    if dropped {
+                        cancel.store(true, Ordering::Relaxed);
+                    }
+                }
+                r = shutdown.changed(), if !stopping => {
+                    // A closed channel means the sender is gone: stop too.
+                    if r.is_err() || *shutdown.borrow() {
+                        stopping = true;
+                        cancel.store(true, Ordering::Relaxed);
+                    }
+                }
             }
         }
     }
@@ -371,55 +610,15 @@ impl Session {
         Ok(scene)
     }
 
-    /// Renders while heartbeating; `None` when the coordinator dropped the lease.
-    async fn render(
-        &mut self,
-        worker: u64,
-        lease: &pb::Lease,
-        scene: Arc<Scene>,
-        camera: usize,
-        rect: Rect,
-        beat: Duration,
-    ) -> Result<Option<(Vec<[f32; 3]>, u64)>, End> {
-        let pool = self.pool.clone();
-        let mut job = tokio::task::spawn_blocking(move || {
-            pool.install(|| trevi_core::render_tile(&scene, camera, rect))
-        });
-        let mut dropped = false;
-        let mut tick = tokio::time::interval(beat);
-        tick.tick().await;
-        loop {
-            tokio::select! {
-                r = &mut job => {
-                    let r = r.map_err(|e| End::Reconnect(format!("render task failed: {e}")))?;
-                    return Ok((!dropped).then_some((r.pixels, r.rays)));
-                }
-                _ = tick.tick(), if !dropped => {
-                    let hb = self.workers.heartbeat(pb::HeartbeatRequest {
-                        worker_id: worker,
-                        lease_ids: vec![lease.lease_id],
-                    }).await;
-                    match hb {
-                        // Finish the tile anyway (it cannot be interrupted),
-                        // but do not send it.
-                        Ok(r) => dropped = !r.into_inner().dropped.is_empty(),
-                        Err(s) if s.code() == Code::Unauthenticated => dropped = true,
-                        Err(s) => tracing::warn!("heartbeat failed: {}", s.message()),
-                    }
-                }
-            }
-        }
-    }
-
     async fn send(
         &mut self,
-        worker: u64,
+        me: &Me,
         lease: &pb::Lease,
         rect: Rect,
         rays: u64,
         pixels: &[[f32; 3]],
     ) -> Result<bool, tonic::Status> {
-        let msgs = tile_messages(worker, lease, rect, rays, pixels);
+        let msgs = tile_messages(me.id, &me.session, lease, rect, rays, pixels);
         let ack = self
             .workers
             .submit_tile(tokio_stream::iter(msgs))
@@ -432,6 +631,7 @@ impl Session {
 /// The messages of a tile upload: the header, then the pixels in chunks.
 pub fn tile_messages(
     worker: u64,
+    session: &[u8],
     lease: &pb::Lease,
     rect: Rect,
     rays: u64,
@@ -446,6 +646,7 @@ pub fn tile_messages(
             job_id: lease.job_id,
             rect: Some(rect.into()),
             rays,
+            session: session.to_vec(),
         })),
     }];
     msgs.extend(bytes.chunks(CHUNK_SIZE).map(|c| pb::TileUpload {

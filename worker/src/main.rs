@@ -36,6 +36,11 @@ struct Args {
     /// not the URL's host.
     #[arg(long, env = "TREVI_TLS_DOMAIN")]
     tls_domain: Option<String>,
+    /// How often a rendering tile's lease is heartbeated, and the longest
+    /// wait for a lease, in milliseconds: how soon a cancelled job or a stop
+    /// (SIGTERM) ends a render.
+    #[arg(long, env = "TREVI_POLL_MS", default_value_t = trevi_worker::POLL.as_millis() as u64)]
+    poll_ms: u64,
 }
 
 #[tokio::main]
@@ -52,6 +57,11 @@ async fn main() -> Result<()> {
     cfg.threads = args.threads;
     cfg.cache_size = args.scene_cache;
     cfg.tiles_in_flight = args.tiles_in_flight;
+    anyhow::ensure!(args.poll_ms > 0, "--poll-ms must be at least 1");
+    cfg.poll = std::time::Duration::from_millis(args.poll_ms);
+    // Hooks for the end-to-end tests: a tile that crashes the renderer.
+    cfg.test_fault = trevi_worker::TestFault::from_env("TREVI_TEST_ABORT_ON_TILE", true)
+        .or_else(|| trevi_worker::TestFault::from_env("TREVI_TEST_PANIC_ON_TILE", false));
     cfg.tls = trevi_proto::ClientTls {
         ca_file: args.tls_ca,
         domain: args.tls_domain,
@@ -71,7 +81,7 @@ async fn main() -> Result<()> {
     let (tx, rx) = tokio::sync::watch::channel(false);
     tokio::spawn(async move {
         wait_for_signal().await;
-        tracing::info!("stopping: finishing the tile in hand");
+        tracing::info!("stopping: cancelling the tile in hand");
         let _ = tx.send(true);
     });
     trevi_worker::run(cfg, rx)
