@@ -77,6 +77,63 @@ impl Default for Limits {
     }
 }
 
+/// How long ended jobs (done, failed, cancelled) are kept: their status,
+/// their output and their row in the database. A job is forgotten when
+/// either rule says so; an unfinished job is never forgotten.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Retention {
+    /// Ended jobs kept at most (the newest by the time they ended).
+    pub keep_ended: usize,
+    /// Ended jobs are forgotten this long after they ended; `None`: never.
+    pub keep_ended_for: Option<Duration>,
+}
+
+impl Default for Retention {
+    fn default() -> Self {
+        Retention {
+            keep_ended: 1000,
+            keep_ended_for: Some(Duration::from_secs(7 * 24 * 3600)),
+        }
+    }
+}
+
+impl Retention {
+    /// Reads `--keep-ended-for`: a whole number with `s`, `m`, `h` or `d`
+    /// (`90m`, `7d`), or `never`.
+    pub fn parse_duration(s: &str) -> Result<Option<Duration>, String> {
+        let s = s.trim();
+        if s == "never" {
+            return Ok(None);
+        }
+        let bad = || format!("\"{s}\" is not a duration like 90s, 30m, 12h, 7d or never");
+        let unit = match s.chars().last().ok_or_else(bad)? {
+            's' => 1,
+            'm' => 60,
+            'h' => 3600,
+            'd' => 86400,
+            _ => return Err(bad()),
+        };
+        let n: u64 = s[..s.len() - 1].parse().map_err(|_| bad())?;
+        Ok(Some(Duration::from_secs(
+            n.checked_mul(unit).ok_or_else(bad)?,
+        )))
+    }
+
+    /// The inverse of [`Retention::parse_duration`] (the flag's default).
+    pub fn format_duration(d: Option<Duration>) -> String {
+        let Some(d) = d else {
+            return "never".into();
+        };
+        let s = d.as_secs();
+        for (unit, n) in [("d", 86400), ("h", 3600), ("m", 60)] {
+            if s > 0 && s % n == 0 {
+                return format!("{}{unit}", s / n);
+            }
+        }
+        format!("{s}s")
+    }
+}
+
 /// Coordinator settings.
 #[derive(Debug, Clone)]
 pub struct FarmConfig {
@@ -88,6 +145,7 @@ pub struct FarmConfig {
     /// unfinished jobs found there on start (see [`crate::store`]).
     pub durable: bool,
     pub limits: Limits,
+    pub retention: Retention,
 }
 
 impl FarmConfig {
@@ -98,6 +156,7 @@ impl FarmConfig {
             default_tile: 64,
             durable: true,
             limits: Limits::default(),
+            retention: Retention::default(),
         }
     }
 }
@@ -161,6 +220,9 @@ struct State {
     submitters: HashMap<JobId, String>,
     /// The last previews of jobs that ended, oldest first.
     final_previews: VecDeque<(JobId, PreviewImage)>,
+    /// Jobs that ended but whose end the database did not take (a full
+    /// disk): held unfinished, as stored, until [`Farm::expire`] records it.
+    unrecorded: HashMap<JobId, Result<(), String>>,
 }
 
 impl State {
@@ -258,6 +320,7 @@ impl Farm {
                 watchers: HashMap::new(),
                 submitters: HashMap::new(),
                 final_previews: VecDeque::new(),
+                unrecorded: HashMap::new(),
             }),
             work: Notify::new(),
             bundles,
@@ -266,7 +329,74 @@ impl Farm {
             cfg,
         };
         farm.restore()?;
+        farm.skip_used_ids()?;
+        farm.prune();
         Ok(farm)
+    }
+
+    /// Keeps new jobs out of every id given before: the largest the
+    /// database remembers, and every `jobs/<id>` directory on disk (a
+    /// database lost or replaced must not make two jobs share one).
+    fn skip_used_ids(&self) -> Result<(), FarmError> {
+        let mut max = match &self.store {
+            Some(store) => store.max_job_id()?,
+            None => 0,
+        };
+        let jobs = self.cfg.data_dir.join("jobs");
+        if let Ok(entries) = std::fs::read_dir(&jobs) {
+            for e in entries.flatten() {
+                if let Some(id) = e.file_name().to_str().and_then(|n| n.parse::<u64>().ok()) {
+                    max = max.max(id);
+                }
+            }
+        }
+        lock(&self.state).sched.skip_ids_through(max);
+        Ok(())
+    }
+
+    /// Forgets the ended jobs [`Retention`] no longer keeps: from the
+    /// database first, then from memory, then their output directories.
+    fn prune(&self) {
+        let r = self.cfg.retention;
+        let now = Instant::now();
+        let doomed: Vec<JobId> = lock(&self.state)
+            .sched
+            .ended()
+            .into_iter()
+            .enumerate()
+            .filter(|&(i, (_, ended))| {
+                i >= r.keep_ended
+                    || r.keep_ended_for
+                        .is_some_and(|d| now.saturating_duration_since(ended) > d)
+            })
+            .map(|(_, (id, _))| id)
+            .collect();
+        if doomed.is_empty() {
+            return;
+        }
+        if let Some(store) = &self.store {
+            if let Err(e) = store.delete_jobs(&doomed) {
+                tracing::warn!(error = %e, "cannot forget ended jobs; keeping them");
+                return;
+            }
+        }
+        {
+            let mut st = lock(&self.state);
+            for id in &doomed {
+                st.sched.remove(*id);
+                st.watchers.remove(id);
+            }
+            st.final_previews.retain(|(j, _)| !doomed.contains(j));
+        }
+        for id in &doomed {
+            let dir = self.cfg.data_dir.join("jobs").join(id.to_string());
+            if let Err(e) = std::fs::remove_dir_all(&dir) {
+                if e.kind() != std::io::ErrorKind::NotFound {
+                    tracing::warn!(job = id, error = %e, "cannot remove {}", dir.display());
+                }
+            }
+        }
+        tracing::info!(jobs = doomed.len(), "ended jobs forgotten (retention)");
     }
 
     /// Picks up the jobs in the database: finished ones for status and
@@ -322,14 +452,7 @@ impl Farm {
                 tiles_total = info.tiles_total,
                 "resuming job"
             );
-            let rects: HashMap<u32, Rect> = {
-                let st = lock(&self.state);
-                done_tiles
-                    .iter()
-                    .filter_map(|t| Some((t.0, st.sched.tile_rect(id, t.0)?)))
-                    .collect()
-            };
-            match self.rebuild_output(store, &info, &rects) {
+            match self.rebuild_output(store, &info) {
                 Ok(out) => {
                     let complete = out.written == out.total;
                     let out = Arc::new(Mutex::new(out));
@@ -348,12 +471,7 @@ impl Farm {
 
     /// A fresh output for a resumed job with its stored tiles written into it
     /// in band order.
-    fn rebuild_output(
-        &self,
-        store: &Store,
-        info: &JobInfo,
-        rects: &HashMap<u32, Rect>,
-    ) -> Result<Output, FarmError> {
+    fn rebuild_output(&self, store: &Store, info: &JobInfo) -> Result<Output, FarmError> {
         let job = info.id;
         let path = self.output_path(job, &info.spec.output_name);
         // Temporary files of the writer that died with the last run.
@@ -369,10 +487,13 @@ impl Farm {
         let mut writer = FrameWriter::create(&path, info.spec.width, info.spec.height)
             .map_err(|e| FarmError::Io(format!("cannot create the output: {e}")))?;
         let mut preview = Preview::new(info.spec.width, info.spec.height);
+        let mut written = 0;
         store.replay_tiles(job, |idx, bytes| {
-            let rect = *rects
-                .get(&idx)
+            let rect = lock(&self.state)
+                .sched
+                .tile_rect(job, idx)
                 .ok_or_else(|| FarmError::Io(format!("stored tile {idx} is not in the frame")))?;
+            written += 1;
             // The wire's format; a ragged length reads as no pixels, which
             // the pixel count check then refuses.
             let pixels = trevi_proto::pixels_from_bytes(bytes).unwrap_or_default();
@@ -385,7 +506,7 @@ impl Farm {
         Ok(Output {
             max_rows_held: writer.rows_held(),
             sink: Some(Box::new(writer)),
-            written: rects.len() as u64,
+            written,
             total: info.tiles_total,
             preview,
         })
@@ -495,6 +616,7 @@ impl Farm {
         if spec.width == 0 || spec.height == 0 {
             return Err(FarmError::BadScene("the frame is empty".into()));
         }
+        self.check_memory(&spec)?;
         let mut st = lock(&self.state);
         let max = self.cfg.limits.max_jobs_per_submitter;
         let mine = st.submitters.values().filter(|s| s.as_str() == who).count();
@@ -548,6 +670,49 @@ impl Farm {
             height = info.spec.height, priority = info.spec.priority, "job queued");
         self.work.notify_waiters();
         Ok(info)
+    }
+
+    /// Refuses a frame whose one band of tiles, with its bookkeeping and the
+    /// encoder's rows, does not fit in the per-job window: everything the
+    /// coordinator holds for a job grows with the width, the band height
+    /// and the tile count in a band, and only the band count is bounded by
+    /// the window otherwise. Also refuses more tiles than a job can number.
+    fn check_memory(&self, spec: &JobSpec) -> Result<(), FarmError> {
+        let tile = if spec.tile_size == 0 {
+            self.cfg.default_tile
+        } else {
+            spec.tile_size
+        }
+        .max(1);
+        let tiles =
+            (spec.width as u64).div_ceil(tile as u64) * (spec.height as u64).div_ceil(tile as u64);
+        if tiles > u32::MAX as u64 {
+            return Err(FarmError::Limit(format!(
+                "a {}x{} frame in {tile}-pixel tiles is {tiles} tiles, more than a job may \
+                 have ({}); use larger tiles",
+                spec.width,
+                spec.height,
+                u32::MAX
+            )));
+        }
+        let need = crate::scheduler::band_bytes(&JobSpec {
+            tile_size: tile,
+            ..spec.clone()
+        }) + crate::scheduler::encoder_bytes(spec);
+        let window = self.cfg.sched.window_bytes;
+        if need > window {
+            let mib = |b: u64| b.div_ceil(1 << 20);
+            return Err(FarmError::Limit(format!(
+                "a {}x{} frame in {tile}-pixel tiles needs {} MiB for one band of tiles, more \
+                 than the coordinator's per-job window of {} MiB (--window-mib); use a \
+                 narrower frame or smaller tiles, or raise --window-mib",
+                spec.width,
+                spec.height,
+                mib(need),
+                mib(window)
+            )));
+        }
+        Ok(())
     }
 
     pub fn register_worker(&self) -> WorkerId {
@@ -668,6 +833,15 @@ impl Farm {
             self.work.notify_waiters();
         }
         self.fail_jobs(failed);
+        let unrecorded: Vec<(JobId, Result<(), String>)> = lock(&self.state)
+            .unrecorded
+            .iter()
+            .map(|(&j, r)| (j, r.clone()))
+            .collect();
+        for (job, result) in unrecorded {
+            self.end_job(job, result);
+        }
+        self.prune();
         n
     }
 
@@ -767,21 +941,38 @@ impl Farm {
         Ok(TileOutcome::Accepted)
     }
 
+    /// Ends a job. Its end is recorded in the database before anyone can
+    /// see it, so what a client is told is what a restart finds. When the
+    /// database does not take it (a full disk), the job stays as stored:
+    /// unfinished, taking no more work; [`Farm::expire`] records the end
+    /// later, and a restart meanwhile resumes the job from its stored tiles.
     fn end_job(&self, job: JobId, result: Result<(), String>) {
+        let image = self.final_preview(job);
+        let mut st = lock(&self.state);
+        let now = Instant::now();
+        let Some(ending) = st.sched.finish_info(job, &result, now) else {
+            return; // Over already (cancelled meanwhile).
+        };
+        if let Err(e) = self.persist_end(&ending) {
+            if st.unrecorded.insert(job, result).is_none() {
+                st.sched.hold(job);
+                tracing::error!(job, error = %e,
+                    "cannot record the end of the job; it stays unfinished until it is recorded");
+            }
+            return;
+        }
         match &result {
             Ok(()) => tracing::info!(job, "job done"),
             Err(e) => tracing::error!(job, error = %e, "job failed"),
         }
-        let image = self.final_preview(job);
-        let mut st = lock(&self.state);
-        st.sched.finish(job, result, Instant::now());
+        st.unrecorded.remove(&job);
+        st.sched.finish(job, result, now);
         st.outputs.remove(&job);
         st.submitters.remove(&job);
         st.keep_final_preview(job, image);
         st.publish(job);
-        let info = st.sched.info(job, Instant::now());
         drop(st);
-        self.persist_end(info);
+        self.prune();
     }
 
     /// The job's preview as it stands, to keep once the job is over (made
@@ -792,10 +983,10 @@ impl Farm {
         preview_image(&p).ok()
     }
 
-    /// Records a finished job in the database (and drops its tiles there).
-    fn persist_end(&self, info: Option<JobInfo>) {
-        let (Some(store), Some(info)) = (&self.store, info) else {
-            return;
+    /// Records a job's end in the database (and drops its tiles there).
+    fn persist_end(&self, info: &JobInfo) -> Result<(), FarmError> {
+        let Some(store) = &self.store else {
+            return Ok(());
         };
         let j = StoredJob {
             id: info.id,
@@ -809,17 +1000,24 @@ impl Farm {
             tiles_done: info.tiles_done,
             rays: info.rays,
         };
-        if let Err(e) = store.finish_job(&j) {
-            tracing::error!(job = info.id, error = %e, "cannot record the end of the job");
-        }
+        store.finish_job(&j)
     }
 
     /// Cancels a job: no more leases, workers drop theirs at the next
     /// heartbeat, and the partial output is removed.
+    /// The cancellation is recorded first: when the database does not take
+    /// it, the job goes on and the caller gets the error.
     pub fn cancel(&self, job: JobId) -> Result<JobInfo, FarmError> {
         let image = self.final_preview(job);
         let mut st = lock(&self.state);
-        let state = st.sched.cancel(job, Instant::now())?;
+        let now = Instant::now();
+        if let Some(ending) = st.sched.cancel_info(job, now) {
+            self.persist_end(&ending).map_err(|e| {
+                FarmError::Io(format!("cannot record the cancellation of job {job}: {e}"))
+            })?;
+            st.unrecorded.remove(&job);
+        }
+        let state = st.sched.cancel(job, now)?;
         st.submitters.remove(&job);
         let out = if state == JobState::Cancelled {
             st.outputs.remove(&job)
@@ -837,7 +1035,10 @@ impl Farm {
             let dir = self.cfg.data_dir.join("jobs").join(job.to_string());
             let _ = std::fs::remove_dir(dir);
             tracing::info!(job, "job cancelled");
-            self.persist_end(self.info(job).ok());
+            // What it became, even if the retention forgets it at once.
+            let info = self.info(job);
+            self.prune();
+            return info;
         }
         self.info(job)
     }
@@ -851,6 +1052,14 @@ impl Farm {
 
     pub fn list(&self) -> Vec<JobInfo> {
         lock(&self.state).sched.list(Instant::now())
+    }
+
+    /// Up to `limit` jobs by id from id `from` on, and where the next page
+    /// starts (`None`: this was the last).
+    pub fn list_from(&self, from: JobId, limit: usize) -> (Vec<JobInfo>, Option<JobId>) {
+        lock(&self.state)
+            .sched
+            .list_from(from, limit, Instant::now())
     }
 
     /// Progress of a job: the current status, then every change.
@@ -877,10 +1086,19 @@ impl Farm {
     /// Moves an unfinished job to another priority (higher runs first).
     pub fn set_priority(&self, job: JobId, priority: i32) -> Result<JobInfo, FarmError> {
         let mut st = lock(&self.state);
-        st.sched.set_priority(job, priority)?;
+        // Checked, stored, then applied: a change the database did not
+        // take is not made.
+        match st.sched.info(job, Instant::now()) {
+            None => return Err(FarmError::UnknownJob(job)),
+            Some(i) if i.state.is_final() || st.unrecorded.contains_key(&job) => {
+                return Err(FarmError::JobOver(job))
+            }
+            Some(_) => {}
+        }
         if let Some(store) = &self.store {
             store.set_priority(job, priority)?;
         }
+        st.sched.set_priority(job, priority)?;
         st.publish(job);
         drop(st);
         tracing::info!(job, priority, "job priority changed");

@@ -28,6 +28,13 @@ const LEASE_WAIT: Duration = Duration::from_secs(2);
 /// Characters of a worker's render error kept (in the log and the job's
 /// error).
 const MAX_RETURN_ERROR_CHARS: usize = 500;
+/// Jobs in a `ListJobs` reply when the request does not say.
+pub const LIST_PAGE_DEFAULT: usize = 500;
+/// Most jobs in a `ListJobs` reply.
+pub const LIST_PAGE_MAX: usize = 1000;
+/// A `ListJobs` reply stops at about this many bytes (well under the 4 MiB
+/// message limit of the clients).
+pub const LIST_PAGE_BYTES: usize = 1 << 20;
 
 fn join_error(e: tokio::task::JoinError) -> Status {
     Status::internal(format!("task failed: {e}"))
@@ -195,10 +202,42 @@ impl pb::jobs_server::Jobs for JobsService {
 
     async fn list_jobs(
         &self,
-        _req: Request<pb::ListJobsRequest>,
+        req: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::ListJobsResponse>, Status> {
-        let jobs = self.farm.list().iter().map(job_status).collect();
-        Ok(Response::new(pb::ListJobsResponse { jobs }))
+        let req = req.into_inner();
+        let from = if req.page_token.is_empty() {
+            0
+        } else {
+            req.page_token.parse::<u64>().map_err(|_| {
+                Status::invalid_argument(format!(
+                    "page_token \"{}\" is not one this coordinator gave",
+                    req.page_token.chars().take(40).collect::<String>()
+                ))
+            })?
+        };
+        let limit = match req.limit {
+            0 => LIST_PAGE_DEFAULT,
+            n => (n as usize).min(LIST_PAGE_MAX),
+        };
+        let (page, mut next) = self.farm.list_from(from, limit);
+        // Errors make statuses long: stop a page at about LIST_PAGE_BYTES.
+        let mut jobs = Vec::with_capacity(page.len());
+        let mut bytes = 0;
+        for info in &page {
+            let s = job_status(info);
+            // The numbers take at most ~100 bytes; the strings their length.
+            bytes +=
+                100 + s.camera.len() + s.output_name.len() + s.error.len() + s.bundle_hash.len();
+            if bytes > LIST_PAGE_BYTES && !jobs.is_empty() {
+                next = Some(info.id);
+                break;
+            }
+            jobs.push(s);
+        }
+        Ok(Response::new(pb::ListJobsResponse {
+            jobs,
+            next_page_token: next.map(|id| id.to_string()).unwrap_or_default(),
+        }))
     }
 
     async fn cancel_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {

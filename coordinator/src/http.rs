@@ -4,7 +4,9 @@
 //! - `GET /`: the monitor page. Its HTML, CSS and JavaScript are one file
 //!   embedded in the binary (`assets/monitor.html`); no build step.
 //! - `GET /api/state`: jobs (state, progress, ETA) and workers (state,
-//!   current tiles, recent throughput) as JSON.
+//!   current tiles, recent throughput) as JSON. Bounded whatever the number
+//!   of jobs kept: the first [`STATE_ACTIVE_JOBS`] unfinished jobs and the
+//!   newest [`STATE_ENDED_JOBS`] ended ones, with the counts of each state.
 //! - `GET /api/jobs/{id}/preview.png`: the job's live preview
 //!   ([`crate::preview`]).
 //! - `POST /api/jobs/{id}/cancel`, `POST /api/jobs/{id}/priority` (body
@@ -325,9 +327,18 @@ impl From<&WorkerInfo> for WorkerView {
     }
 }
 
+/// Unfinished jobs `/api/state` shows at most (by id).
+pub const STATE_ACTIVE_JOBS: usize = 500;
+/// Ended jobs `/api/state` shows at most (the newest by id).
+pub const STATE_ENDED_JOBS: usize = 50;
+
 #[derive(Serialize)]
 struct StateView {
     jobs: Vec<JobView>,
+    /// Jobs in each state, counting those not in `jobs`.
+    jobs_running: usize,
+    jobs_queued: usize,
+    jobs_ended: usize,
     workers: Vec<WorkerView>,
     rays_per_second: f64,
     queued_tiles: u64,
@@ -339,9 +350,19 @@ async fn api_state(
 ) -> Result<Json<StateView>, ApiError> {
     app.need_submitter(&headers, "reading the farm's jobs")?;
     let s = app.farm.snapshot();
+    let count = |st: JobState| s.jobs.iter().filter(|j| j.state == st).count();
+    let (running, queued) = (count(JobState::Running), count(JobState::Queued));
+    let active = s.jobs.iter().filter(|j| !j.state.is_final());
+    let ended = s.jobs.iter().rev().filter(|j| j.state.is_final());
+    let mut jobs: Vec<&JobInfo> = active.take(STATE_ACTIVE_JOBS).collect();
+    jobs.extend(ended.take(STATE_ENDED_JOBS));
+    jobs.sort_unstable_by_key(|j| std::cmp::Reverse(j.id));
     Ok(Json(StateView {
         // Newest first: the page lists what is happening now at the top.
-        jobs: s.jobs.iter().rev().map(JobView::from).collect(),
+        jobs: jobs.into_iter().map(JobView::from).collect(),
+        jobs_running: running,
+        jobs_queued: queued,
+        jobs_ended: s.jobs.len() - running - queued,
         workers: s.workers.iter().map(WorkerView::from).collect(),
         rays_per_second: s.rays_per_second,
         queued_tiles: s.queue.tiles,

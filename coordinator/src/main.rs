@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 use trevi_coordinator::auth::{token_from, Tokens};
+use trevi_coordinator::farm::Retention;
 use trevi_coordinator::grpc::ServeOptions;
 use trevi_coordinator::{Farm, FarmConfig, Limits, SchedulerConfig};
 
@@ -33,8 +34,10 @@ struct Args {
     /// Default tile edge in pixels.
     #[arg(long, env = "TREVI_TILE_SIZE", default_value_t = 64)]
     tile_size: u32,
-    /// Budget for the rows each job's writer may hold, in MiB.
-    #[arg(long, env = "TREVI_WINDOW_MIB", default_value_t = 16)]
+    /// Budget per job, in MiB, for the rows its writer holds and the
+    /// bookkeeping of its tiles in flight; a frame whose one band of tiles
+    /// does not fit is refused at submission.
+    #[arg(long, env = "TREVI_WINDOW_MIB", default_value_t = SchedulerConfig::default().window_bytes >> 20)]
     window_mib: u64,
     /// A tile failing this many times (lease expired, invalid result) fails
     /// its job.
@@ -76,6 +79,15 @@ struct Args {
     /// Most unfinished jobs per submitter (per client address).
     #[arg(long, env = "TREVI_MAX_JOBS_PER_SUBMITTER", default_value_t = 1000)]
     max_jobs_per_submitter: usize,
+    /// Ended jobs (done, failed, cancelled) kept at most, with their outputs;
+    /// older ones are forgotten and their outputs deleted.
+    #[arg(long, env = "TREVI_KEEP_ENDED", default_value_t = Retention::default().keep_ended)]
+    keep_ended: usize,
+    /// Forget ended jobs and delete their outputs this long after they
+    /// ended: 90s, 30m, 12h, 7d, or never.
+    #[arg(long, env = "TREVI_KEEP_ENDED_FOR",
+        default_value_t = Retention::format_duration(Retention::default().keep_ended_for))]
+    keep_ended_for: String,
     /// Serve gRPC over TLS with this PEM certificate chain (needs --tls-key).
     #[arg(long, env = "TREVI_TLS_CERT")]
     tls_cert: Option<PathBuf>,
@@ -96,6 +108,11 @@ async fn main() -> Result<()> {
     let args = Args::parse();
     anyhow::ensure!(args.tile_size > 0, "--tile-size must be at least 1");
     anyhow::ensure!(args.lease_ttl_ms > 0, "--lease-ttl-ms must be at least 1");
+    let retention = Retention {
+        keep_ended: args.keep_ended,
+        keep_ended_for: Retention::parse_duration(&args.keep_ended_for)
+            .map_err(|e| anyhow::anyhow!("--keep-ended-for: {e}"))?,
+    };
     let cfg = FarmConfig {
         data_dir: args.data_dir.clone(),
         sched: SchedulerConfig {
@@ -115,6 +132,7 @@ async fn main() -> Result<()> {
             max_image_samples: args.max_image_samples,
             max_jobs_per_submitter: args.max_jobs_per_submitter,
         },
+        retention,
     };
     let submit_token = token_from(args.submit_token.clone(), args.submit_token_file.as_deref())
         .map_err(|e| anyhow::anyhow!("submit token: {e}"))?;

@@ -174,13 +174,43 @@ pub struct QueueDepth {
     pub tiles: u64,
 }
 
+/// What the bookkeeping of one tile in a job's band window may cost, in
+/// bytes: its state in the window, a lease, a re-queue entry (counted
+/// generously; see [`band_bytes`]).
+pub const TILE_BOOKKEEPING_BYTES: u64 = 96;
+
+/// What one band of `spec`'s tiles costs the coordinator while it is in the
+/// window, in bytes: its rows in the writer (12 bytes a pixel, the most any
+/// format holds) and the bookkeeping of its tiles. The band window holds
+/// `window_bytes / band_bytes` bands, at least one.
+pub fn band_bytes(spec: &JobSpec) -> u64 {
+    let tile = spec.tile_size.max(1) as u64;
+    let rows = tile.min(spec.height.max(1) as u64);
+    let cols = (spec.width as u64).div_ceil(tile).max(1);
+    spec.width as u64 * rows * 12 + cols * TILE_BOOKKEEPING_BYTES
+}
+
+/// Rows a job's encoder holds beyond those in the band window: EXR
+/// compresses one 16-row block while the next one waits (PNG needs two).
+pub const ENCODER_ROWS: u64 = 32;
+
+/// What a job's encoder holds whatever the window: [`ENCODER_ROWS`] rows at
+/// 12 bytes a pixel. Taken from the window before it is divided into bands.
+pub fn encoder_bytes(spec: &JobSpec) -> u64 {
+    spec.width as u64 * ENCODER_ROWS * 12
+}
+
 /// Tunables.
 #[derive(Debug, Clone, Copy)]
 pub struct SchedulerConfig {
     /// How long a lease lives without a heartbeat.
     pub lease_ttl: Duration,
-    /// Budget for rows held by the stitcher per job, in bytes (counted at 12
-    /// bytes a pixel); sets how many bands may be in flight.
+    /// Budget per job, in bytes, for the rows held by the stitcher and its
+    /// encoder (counted at 12 bytes a pixel) and the bookkeeping of the
+    /// tiles in flight: after [`encoder_bytes`], it holds
+    /// `room / band_bytes` bands (at least one; a frame whose one band does
+    /// not fit is refused at submission). The job's preview (at most
+    /// 512×512, [`crate::preview`]) comes on top.
     pub window_bytes: u64,
     /// A tile that fails this many times (its lease runs out, or its result
     /// is invalid) fails its job.
@@ -196,7 +226,8 @@ impl Default for SchedulerConfig {
     fn default() -> Self {
         SchedulerConfig {
             lease_ttl: Duration::from_secs(10),
-            window_bytes: 16 << 20,
+            // A 16384-pixel-wide frame in 64-pixel tiles: two bands.
+            window_bytes: 32 << 20,
             max_tile_failures: 5,
             max_worker_failures: 3,
             max_tile_losses: 3,
@@ -450,12 +481,20 @@ impl Scheduler {
         done.sort_unstable();
         done.dedup();
         if let Some(&last) = done.last() {
+            // The done prefix needs no entries; only the span after it does
+            // (a window's worth, as when the tiles were leased).
+            let prefix = done
+                .iter()
+                .enumerate()
+                .take_while(|&(i, &t)| i as u32 == t)
+                .count() as u32;
+            job.first_undone = prefix;
             job.next_fresh = last + 1;
-            for i in 0..job.next_fresh {
+            for i in prefix..job.next_fresh {
                 job.active.insert(i, TileState::Pending);
                 job.requeued.insert(i);
             }
-            for &i in &done {
+            for &i in &done[prefix as usize..] {
                 job.set_done(i);
             }
             job.state = JobState::Running;
@@ -474,8 +513,8 @@ impl Scheduler {
         };
         let cols = spec.width.div_ceil(tile).max(1);
         let rows = spec.height.div_ceil(tile);
-        let band_bytes = spec.width as u64 * tile as u64 * 12;
-        let window_bands = (self.cfg.window_bytes / band_bytes.max(1)).clamp(2, u32::MAX as u64);
+        let room = self.cfg.window_bytes.saturating_sub(encoder_bytes(&spec));
+        let window_bands = (room / band_bytes(&spec).max(1)).clamp(1, u32::MAX as u64);
         Job {
             state: JobState::Queued,
             cols,
@@ -865,6 +904,71 @@ impl Scheduler {
         self.retire(job);
     }
 
+    /// What [`Scheduler::finish`] would make of `job` (`None` when there is
+    /// no such job or it is over already), for recording before it is done.
+    pub fn finish_info(
+        &self,
+        job: JobId,
+        result: &Result<(), String>,
+        now: Instant,
+    ) -> Option<JobInfo> {
+        let mut info = self.info(job, now).filter(|i| !i.state.is_final())?;
+        info.finish_order = self.finished + 1;
+        match result {
+            Ok(()) => info.state = JobState::Done,
+            Err(e) => {
+                info.state = JobState::Failed;
+                info.error = Some(e.clone());
+            }
+        }
+        Some(info)
+    }
+
+    /// What [`Scheduler::cancel`] would make of `job`, like
+    /// [`Scheduler::finish_info`].
+    pub fn cancel_info(&self, job: JobId, now: Instant) -> Option<JobInfo> {
+        let mut info = self.info(job, now).filter(|i| !i.state.is_final())?;
+        info.state = JobState::Cancelled;
+        Some(info)
+    }
+
+    /// Stops handing out `job`'s tiles and drops its leases, leaving its
+    /// state as it is (its end could not be recorded yet).
+    pub fn hold(&mut self, job: JobId) {
+        if let Some(j) = self.jobs.get(&job) {
+            self.queue.remove(&(Reverse(j.spec.priority), job));
+            self.leases.retain(|_, e| e.job != job);
+        }
+    }
+
+    /// Forgets an ended job (retention); an unfinished one stays.
+    pub fn remove(&mut self, job: JobId) -> bool {
+        if self.jobs.get(&job).is_some_and(|j| j.state.is_final()) {
+            self.jobs.remove(&job);
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Ended jobs with when they ended, newest first.
+    pub fn ended(&self) -> Vec<(JobId, Instant)> {
+        let mut v: Vec<(JobId, Instant)> = self
+            .jobs
+            .iter()
+            .filter(|(_, j)| j.state.is_final())
+            .map(|(&id, j)| (id, j.finished.unwrap_or(j.submitted)))
+            .collect();
+        v.sort_unstable_by_key(|&(id, t)| Reverse((t, id)));
+        v
+    }
+
+    /// Never gives an id up to `id` (ids of an earlier run, or whose output
+    /// directory exists).
+    pub fn skip_ids_through(&mut self, id: JobId) {
+        self.next_job = self.next_job.max(id.saturating_add(1));
+    }
+
     /// Cancels an unfinished job; its leases are dropped at the workers' next
     /// heartbeat. Returns the state the job is in afterwards.
     pub fn cancel(&mut self, job: JobId, now: Instant) -> Result<JobState, SchedError> {
@@ -904,11 +1008,26 @@ impl Scheduler {
 
     /// Every job, by id.
     pub fn list(&self, now: Instant) -> Vec<JobInfo> {
-        let mut ids: Vec<JobId> = self.jobs.keys().copied().collect();
+        self.list_from(0, usize::MAX, now).0
+    }
+
+    /// Up to `limit` jobs by id from id `from` on, and the id the next page
+    /// starts at (`None` after the last job).
+    pub fn list_from(
+        &self,
+        from: JobId,
+        limit: usize,
+        now: Instant,
+    ) -> (Vec<JobInfo>, Option<JobId>) {
+        let mut ids: Vec<JobId> = self.jobs.keys().copied().filter(|&id| id >= from).collect();
         ids.sort_unstable();
-        ids.into_iter()
+        let next = ids.get(limit).copied();
+        ids.truncate(limit);
+        let page = ids
+            .into_iter()
             .filter_map(|id| self.info(id, now))
-            .collect()
+            .collect();
+        (page, next)
     }
 
     /// Number of live leases (for tests and metrics).
@@ -1064,7 +1183,8 @@ mod tests {
         let mut s = Scheduler::new(
             SchedulerConfig {
                 lease_ttl: Duration::from_secs(5),
-                window_bytes: 2 * 16 * 4 * 12,
+                window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
+                    + 16 * 12 * ENCODER_ROWS,
                 ..SchedulerConfig::default()
             },
             1,
@@ -1175,7 +1295,8 @@ mod tests {
         let mut s = Scheduler::new(
             SchedulerConfig {
                 lease_ttl: Duration::from_secs(5),
-                window_bytes: 2 * 16 * 4 * 12,
+                window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
+                    + 16 * 12 * ENCODER_ROWS,
                 ..SchedulerConfig::default()
             },
             1,

@@ -28,6 +28,18 @@
 //! commits may be lost, and those tiles are rendered again. Databases of
 //! earlier versions, with the pixels in a `tiles` table, are moved to the
 //! files when opened.
+//!
+//! A database SQLite would open by quietly dropping what it holds is refused
+//! instead ([`check_files`]): an empty or missing `state.db` beside a
+//! write-ahead log that holds frames (SQLite deletes such a log), a log whose
+//! header is damaged (SQLite ignores the whole log), or a log with a damaged
+//! frame before frames of the same generation (SQLite drops everything from
+//! the damaged frame on). Only a damaged *tail* of the log passes: that is
+//! the last commits of a power cut, as above.
+//!
+//! Job ids are never reused: the largest id ever given is kept (`meta`)
+//! when ended jobs are pruned, and the coordinator also skips every id whose
+//! `jobs/<id>` directory exists.
 
 use crate::error::FarmError;
 use crate::scheduler::{JobId, JobSpec, JobState};
@@ -101,11 +113,22 @@ impl Store {
     pub fn open(dir: &Path) -> Result<Store, FarmError> {
         std::fs::create_dir_all(dir)
             .map_err(|e| FarmError::Io(format!("cannot create {}: {e}", dir.display())))?;
+        check_files(dir)?;
         let conn = Connection::open(dir.join("state.db")).map_err(db_err)?;
         conn.busy_timeout(Duration::from_secs(5)).map_err(db_err)?;
+        let check: String = conn
+            .query_row("PRAGMA quick_check", [], |r| r.get(0))
+            .map_err(|e| damaged(dir, &format!("checking it failed: {e}")))?;
+        if check != "ok" {
+            return Err(damaged(dir, &format!("SQLite's check says: {check}")));
+        }
         conn.execute_batch(
             "PRAGMA journal_mode=WAL;
              PRAGMA synchronous=NORMAL;
+             CREATE TABLE IF NOT EXISTS meta (
+                 key TEXT PRIMARY KEY,
+                 value INTEGER NOT NULL
+             );
              CREATE TABLE IF NOT EXISTS jobs (
                  id INTEGER PRIMARY KEY,
                  bundle_hash TEXT NOT NULL,
@@ -459,17 +482,158 @@ impl Store {
         Ok(())
     }
 
-    /// Largest job id ever stored.
+    /// Largest job id ever stored, including jobs pruned since.
     pub fn max_job_id(&self) -> Result<u64, FarmError> {
         let v: Option<i64> = self
             .lock()
             .conn
-            .query_row("SELECT MAX(id) FROM jobs", [], |r| r.get(0))
+            .query_row(
+                "SELECT MAX(m) FROM (SELECT MAX(id) AS m FROM jobs
+                     UNION ALL SELECT value FROM meta WHERE key = 'max_job_id')",
+                [],
+                |r| r.get(0),
+            )
             .optional()
             .map_err(db_err)?
             .flatten();
         Ok(v.unwrap_or(0).max(0) as u64)
     }
+
+    /// Forgets ended jobs (retention), remembering the largest id so that it
+    /// is never given again. Their tiles were dropped when they ended.
+    pub fn delete_jobs(&self, ids: &[JobId]) -> Result<(), FarmError> {
+        let Some(&max) = ids.iter().max() else {
+            return Ok(());
+        };
+        let mut guard = self.lock();
+        let tx = guard.conn.transaction().map_err(db_err)?;
+        tx.execute(
+            "INSERT INTO meta (key, value) VALUES ('max_job_id', ?1)
+             ON CONFLICT(key) DO UPDATE SET value = MAX(value, excluded.value)",
+            params![max as i64],
+        )
+        .map_err(db_err)?;
+        {
+            let mut del = tx
+                .prepare("DELETE FROM jobs WHERE id = ?1")
+                .map_err(db_err)?;
+            for &id in ids {
+                del.execute(params![id as i64]).map_err(db_err)?;
+            }
+        }
+        tx.commit().map_err(db_err)
+    }
+}
+
+fn damaged(dir: &Path, why: &str) -> FarmError {
+    FarmError::Io(format!(
+        "the state database {} is damaged ({why}); refusing to start, since going on would \
+         lose or mix up jobs. Restore it from a backup, or move state.db, state.db-wal and \
+         state.db-shm away to start with no jobs",
+        dir.join("state.db").display()
+    ))
+}
+
+/// The additive checksum of SQLite's write-ahead log over `data` (a multiple
+/// of 8 bytes), continuing from `s`; words big-endian when `big`.
+fn wal_checksum(big: bool, mut s: (u32, u32), data: &[u8]) -> (u32, u32) {
+    let word = |b: &[u8]| {
+        let b = [b[0], b[1], b[2], b[3]];
+        if big {
+            u32::from_be_bytes(b)
+        } else {
+            u32::from_le_bytes(b)
+        }
+    };
+    for pair in data.chunks_exact(8) {
+        s.0 = s.0.wrapping_add(word(&pair[..4]).wrapping_add(s.1));
+        s.1 = s.1.wrapping_add(word(&pair[4..]).wrapping_add(s.0));
+    }
+    s
+}
+
+/// Refuses database files SQLite would open by silently dropping committed
+/// data (see the module docs); called before SQLite touches them.
+pub fn check_files(dir: &Path) -> Result<(), FarmError> {
+    let db = dir.join("state.db");
+    let wal_path = dir.join("state.db-wal");
+    let wal = match std::fs::read(&wal_path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => {
+            return Err(FarmError::Io(format!(
+                "cannot read {}: {e}",
+                wal_path.display()
+            )))
+        }
+    };
+    if wal.is_empty() {
+        return Ok(());
+    }
+    let db_len = std::fs::metadata(&db).map(|m| m.len()).ok();
+    if db_len.unwrap_or(0) == 0 {
+        let what = if db_len.is_some() { "empty" } else { "missing" };
+        return Err(damaged(
+            dir,
+            &format!(
+                "state.db is {what} but its write-ahead log state.db-wal holds {} bytes: \
+                 the database was truncated or deleted, and SQLite would delete the log",
+                wal.len()
+            ),
+        ));
+    }
+    let be = |at: usize| u32::from_be_bytes([wal[at], wal[at + 1], wal[at + 2], wal[at + 3]]);
+    let bad_header = |why: &str| {
+        damaged(
+            dir,
+            &format!("the header of its write-ahead log state.db-wal is damaged ({why}), so SQLite would ignore the whole log"),
+        )
+    };
+    if wal.len() < 32 {
+        return Err(bad_header(&format!("the file is {} bytes", wal.len())));
+    }
+    let magic = be(0);
+    if magic & !1 != 0x377f_0682 {
+        return Err(bad_header("not a write-ahead log"));
+    }
+    let big = magic & 1 == 1;
+    let page = be(8) as usize;
+    if be(4) != 3_007_000 || !page.is_power_of_two() || !(512..=65536).contains(&page) {
+        return Err(bad_header("unknown version or page size"));
+    }
+    let mut sum = wal_checksum(big, (0, 0), &wal[..24]);
+    if sum != (be(24), be(28)) {
+        return Err(bad_header("checksum mismatch"));
+    }
+    let salts = (be(16), be(20));
+    let frame = 24 + page;
+    let mut at = 32;
+    let mut chained = true;
+    while at + frame <= wal.len() {
+        let own_salts = (be(at + 8), be(at + 12)) == salts;
+        if chained {
+            let s = wal_checksum(big, sum, &wal[at..at + 8]);
+            let s = wal_checksum(big, s, &wal[at + 24..at + frame]);
+            if own_salts && s == (be(at + 16), be(at + 20)) {
+                sum = s;
+            } else {
+                // SQLite stops reading here. Stale frames of an earlier
+                // generation (other salts) and a torn last write are normal.
+                chained = false;
+            }
+        } else if own_salts {
+            return Err(damaged(
+                dir,
+                &format!(
+                    "its write-ahead log state.db-wal has a damaged frame before frame {} of \
+                     the same generation, so SQLite would drop the commits after the damage",
+                    (at - 32) / frame
+                ),
+            ));
+        }
+        at += frame;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -578,6 +742,103 @@ mod tests {
         // The old table is gone; opening again changes nothing.
         let s = Store::open(dir.path()).unwrap();
         assert_eq!(replayed(&s, 5).len(), 3);
+    }
+
+    /// A data directory as a killed coordinator leaves it: the database and
+    /// its write-ahead log with `n` jobs committed in it, copied while the
+    /// store is still open (so the log is not checkpointed away).
+    fn killed_with_jobs(n: u64) -> (tempfile::TempDir, tempfile::TempDir) {
+        let live = tempfile::tempdir().unwrap();
+        let s = Store::open(live.path()).unwrap();
+        for id in 1..=n {
+            s.insert_job(&job(id)).unwrap();
+        }
+        let copy = tempfile::tempdir().unwrap();
+        for f in ["state.db", "state.db-wal"] {
+            std::fs::copy(live.path().join(f), copy.path().join(f)).unwrap();
+        }
+        drop(s);
+        (live, copy)
+    }
+
+    fn open_err(dir: &Path) -> String {
+        match Store::open(dir) {
+            Ok(_) => panic!("opened a damaged database"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn a_killed_coordinator_s_log_is_replayed() {
+        let (_live, copy) = killed_with_jobs(5);
+        assert!(
+            std::fs::metadata(copy.path().join("state.db-wal"))
+                .unwrap()
+                .len()
+                > 32
+        );
+        let s = Store::open(copy.path()).unwrap();
+        assert_eq!(s.jobs().unwrap().len(), 5);
+    }
+
+    #[test]
+    fn an_empty_database_beside_its_log_is_refused() {
+        let (_live, copy) = killed_with_jobs(3);
+        std::fs::write(copy.path().join("state.db"), b"").unwrap();
+        let e = open_err(copy.path());
+        assert!(
+            e.contains("state.db is empty") && e.contains("refusing to start"),
+            "{e}"
+        );
+        std::fs::remove_file(copy.path().join("state.db")).unwrap();
+        assert!(open_err(copy.path()).contains("state.db is missing"));
+        // The log is still there for whoever repairs it.
+        assert!(copy.path().join("state.db-wal").exists());
+    }
+
+    #[test]
+    fn a_damaged_log_is_refused_but_a_torn_last_frame_is_not() {
+        let (_live, copy) = killed_with_jobs(40);
+        let wal = copy.path().join("state.db-wal");
+        let good = std::fs::read(&wal).unwrap();
+        let page = u32::from_be_bytes(good[8..12].try_into().unwrap()) as usize;
+        let frames = (good.len() - 32) / (24 + page);
+        assert!(frames >= 3, "{frames} frames");
+
+        // A byte of the first frame's page: the later frames would be lost.
+        let mut bad = good.clone();
+        bad[32 + 24 + 100] ^= 0x55;
+        std::fs::write(&wal, &bad).unwrap();
+        let e = open_err(copy.path());
+        assert!(e.contains("damaged frame before frame 1"), "{e}");
+
+        // The header: the whole log would be ignored.
+        let mut bad = good.clone();
+        bad[17] ^= 0x01;
+        std::fs::write(&wal, &bad).unwrap();
+        assert!(open_err(copy.path()).contains("header"));
+
+        // The last frame torn (a power cut): its commit is lost, as
+        // documented, and the rest opens.
+        let mut torn = good.clone();
+        let last = 32 + (frames - 1) * (24 + page);
+        torn[last + 24 + 7] ^= 0x55;
+        std::fs::write(&wal, &torn).unwrap();
+        Store::open(copy.path()).unwrap();
+    }
+
+    #[test]
+    fn pruned_job_ids_are_never_given_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Store::open(dir.path()).unwrap();
+        for id in 1..=4 {
+            s.insert_job(&job(id)).unwrap();
+        }
+        s.delete_jobs(&[3, 4]).unwrap();
+        drop(s);
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(s.jobs().unwrap().len(), 2);
+        assert_eq!(s.max_job_id().unwrap(), 4);
     }
 
     #[test]

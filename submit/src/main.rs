@@ -79,8 +79,12 @@ struct Args {
 enum Command {
     /// Show a job.
     Status { id: u64 },
-    /// List the farm's jobs.
-    List,
+    /// List the farm's jobs (every page of them, by id).
+    List {
+        /// Show at most this many jobs (the oldest first).
+        #[arg(long)]
+        limit: Option<usize>,
+    },
     /// Cancel a job: it takes no more worker time and leaves no output.
     Cancel { id: u64 },
     /// Download a finished job's image, e.g. of a job submitted with
@@ -150,8 +154,8 @@ fn run(args: Args) -> Result<()> {
                         );
                     }
                 }
-                Command::List => {
-                    for s in client.list().await? {
+                Command::List { limit } => {
+                    for s in client.list(*limit).await? {
                         println!("{}", remote::describe(&s));
                     }
                 }

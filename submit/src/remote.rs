@@ -309,14 +309,34 @@ impl Client {
             .into_inner())
     }
 
-    pub async fn list(&mut self) -> Result<Vec<pb::JobStatus>> {
-        Ok(self
-            .jobs
-            .list_jobs(pb::ListJobsRequest {})
-            .await
-            .map_err(status_error)?
-            .into_inner()
-            .jobs)
+    /// The farm's jobs by id, page by page (at most `limit` of them).
+    pub async fn list(&mut self, limit: Option<usize>) -> Result<Vec<pb::JobStatus>> {
+        let mut jobs = Vec::new();
+        let mut page_token = String::new();
+        loop {
+            let want = limit.map_or(0, |l| l.saturating_sub(jobs.len()).min(u32::MAX as usize));
+            let reply = self
+                .jobs
+                .list_jobs(pb::ListJobsRequest {
+                    limit: want as u32,
+                    page_token,
+                })
+                .await
+                .map_err(status_error)?
+                .into_inner();
+            jobs.extend(reply.jobs);
+            if let Some(l) = limit {
+                jobs.truncate(l);
+                if jobs.len() == l {
+                    break;
+                }
+            }
+            if reply.next_page_token.is_empty() {
+                break;
+            }
+            page_token = reply.next_page_token;
+        }
+        Ok(jobs)
     }
 
     pub async fn cancel(&mut self, id: u64) -> Result<pb::JobStatus> {
