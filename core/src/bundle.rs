@@ -7,7 +7,7 @@
 
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
-use std::io;
+use std::io::{self, Read};
 use std::path::{Component, Path, PathBuf};
 
 /// Anything that can hand out the bytes of a bundle-relative file.
@@ -165,6 +165,87 @@ impl Bundle {
     }
 }
 
+/// Longest path (or scene name) [`check_encoding`] accepts, in bytes.
+pub const MAX_PATH_BYTES: u64 = 4096;
+
+/// Checks an encoding read from `r` by [`Bundle::decode`]'s rules, without
+/// holding the files' contents: memory stays at one path and the reader's
+/// buffer, whatever the bundle's size. Stricter than `decode` in two ways:
+/// paths must come in [`Bundle::encode`]'s order (strictly ascending, so no
+/// path twice) and be at most [`MAX_PATH_BYTES`] long. Returns the number of
+/// files.
+pub fn check_encoding(r: impl io::Read) -> Result<u64, String> {
+    let mut r = io::BufReader::with_capacity(1 << 16, r);
+    let mut magic = [0u8; 8];
+    read_exact(&mut r, &mut magic)?;
+    if &magic != MAGIC {
+        return Err("not a Trevi scene bundle (bad magic)".into());
+    }
+    let scene = read_path(&mut r)?;
+    let count = read_u64(&mut r)?;
+    let mut seen_scene = false;
+    let mut last: Option<String> = None;
+    for _ in 0..count {
+        let path = read_path(&mut r)?;
+        let norm = normalize_rel_path(&path)?;
+        if norm != path {
+            return Err(format!("bundle path \"{path}\" is not normalised"));
+        }
+        if let Some(prev) = &last {
+            if *prev >= path {
+                return Err(format!(
+                    "bundle path \"{path}\" is out of order (after \"{prev}\"): not a canonical \
+                     encoding"
+                ));
+            }
+        }
+        seen_scene |= path == scene;
+        let len = read_u64(&mut r)?;
+        let skipped = io::copy(&mut (&mut r).take(len), &mut io::sink())
+            .map_err(|e| format!("reading the bundle: {e}"))?;
+        if skipped != len {
+            return Err("truncated scene bundle".into());
+        }
+        last = Some(path);
+    }
+    let mut one = [0u8; 1];
+    if r.read(&mut one)
+        .map_err(|e| format!("reading the bundle: {e}"))?
+        != 0
+    {
+        return Err("trailing bytes after the bundle".into());
+    }
+    if !seen_scene {
+        return Err(format!("bundle lacks its scene file \"{scene}\""));
+    }
+    Ok(count)
+}
+
+fn read_exact(r: &mut impl io::Read, buf: &mut [u8]) -> Result<(), String> {
+    r.read_exact(buf).map_err(|e| match e.kind() {
+        io::ErrorKind::UnexpectedEof => "truncated scene bundle".to_string(),
+        _ => format!("reading the bundle: {e}"),
+    })
+}
+
+fn read_u64(r: &mut impl io::Read) -> Result<u64, String> {
+    let mut b = [0u8; 8];
+    read_exact(r, &mut b)?;
+    Ok(u64::from_le_bytes(b))
+}
+
+fn read_path(r: &mut impl io::Read) -> Result<String, String> {
+    let n = read_u64(r)?;
+    if n > MAX_PATH_BYTES {
+        return Err(format!(
+            "a bundle path of {n} bytes is longer than {MAX_PATH_BYTES}"
+        ));
+    }
+    let mut b = vec![0u8; n as usize];
+    read_exact(r, &mut b)?;
+    String::from_utf8(b).map_err(|_| "bundle path is not UTF-8".into())
+}
+
 /// Hex SHA-256 of some bytes.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     hex::encode(Sha256::digest(bytes))
@@ -229,5 +310,57 @@ mod tests {
         c.files.insert("m/a.obj".into(), b"v 0 0 1".to_vec());
         assert_ne!(b.hash(), c.hash());
         assert!(Bundle::decode(&enc[..enc.len() - 1]).is_err());
+    }
+
+    #[test]
+    fn check_encoding_agrees_with_decode_without_holding_the_files() {
+        let mut files = BTreeMap::new();
+        files.insert("s.xml".to_string(), b"<scene/>".to_vec());
+        files.insert("m/a.obj".to_string(), vec![7u8; 100_000]);
+        let b = Bundle {
+            scene: "s.xml".into(),
+            files,
+        };
+        let enc = b.encode();
+        assert_eq!(check_encoding(&enc[..]), Ok(2));
+        // Every truncation and a trailing byte: both refuse.
+        for cut in [1, 9, 20, 50, enc.len() / 2, enc.len() - 1] {
+            assert!(Bundle::decode(&enc[..cut]).is_err());
+            assert_eq!(
+                check_encoding(&enc[..cut]),
+                Err("truncated scene bundle".to_string()),
+                "cut at {cut}"
+            );
+        }
+        let mut long = enc.clone();
+        long.push(0);
+        assert!(Bundle::decode(&long).is_err());
+        assert!(check_encoding(&long[..]).unwrap_err().contains("trailing"));
+        // A path outside the bundle, a missing scene, bad magic.
+        let mut sneaky = b.clone();
+        sneaky.files.insert("../x".into(), vec![]);
+        assert!(check_encoding(&sneaky.encode()[..]).is_err());
+        let mut lost = b.clone();
+        lost.scene = "other.xml".into();
+        assert!(check_encoding(&lost.encode()[..])
+            .unwrap_err()
+            .contains("lacks its scene"));
+        assert!(check_encoding(&b"TREVIBN2"[..])
+            .unwrap_err()
+            .contains("magic"));
+        // A path length that would allocate gigabytes is refused first.
+        let mut huge = MAGIC.to_vec();
+        huge.extend_from_slice(&(1u64 << 40).to_le_bytes());
+        assert!(check_encoding(&huge[..]).unwrap_err().contains("longer"));
+        // Out of order (decode takes it; the canonical check does not).
+        let mut swapped = MAGIC.to_vec();
+        put(&mut swapped, b"s.xml");
+        swapped.extend_from_slice(&2u64.to_le_bytes());
+        for (p, d) in [("s.xml", &b"<scene/>"[..]), ("m/a.obj", &b"v"[..])] {
+            put(&mut swapped, p.as_bytes());
+            put(&mut swapped, d);
+        }
+        assert!(Bundle::decode(&swapped).is_ok());
+        assert!(check_encoding(&swapped[..]).unwrap_err().contains("order"));
     }
 }
