@@ -451,11 +451,12 @@ fn sigterm(p: &Proc) {
 }
 
 #[test]
-fn sigterm_makes_a_worker_finish_its_tiles_and_exit() {
+fn sigterm_makes_a_worker_give_its_tiles_back_and_exit() {
     let dir = Dir::new();
     let scene = dir.write("s.xml", SLOW_SCENE);
     let expected = embedded(&dir, &scene, "embedded.png");
-    // Leases that outlive their worker would stall the job for a minute.
+    // Leases that outlive their worker would stall the job for a minute:
+    // the stopping worker gives its lease back instead.
     let c = coordinator(&dir, 60_000);
     let mut first = worker(&dir, &c.url, "first");
     let out = dir.path().join("farm.png");
