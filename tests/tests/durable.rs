@@ -227,7 +227,7 @@ fn five_submitters_fifty_jobs_four_workers() {
         JobsClient::connect(c.url.clone())
             .await
             .unwrap()
-            .list_jobs(pb::ListJobsRequest {})
+            .list_jobs(pb::ListJobsRequest::default())
             .await
             .unwrap()
             .into_inner()

@@ -119,7 +119,7 @@ fn token_roles(dir: &Dir, certs: Option<&Path>) {
         let list = |t: Option<&'static str>| async move {
             jobs(c, t)
                 .await
-                .list_jobs(pb::ListJobsRequest {})
+                .list_jobs(pb::ListJobsRequest::default())
                 .await
                 .map(|r| r.into_inner().jobs.len())
         };
@@ -544,7 +544,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
         rt.block_on(async {
             let list = jobs(&c, None)
                 .await
-                .list_jobs(pb::ListJobsRequest {})
+                .list_jobs(pb::ListJobsRequest::default())
                 .await
                 .unwrap()
                 .into_inner()
