@@ -62,6 +62,10 @@ pub struct Limits {
     pub max_image_samples: u64,
     /// Unfinished jobs one submitter (one client address) may have queued.
     pub max_jobs_per_submitter: usize,
+    /// Bundle uploads in progress at once; one more is refused.
+    pub max_uploads: usize,
+    /// How long an upload may go without a chunk before it is dropped.
+    pub upload_idle: Duration,
 }
 
 impl Default for Limits {
@@ -73,6 +77,8 @@ impl Default for Limits {
             // A 16384×16384 frame at supersample 8.
             max_image_samples: 16384 * 16384 * 64,
             max_jobs_per_submitter: 1000,
+            max_uploads: 4,
+            upload_idle: Duration::from_secs(30),
         }
     }
 }
@@ -146,7 +152,13 @@ pub struct FarmConfig {
     pub durable: bool,
     pub limits: Limits,
     pub retention: Retention,
+    /// A bundle no job uses is removed once it was last uploaded or used
+    /// this long ago (see [`crate::bundles::BundleStore::collect`]).
+    pub bundle_grace: Duration,
 }
+
+/// [`FarmConfig::bundle_grace`] by default.
+pub const BUNDLE_GRACE: Duration = Duration::from_secs(3600);
 
 impl FarmConfig {
     pub fn new(data_dir: impl Into<PathBuf>) -> Self {
@@ -157,6 +169,7 @@ impl FarmConfig {
             durable: true,
             limits: Limits::default(),
             retention: Retention::default(),
+            bundle_grace: BUNDLE_GRACE,
         }
     }
 }
@@ -518,6 +531,32 @@ impl Farm {
 
     pub fn bundles(&self) -> &BundleStore {
         &self.bundles
+    }
+
+    /// Fails every unfinished job rendering `bundle` with `why` (its stored
+    /// copy is damaged or gone, so no worker can render them). Returns them.
+    pub fn fail_bundle_jobs(&self, bundle: &str, why: &str) -> Vec<JobId> {
+        let doomed: Vec<JobId> = self
+            .list()
+            .into_iter()
+            .filter(|j| !j.state.is_final() && j.spec.bundle_hash == bundle)
+            .map(|j| j.id)
+            .collect();
+        for &job in &doomed {
+            self.end_job(job, Err(why.to_string()));
+        }
+        doomed
+    }
+
+    /// Removes the bundles no job uses that are older than
+    /// [`FarmConfig::bundle_grace`]; returns how many went.
+    pub fn collect_bundles(&self) -> usize {
+        let keep = self
+            .list()
+            .into_iter()
+            .map(|j| j.spec.bundle_hash)
+            .collect();
+        self.bundles.collect(&keep, self.cfg.bundle_grace)
     }
 
     /// Reads a stored bundle's scene and describes the job rendering

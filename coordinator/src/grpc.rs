@@ -10,9 +10,8 @@ use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::net::TcpListener;
-use tokio::sync::mpsc;
-use tokio_stream::wrappers::{ReceiverStream, TcpListenerStream};
-use tokio_stream::StreamExt;
+use tokio::sync::{mpsc, Semaphore};
+use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 use trevi_proto::pb::{self, tile_upload::Part};
 use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
@@ -73,28 +72,33 @@ pub fn job_status(info: &JobInfo) -> pb::JobStatus {
     }
 }
 
-/// Sends `data` in chunks made by `make` (`first` tells the first chunk).
-fn stream_chunks<T: Send + 'static>(
-    data: Vec<u8>,
-    make: impl Fn(Vec<u8>, bool) -> T + Send + 'static,
-) -> ReceiverStream<Result<T, Status>> {
-    let (tx, rx) = mpsc::channel(4);
-    tokio::spawn(async move {
-        if data.is_empty() {
-            let _ = tx.send(Ok(make(Vec::new(), true))).await;
-        }
-        for (i, c) in data.chunks(CHUNK_SIZE).enumerate() {
-            if tx.send(Ok(make(c.to_vec(), i == 0))).await.is_err() {
-                break;
-            }
-        }
-    });
-    ReceiverStream::new(rx)
-}
-
 /// `trevi.v1.Bundles`.
+///
+/// An upload streams to a temporary file as its chunks arrive (see
+/// [`crate::bundles`]), so the memory it takes is a chunk or two, whatever
+/// the bundle's size. At most [`Limits::max_uploads`] run at once (one more
+/// is refused with `RESOURCE_EXHAUSTED`); one that sends nothing for
+/// [`Limits::upload_idle`] is dropped (`DEADLINE_EXCEEDED`); the size limit
+/// is enforced as the bytes come. A download streams from the stored file
+/// after checking its hash; a damaged or missing copy fails the jobs that
+/// render it, with that reason.
+///
+/// [`Limits::max_uploads`]: crate::farm::Limits::max_uploads
+/// [`Limits::upload_idle`]: crate::farm::Limits::upload_idle
 pub struct BundlesService {
     pub farm: Arc<Farm>,
+    /// One permit per upload in progress.
+    pub uploads: Arc<Semaphore>,
+}
+
+impl BundlesService {
+    pub fn new(farm: Arc<Farm>) -> Self {
+        let n = farm.config().limits.max_uploads;
+        BundlesService {
+            farm,
+            uploads: Arc::new(Semaphore::new(n)),
+        }
+    }
 }
 
 #[tonic::async_trait]
@@ -104,23 +108,51 @@ impl pb::bundles_server::Bundles for BundlesService {
         req: Request<Streaming<pb::BundleChunk>>,
     ) -> Result<Response<pb::BundleRef>, Status> {
         auth::granted(&req).need_submitter("uploading a bundle")?;
-        let max = self.farm.config().limits.max_bundle_bytes;
+        let limits = self.farm.config().limits;
+        let _permit = self.uploads.clone().try_acquire_owned().map_err(|_| {
+            Status::resource_exhausted(format!(
+                "{} bundle uploads are in progress, the coordinator's limit (--max-uploads); \
+                 try again shortly",
+                limits.max_uploads
+            ))
+        })?;
+        let max = limits.max_bundle_bytes;
         let mut s = req.into_inner();
-        let mut buf = Vec::new();
-        while let Some(c) = s.message().await? {
-            if (buf.len() + c.data.len()) as u64 > max {
+        let farm = self.farm.clone();
+        // Dropped on any early return (or if this call is dropped), the
+        // upload removes its temporary file.
+        let mut up = blocking(move || farm.bundles().begin_upload()).await?;
+        loop {
+            let chunk = match tokio::time::timeout(limits.upload_idle, s.message()).await {
+                Ok(c) => c?,
+                Err(_) => {
+                    tracing::warn!(received = up.size(), "bundle upload stalled; dropped");
+                    return Err(Status::deadline_exceeded(format!(
+                        "the upload sent nothing for {} ms, the coordinator's limit \
+                         (--upload-idle-ms); dropped after {} bytes",
+                        limits.upload_idle.as_millis(),
+                        up.size()
+                    )));
+                }
+            };
+            let Some(c) = chunk else { break };
+            if up.size() + c.data.len() as u64 > max {
                 return Err(Status::resource_exhausted(format!(
                     "the bundle is larger than the coordinator's limit of {max} bytes \
                      (--max-bundle-mib)"
                 )));
             }
-            buf.extend_from_slice(&c.data);
+            up = blocking(move || {
+                up.write(&c.data)?;
+                Ok(up)
+            })
+            .await?;
         }
-        let size = buf.len() as u64;
+        let size = up.size();
         let farm = self.farm.clone();
         let hash = blocking(move || {
             let max_files = farm.config().limits.max_bundle_files;
-            farm.bundles().put_limited(&buf, max_files)
+            farm.bundles().finish_upload(up, max_files)
         })
         .await?;
         tracing::info!(%hash, size, "bundle stored");
@@ -135,11 +167,74 @@ impl pb::bundles_server::Bundles for BundlesService {
     ) -> Result<Response<Self::DownloadBundleStream>, Status> {
         let hash = req.into_inner().hash;
         let farm = self.farm.clone();
-        let data = blocking(move || farm.bundles().get_bytes(&hash)).await?;
-        Ok(Response::new(stream_chunks(data, |data, _| {
-            pb::BundleChunk { data }
-        })))
+        let opened = {
+            let hash = hash.clone();
+            tokio::task::spawn_blocking(move || farm.bundles().open_verified(&hash))
+                .await
+                .map_err(join_error)?
+        };
+        let file = match opened {
+            Ok((file, _size)) => file,
+            Err(e @ (FarmError::BadBundle(_) | FarmError::UnknownBundle(_))) => {
+                // No worker can render the jobs on this bundle: fail them
+                // now, saying why, rather than let their tiles fail one
+                // lease at a time.
+                let why = e.to_string();
+                let farm = self.farm.clone();
+                let failed = {
+                    let hash = hash.clone();
+                    blocking(move || Ok(farm.fail_bundle_jobs(&hash, &why))).await?
+                };
+                if !failed.is_empty() {
+                    tracing::error!(bundle = %hash, jobs = ?failed, error = %e,
+                        "the jobs rendering a bundle failed: its stored copy cannot be served");
+                }
+                return Err(e.into());
+            }
+            Err(e) => return Err(e.into()),
+        };
+        Ok(Response::new(stream_file(
+            tokio::fs::File::from_std(file),
+            |data, _| pb::BundleChunk { data },
+        )))
     }
+}
+
+/// Sends a file in chunks made by `make` (`size` is the file's size on the
+/// first chunk, 0 after; at least one chunk, empty for an empty file),
+/// reading a chunk at a time.
+fn stream_file<T: Send + 'static>(
+    mut file: tokio::fs::File,
+    make: impl Fn(Vec<u8>, u64) -> T + Send + 'static,
+) -> ReceiverStream<Result<T, Status>> {
+    use tokio::io::AsyncReadExt;
+    let (tx, rx) = mpsc::channel(4);
+    tokio::spawn(async move {
+        let size = file.metadata().await.map(|m| m.len()).unwrap_or(0);
+        let mut first = true;
+        loop {
+            let mut buf = vec![0u8; CHUNK_SIZE];
+            let n = match file.read(&mut buf).await {
+                Ok(n) => n,
+                Err(e) => {
+                    let _ = tx
+                        .send(Err(Status::internal(format!("reading: {e}"))))
+                        .await;
+                    break;
+                }
+            };
+            if n == 0 && !first {
+                break;
+            }
+            buf.truncate(n);
+            let chunk = make(buf, if first { size } else { 0 });
+            first = false;
+            if tx.send(Ok(chunk)).await.is_err() || n == 0 {
+                break;
+            }
+        }
+    });
+    ReceiverStream::new(rx)
 }
 
 /// `trevi.v1.Jobs`.
@@ -265,42 +360,14 @@ impl pb::jobs_server::Jobs for JobsService {
         &self,
         req: Request<pb::JobId>,
     ) -> Result<Response<Self::DownloadOutputStream>, Status> {
-        use tokio::io::AsyncReadExt;
         let id = req.into_inner().id;
         let path = self.farm.output_file(id)?;
-        let mut file = tokio::fs::File::open(&path)
+        let file = tokio::fs::File::open(&path)
             .await
             .map_err(|e| Status::internal(format!("opening the output of job {id}: {e}")))?;
-        let size = file.metadata().await.map(|m| m.len()).unwrap_or(0);
-        let (tx, rx) = mpsc::channel(4);
-        tokio::spawn(async move {
-            let mut first = true;
-            loop {
-                let mut buf = vec![0u8; CHUNK_SIZE];
-                let n = match file.read(&mut buf).await {
-                    Ok(n) => n,
-                    Err(e) => {
-                        let _ = tx
-                            .send(Err(Status::internal(format!("reading: {e}"))))
-                            .await;
-                        break;
-                    }
-                };
-                if n == 0 && !first {
-                    break;
-                }
-                buf.truncate(n);
-                let chunk = pb::OutputChunk {
-                    data: buf,
-                    size: if first { size } else { 0 },
-                };
-                first = false;
-                if tx.send(Ok(chunk)).await.is_err() || n == 0 {
-                    break;
-                }
-            }
-        });
-        Ok(Response::new(ReceiverStream::new(rx)))
+        Ok(Response::new(stream_file(file, |data, size| {
+            pb::OutputChunk { data, size }
+        })))
     }
 }
 
@@ -437,7 +504,10 @@ pub struct ServeOptions {
 
 /// Serves the coordinator on `listener` until `shutdown` resolves: the three
 /// `trevi.v1` services, `grpc.health.v1` and server reflection; plus a task
-/// that re-queues expired leases. No tokens, no TLS.
+/// that re-queues expired leases and one that removes bundles no job uses
+/// ([`Farm::collect_bundles`], first at start-up). Connections are accepted
+/// through errors such as running out of file descriptors
+/// ([`crate::listen::accept`]). No tokens, no TLS.
 pub async fn serve(
     farm: Arc<Farm>,
     listener: TcpListener,
@@ -484,12 +554,40 @@ pub async fn serve_with(
         })
     };
 
-    // Small messages (leases, acks) must not wait for Nagle's algorithm.
-    let incoming = TcpListenerStream::new(listener).map(|conn| {
-        conn.inspect(|s| {
-            let _ = s.set_nodelay(true);
+    // Bundles no job uses, once past their grace period; the first pass
+    // runs at start-up.
+    let collector = {
+        let farm = farm.clone();
+        let period = (farm.config().bundle_grace / 4)
+            .clamp(Duration::from_millis(100), Duration::from_secs(600));
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            loop {
+                tick.tick().await;
+                let farm = farm.clone();
+                let _ = tokio::task::spawn_blocking(move || farm.collect_bundles()).await;
+            }
         })
+    };
+
+    // Accepted by a task that rides out accept errors (see
+    // `crate::listen`): tonic would retry at once, spinning while file
+    // descriptors are short.
+    let (conn_tx, conn_rx) = mpsc::channel::<std::io::Result<tokio::net::TcpStream>>(16);
+    let acceptor = tokio::spawn(async move {
+        loop {
+            let (tcp, _) = tokio::select! {
+                c = crate::listen::accept(&listener, "gRPC") => c,
+                _ = conn_tx.closed() => break,
+            };
+            // Small messages (leases, acks) must not wait for Nagle's algorithm.
+            let _ = tcp.set_nodelay(true);
+            if conn_tx.send(Ok(tcp)).await.is_err() {
+                break;
+            }
+        }
     });
+    let incoming = ReceiverStream::new(conn_rx);
     let tokens = Arc::new(opts.tokens);
     let guard = |need, service| Auth {
         tokens: tokens.clone(),
@@ -497,8 +595,8 @@ pub async fn serve_with(
         service,
     };
     let max_msg = farm.config().limits.max_message_bytes;
-    let bundles = BundlesServer::new(BundlesService { farm: farm.clone() })
-        .max_decoding_message_size(max_msg);
+    let bundles =
+        BundlesServer::new(BundlesService::new(farm.clone())).max_decoding_message_size(max_msg);
     let jobs =
         JobsServer::new(JobsService { farm: farm.clone() }).max_decoding_message_size(max_msg);
     let latency = crate::metrics::LatencyLayer { farm: farm.clone() };
@@ -522,5 +620,7 @@ pub async fn serve_with(
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
     reaper.abort();
+    collector.abort();
+    acceptor.abort();
     result
 }

@@ -13,6 +13,21 @@
 //!   `{"priority": N}`).
 //! - `GET /metrics` (Prometheus text, [`crate::metrics`]) and `GET /healthz`.
 //!
+//! State-changing requests (the `POST`s) must come from the monitor's own
+//! page: a request whose `Origin` (or, lacking one, `Referer`) names another
+//! site is refused (403), and the body must be declared JSON
+//! (`content-type: application/json`, else 415), which a cross-site form
+//! cannot send and a cross-site script may send only after a CORS preflight
+//! this server never grants. So with no token configured, a page elsewhere
+//! still cannot cancel jobs through a visitor's browser.
+//!
+//! Connections ([`HttpLimits`]): a client has
+//! [`HttpLimits::header_timeout`] to send each request's headers (and to
+//! finish a TLS handshake), or the connection is closed, which also ends
+//! idle keep-alive connections; at most [`HttpLimits::max_connections`] are
+//! open at once, and one more is closed as soon as it is accepted. The
+//! listener is separate from gRPC's, so a flood here leaves gRPC serving.
+//!
 //! The API needs the submit token when one is configured (as
 //! `authorization: Bearer TOKEN`, the same rule as `trevi.v1.Jobs`): jobs,
 //! previews and the buttons are a submitter's business. `/metrics`, `/healthz`
@@ -24,15 +39,18 @@ use crate::farm::Farm;
 use crate::scheduler::{JobInfo, JobState};
 use crate::workers::WorkerInfo;
 use crate::FarmError;
-use axum::extract::{Path, State};
+use axum::extract::{FromRequestParts, Path, State};
+use axum::http::request::Parts;
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
 use std::future::Future;
-use std::net::SocketAddr;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::{watch, Semaphore};
+use tokio::task::JoinSet;
 
 const MONITOR_HTML: &str = include_str!("../assets/monitor.html");
 
@@ -86,6 +104,67 @@ impl App {
     }
 }
 
+/// Refuses a state-changing request that a page on another site could have
+/// made (see the module documentation).
+fn same_site(headers: &HeaderMap) -> Result<(), ApiError> {
+    let text = |name: header::HeaderName| headers.get(name).and_then(|v| v.to_str().ok());
+    let host = text(header::HOST).unwrap_or_default();
+    if let Some(from) = text(header::ORIGIN).or_else(|| text(header::REFERER)) {
+        if !same_authority(from, host) {
+            return Err(ApiError(
+                StatusCode::FORBIDDEN,
+                format!(
+                    "refused: this request comes from {from}, not from this server's own page \
+                     (host {host}); state-changing requests must come from the monitor itself"
+                ),
+            ));
+        }
+    }
+    let json = text(header::CONTENT_TYPE)
+        .and_then(|t| t.split(';').next())
+        .is_some_and(|t| t.trim().eq_ignore_ascii_case("application/json"));
+    if !json {
+        return Err(ApiError(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "refused: state-changing requests must be sent with content-type: application/json"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
+/// A request [`same_site`] lets through. As an extractor placed before the
+/// body's, it is checked before the body is read.
+struct SameSite;
+
+impl<S: Send + Sync> FromRequestParts<S> for SameSite {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
+        same_site(&parts.headers).map(|()| SameSite)
+    }
+}
+
+/// Whether the origin or URL `from` (`scheme://host[:port][/...]`) names the
+/// server at `host` (`host[:port]`, a request's Host header); a default port
+/// (80 for http, 443 for https) may be written or not.
+fn same_authority(from: &str, host: &str) -> bool {
+    let Some((scheme, rest)) = from.split_once("://") else {
+        return false; // Includes `Origin: null`.
+    };
+    let authority = rest.split(['/', '?', '#']).next().unwrap_or_default();
+    let default = match scheme.to_ascii_lowercase().as_str() {
+        "http" => ":80",
+        "https" => ":443",
+        _ => return false,
+    };
+    let norm = |a: &str| {
+        let a = a.to_ascii_lowercase();
+        a.strip_suffix(default).map(str::to_string).unwrap_or(a)
+    };
+    !host.is_empty() && !authority.contains('@') && norm(authority) == norm(host)
+}
+
 /// The HTTP routes over `farm`.
 pub fn router(farm: Arc<Farm>, tokens: Tokens) -> Router {
     Router::new()
@@ -102,103 +181,113 @@ pub fn router(farm: Arc<Farm>, tokens: Tokens) -> Router {
         })
 }
 
+/// Bounds on the monitor's connections (see the module documentation).
+#[derive(Debug, Clone, Copy)]
+pub struct HttpLimits {
+    /// Time a client has to send a request's headers (counted from the
+    /// connection, or from the end of its previous request) and to finish
+    /// a TLS handshake.
+    pub header_timeout: Duration,
+    /// Connections open at once.
+    pub max_connections: usize,
+}
+
+impl Default for HttpLimits {
+    fn default() -> Self {
+        HttpLimits {
+            header_timeout: Duration::from_secs(10),
+            max_connections: 256,
+        }
+    }
+}
+
+/// How long connections may finish their requests after `shutdown`.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
 /// Serves [`router`] on `listener` until `shutdown` resolves; over HTTPS
 /// when given a TLS acceptor (the coordinator's `--tls-cert`, so that the
-/// submit token typed into the page is not sent in the clear).
+/// submit token typed into the page is not sent in the clear). Each
+/// connection is served in a task of its own, within `limits`.
 pub async fn serve(
     farm: Arc<Farm>,
     tokens: Tokens,
     listener: tokio::net::TcpListener,
     tls: Option<tokio_rustls::TlsAcceptor>,
+    limits: HttpLimits,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     let app = router(farm, tokens);
-    match tls {
-        None => {
-            axum::serve(listener, app)
-                .with_graceful_shutdown(shutdown)
-                .await
-        }
-        Some(acceptor) => {
-            axum::serve(TlsListener::new(listener, acceptor)?, app)
-                .with_graceful_shutdown(shutdown)
-                .await
-        }
-    }
-}
-
-/// TLS connections ready for HTTP. Handshakes run in tasks of their own,
-/// with a time limit, so a slow or silent client cannot hold up the others.
-struct TlsListener {
-    ready: tokio::sync::mpsc::Receiver<(TlsStream, SocketAddr)>,
-    addr: SocketAddr,
-    acceptor_task: tokio::task::JoinHandle<()>,
-}
-
-type TlsStream = tokio_rustls::server::TlsStream<tokio::net::TcpStream>;
-
-/// How long a client may take to finish its TLS handshake.
-const HANDSHAKE_LIMIT: std::time::Duration = std::time::Duration::from_secs(10);
-
-impl TlsListener {
-    fn new(
-        listener: tokio::net::TcpListener,
-        acceptor: tokio_rustls::TlsAcceptor,
-    ) -> std::io::Result<TlsListener> {
-        let addr = listener.local_addr()?;
-        let (tx, ready) = tokio::sync::mpsc::channel(64);
-        let acceptor_task = tokio::spawn(async move {
-            loop {
-                let (tcp, peer) = match listener.accept().await {
-                    Ok(c) => c,
-                    Err(e) => {
-                        tracing::warn!(error = %e, "monitor: accept failed");
-                        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
-                        continue;
-                    }
-                };
-                let (acceptor, tx) = (acceptor.clone(), tx.clone());
-                tokio::spawn(async move {
-                    match tokio::time::timeout(HANDSHAKE_LIMIT, acceptor.accept(tcp)).await {
-                        Ok(Ok(tls)) => {
-                            let _ = tx.send((tls, peer)).await;
-                        }
+    let slots = Arc::new(Semaphore::new(limits.max_connections));
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let mut conns = JoinSet::new();
+    let mut warned: Option<Instant> = None;
+    tokio::pin!(shutdown);
+    loop {
+        let (tcp, peer) = tokio::select! {
+            c = crate::listen::accept(&listener, "monitor") => c,
+            _ = &mut shutdown => break,
+        };
+        while conns.try_join_next().is_some() {}
+        let Ok(slot) = slots.clone().try_acquire_owned() else {
+            // Closed at once (dropped): a client waiting for a slot would
+            // hold a file descriptor all the same.
+            if warned.is_none_or(|t| t.elapsed() >= Duration::from_secs(5)) {
+                tracing::warn!(%peer, max = limits.max_connections,
+                    "monitor: too many connections (--http-max-connections); closing new ones");
+                warned = Some(Instant::now());
+            }
+            continue;
+        };
+        let (app, tls, stop) = (app.clone(), tls.clone(), stop_rx.clone());
+        conns.spawn(async move {
+            let _slot = slot;
+            match tls {
+                None => serve_connection(tcp, app, limits, stop).await,
+                Some(acceptor) => {
+                    match tokio::time::timeout(limits.header_timeout, acceptor.accept(tcp)).await {
+                        Ok(Ok(tls)) => serve_connection(tls, app, limits, stop).await,
                         Ok(Err(e)) => {
                             tracing::debug!(%peer, error = %e, "monitor: TLS handshake failed")
                         }
                         Err(_) => tracing::debug!(%peer, "monitor: TLS handshake timed out"),
                     }
-                });
+                }
             }
         });
-        Ok(TlsListener {
-            ready,
-            addr,
-            acceptor_task,
-        })
     }
+    drop(listener);
+    let _ = stop_tx.send(true);
+    let drained = async { while conns.join_next().await.is_some() {} };
+    let _ = tokio::time::timeout(SHUTDOWN_GRACE, drained).await;
+    Ok(())
 }
 
-impl Drop for TlsListener {
-    fn drop(&mut self) {
-        self.acceptor_task.abort();
-    }
-}
-
-impl axum::serve::Listener for TlsListener {
-    type Io = TlsStream;
-    type Addr = SocketAddr;
-
-    async fn accept(&mut self) -> (TlsStream, SocketAddr) {
-        match self.ready.recv().await {
-            Some(c) => c,
-            // The accepting task is gone (aborted at shutdown): no more.
-            None => std::future::pending().await,
+/// Serves HTTP/1.1 on one connection until the client or `stop` ends it.
+async fn serve_connection<I>(
+    io: I,
+    app: Router,
+    limits: HttpLimits,
+    mut stop: watch::Receiver<bool>,
+) where
+    I: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+{
+    let conn = hyper::server::conn::http1::Builder::new()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(limits.header_timeout)
+        .serve_connection(
+            hyper_util::rt::TokioIo::new(io),
+            hyper_util::service::TowerToHyperService::new(app),
+        );
+    tokio::pin!(conn);
+    let result = tokio::select! {
+        r = conn.as_mut() => r,
+        () = async { let _ = stop.wait_for(|&s| s).await; } => {
+            conn.as_mut().graceful_shutdown();
+            conn.await
         }
-    }
-
-    fn local_addr(&self) -> std::io::Result<SocketAddr> {
-        Ok(self.addr)
+    };
+    if let Err(e) = result {
+        tracing::debug!(error = %e, "monitor: connection ended");
     }
 }
 
@@ -395,6 +484,7 @@ async fn api_preview(
 
 async fn api_cancel(
     State(app): State<App>,
+    _: SameSite,
     headers: HeaderMap,
     Path(id): Path<u64>,
 ) -> Result<Json<JobView>, ApiError> {
@@ -413,6 +503,7 @@ struct PriorityBody {
 
 async fn api_priority(
     State(app): State<App>,
+    _: SameSite,
     headers: HeaderMap,
     Path(id): Path<u64>,
     Json(body): Json<PriorityBody>,
@@ -423,4 +514,65 @@ async fn api_priority(
         .await
         .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
     Ok(Json(JobView::from(&info)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_this_servers_own_origin_is_the_same_site() {
+        assert!(same_authority("http://127.0.0.1:8080", "127.0.0.1:8080"));
+        assert!(same_authority("https://Farm.example", "farm.example:443"));
+        assert!(same_authority(
+            "http://farm.example/monitor?x",
+            "farm.example"
+        ));
+        for other in [
+            "http://evil.example:8080",
+            "http://127.0.0.1:8081",
+            "null",
+            "file:///tmp/x.html",
+            "http://127.0.0.1:8080@evil.example",
+        ] {
+            assert!(!same_authority(other, "127.0.0.1:8080"), "{other}");
+        }
+        assert!(!same_authority("http://x", ""));
+    }
+
+    #[test]
+    fn a_state_change_needs_the_same_site_and_a_json_body() {
+        let h = |pairs: &[(header::HeaderName, &str)]| {
+            let mut m = HeaderMap::new();
+            for (k, v) in pairs {
+                m.insert(k.clone(), v.parse().unwrap());
+            }
+            same_site(&m).map_err(|e| e.0)
+        };
+        let host = (header::HOST, "h:1");
+        let json = (header::CONTENT_TYPE, "application/json; charset=utf-8");
+        assert_eq!(h(&[host.clone(), json.clone()]), Ok(()));
+        assert_eq!(
+            h(&[host.clone(), json.clone(), (header::ORIGIN, "http://h:1")]),
+            Ok(())
+        );
+        assert_eq!(
+            h(&[host.clone(), json.clone(), (header::ORIGIN, "http://e:1")]),
+            Err(StatusCode::FORBIDDEN)
+        );
+        assert_eq!(
+            h(&[
+                host.clone(),
+                json.clone(),
+                (header::REFERER, "http://e:1/p")
+            ]),
+            Err(StatusCode::FORBIDDEN)
+        );
+        let form = (header::CONTENT_TYPE, "application/x-www-form-urlencoded");
+        assert_eq!(
+            h(&[host.clone(), form, (header::ORIGIN, "http://h:1")]),
+            Err(StatusCode::UNSUPPORTED_MEDIA_TYPE)
+        );
+        assert_eq!(h(&[host]), Err(StatusCode::UNSUPPORTED_MEDIA_TYPE));
+    }
 }

@@ -10,6 +10,8 @@
 //! - [`http`]: the web monitor (`--http`), its JSON API, `/metrics`
 //!   ([`metrics`]) and `/healthz`; [`preview`] keeps each running frame's
 //!   small live preview, [`workers`] what is known of each worker.
+//! - [`listen`]: accepting connections through errors (out of file
+//!   descriptors) and raising the open-files limit at start-up.
 //! - [`tls`]: loading and checking the certificate and key of `--tls-cert`
 //!   and `--tls-key`.
 //!
@@ -24,6 +26,7 @@ pub mod error;
 pub mod farm;
 pub mod grpc;
 pub mod http;
+pub mod listen;
 pub mod metrics;
 pub mod preview;
 pub mod scheduler;

@@ -7,7 +7,9 @@ use std::sync::Arc;
 use std::time::Duration;
 use trevi_coordinator::auth::{token_from, Tokens};
 use trevi_coordinator::farm::Retention;
+use trevi_coordinator::farm::BUNDLE_GRACE;
 use trevi_coordinator::grpc::ServeOptions;
+use trevi_coordinator::http::HttpLimits;
 use trevi_coordinator::{Farm, FarmConfig, Limits, SchedulerConfig};
 
 #[derive(Parser, Debug)]
@@ -88,6 +90,26 @@ struct Args {
     #[arg(long, env = "TREVI_KEEP_ENDED_FOR",
         default_value_t = Retention::format_duration(Retention::default().keep_ended_for))]
     keep_ended_for: String,
+    /// Most bundle uploads in progress at once; one more is refused.
+    #[arg(long, env = "TREVI_MAX_UPLOADS", default_value_t = Limits::default().max_uploads)]
+    max_uploads: usize,
+    /// Drop a bundle upload that sends nothing for this long, in milliseconds.
+    #[arg(long, env = "TREVI_UPLOAD_IDLE_MS",
+          default_value_t = Limits::default().upload_idle.as_millis() as u64)]
+    upload_idle_ms: u64,
+    /// Remove a bundle no job uses once it was last uploaded or used this
+    /// long ago, in seconds.
+    #[arg(long, env = "TREVI_BUNDLE_GRACE_SECS", default_value_t = BUNDLE_GRACE.as_secs())]
+    bundle_grace_secs: u64,
+    /// Close a monitor connection that takes longer than this to send a
+    /// request's headers (or to finish its TLS handshake), in milliseconds.
+    #[arg(long, env = "TREVI_HTTP_HEADER_TIMEOUT_MS",
+          default_value_t = HttpLimits::default().header_timeout.as_millis() as u64)]
+    http_header_timeout_ms: u64,
+    /// Most monitor connections open at once; more are closed at once.
+    #[arg(long, env = "TREVI_HTTP_MAX_CONNECTIONS",
+          default_value_t = HttpLimits::default().max_connections)]
+    http_max_connections: usize,
     /// Serve gRPC over TLS with this PEM certificate chain (needs --tls-key).
     #[arg(long, env = "TREVI_TLS_CERT")]
     tls_cert: Option<PathBuf>,
@@ -106,6 +128,11 @@ async fn main() -> Result<()> {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let args = Args::parse();
+    // Many clients need many descriptors: use all the operator allows.
+    match trevi_coordinator::listen::raise_fd_limit() {
+        Ok(n) => tracing::debug!(open_files = n, "open-files limit"),
+        Err(e) => tracing::warn!(error = %e, "cannot raise the open-files limit"),
+    }
     anyhow::ensure!(args.tile_size > 0, "--tile-size must be at least 1");
     anyhow::ensure!(args.lease_ttl_ms > 0, "--lease-ttl-ms must be at least 1");
     let retention = Retention {
@@ -131,8 +158,15 @@ async fn main() -> Result<()> {
             max_message_bytes: (args.max_message_kib << 10).max(trevi_proto::CHUNK_SIZE + 4096),
             max_image_samples: args.max_image_samples,
             max_jobs_per_submitter: args.max_jobs_per_submitter,
+            max_uploads: args.max_uploads.max(1),
+            upload_idle: Duration::from_millis(args.upload_idle_ms.max(1)),
         },
         retention,
+        bundle_grace: Duration::from_secs(args.bundle_grace_secs),
+    };
+    let http_limits = HttpLimits {
+        header_timeout: Duration::from_millis(args.http_header_timeout_ms.max(1)),
+        max_connections: args.http_max_connections.max(1),
     };
     let submit_token = token_from(args.submit_token.clone(), args.submit_token_file.as_deref())
         .map_err(|e| anyhow::anyhow!("submit token: {e}"))?;
@@ -186,6 +220,7 @@ async fn main() -> Result<()> {
                 http_tokens,
                 l,
                 https,
+                http_limits,
                 stopped,
             )))
         }
