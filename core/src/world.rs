@@ -407,14 +407,27 @@ impl<'a> View<'a> {
                 let i = prim - n_inst;
                 let s = &scene.desc.spheres[i as usize];
                 let center = frame.sphere_centers[i as usize];
-                match sphere::intersect(origin, dir, center, s.radius, t_max) {
-                    Some((t, front)) if front || s.surface.sided == Sided::Two => f(Hit {
-                        t,
-                        kind: HitKind::Sphere(i),
-                        front,
-                    }),
-                    _ => Visit::Miss,
+                // Both crossings: the far one is offered only to a visitor
+                // that asked for more after the near one (transmittance,
+                // which counts every crossing), never to a closest- or
+                // any-hit query, whose answer it cannot change.
+                let mut result = Visit::Miss;
+                for (t, front) in sphere::crossings(origin, dir, center, s.radius, t_max)
+                    .into_iter()
+                    .flatten()
+                {
+                    if front || s.surface.sided == Sided::Two {
+                        result = f(Hit {
+                            t,
+                            kind: HitKind::Sphere(i),
+                            front,
+                        });
+                        if !matches!(result, Visit::Miss) {
+                            break;
+                        }
+                    }
                 }
+                result
             }
         });
         let mut t_max = t_max;
