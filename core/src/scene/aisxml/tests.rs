@@ -1203,6 +1203,32 @@ fn render_counts_have_documented_maxima() {
     }
 }
 
+/// Issue 15 item 14's class in the scene reader: the duplicate-attribute
+/// check compared each attribute with every earlier one, quadratic in a
+/// tag's attributes (200,000 of them: tens of seconds).
+#[test]
+fn a_tag_with_200k_attributes_is_checked_in_linear_time() {
+    let mut tag = String::from(r#"<scene version="1""#);
+    for i in 0..200_000 {
+        tag.push_str(&format!(r#" a{i}="""#));
+    }
+    let first = tag.find(" a7=").unwrap() + 2;
+    let col = tag.len() as u32 + 2;
+    tag.push_str(r#" a7="">"#);
+    let text = format!("{tag}\n{CAM}\n</scene>\n");
+    let start = std::time::Instant::now();
+    check(
+        &text,
+        1,
+        col,
+        &[&format!(
+            "attribute \"a7\" is given twice (first at 1:{first})"
+        )],
+    );
+    let took = start.elapsed();
+    assert!(took < std::time::Duration::from_secs(2), "{took:?}");
+}
+
 #[test]
 fn render_values() {
     let cam = |attrs: &str| {
