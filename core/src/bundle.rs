@@ -9,6 +9,7 @@ use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::io::{self, Read};
 use std::path::{Component, Path, PathBuf};
+use std::sync::Mutex;
 
 /// Anything that can hand out the bytes of a bundle-relative file.
 pub trait FileSource: Sync {
@@ -16,14 +17,147 @@ pub trait FileSource: Sync {
     fn read(&self, rel: &str) -> io::Result<Vec<u8>>;
 }
 
-/// Files read from a directory on disk.
+/// The default of [`ReadLimits::max_bytes`]: 256 MiB, the coordinator's
+/// default limit on an uploaded bundle, so that a bundle this side reads
+/// is one the farm accepts.
+pub const DEFAULT_MAX_BUNDLE_BYTES: u64 = 256 << 20;
+
+/// Bounds on reading a scene bundle from disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReadLimits {
+    /// Bytes of the scene file and every file it references, together.
+    /// Enforced while reading: a larger file (or `/dev/zero`) is cut off at
+    /// the limit plus one byte and refused.
+    pub max_bytes: u64,
+}
+
+impl Default for ReadLimits {
+    fn default() -> Self {
+        ReadLimits {
+            max_bytes: DEFAULT_MAX_BUNDLE_BYTES,
+        }
+    }
+}
+
+/// Files read from a directory on disk, and only from inside it.
+///
+/// Every read resolves the path (symbolic links included) and refuses it
+/// unless it ends at a regular file inside the directory: a link to
+/// `/etc/passwd` or `~/.ssh` would otherwise be uploaded with the scene and
+/// handed to anyone who can download the bundle. A FIFO, a device or a
+/// directory is refused from its metadata before it is opened, so that a
+/// FIFO cannot hang the reader and `/dev/zero` cannot fill memory; and a
+/// read stops one byte past its limit whatever the metadata said (a file
+/// may grow while it is read). As a [`FileSource`] each file may have up to
+/// [`DEFAULT_MAX_BUNDLE_BYTES`]; [`Bundle::from_scene_file_with`] bounds the
+/// bundle as a whole.
 pub struct DirSource {
     pub root: PathBuf,
 }
 
+impl DirSource {
+    /// Reads `rel` (bundle-relative) if it is a regular file inside the
+    /// directory of at most `max` bytes; `limit` is the limit to name in the
+    /// error when it is larger (`max` is what is left of it).
+    fn read_within(&self, rel: &str, max: u64, limit: u64) -> io::Result<Vec<u8>> {
+        let root = std::fs::canonicalize(&self.root)?;
+        let real = std::fs::canonicalize(self.root.join(rel))?;
+        if !real.starts_with(&root) {
+            return Err(refused(format!(
+                "\"{rel}\" resolves to {}, outside the scene's directory {} \
+                 (a symbolic link may only point inside it)",
+                real.display(),
+                root.display()
+            )));
+        }
+        // `real` has no links left, so this is the file itself.
+        let meta = std::fs::metadata(&real)?;
+        if !meta.is_file() {
+            return Err(refused(format!(
+                "\"{rel}\" is {} (expected a regular file)",
+                kind_of(meta.file_type())
+            )));
+        }
+        let file = std::fs::File::open(&real)?;
+        // The same check on what was opened (the path may have changed since).
+        let opened = file.metadata()?;
+        if !opened.is_file() {
+            return Err(refused(format!(
+                "\"{rel}\" is {} (expected a regular file)",
+                kind_of(opened.file_type())
+            )));
+        }
+        let mut data = Vec::with_capacity(opened.len().min(max) as usize);
+        file.take(max.saturating_add(1)).read_to_end(&mut data)?;
+        if data.len() as u64 > max {
+            return Err(refused(format!(
+                "\"{rel}\" takes the scene bundle past its limit of {limit} bytes \
+                 (the scene and every file it references together)"
+            )));
+        }
+        Ok(data)
+    }
+}
+
+fn refused(msg: String) -> io::Error {
+    io::Error::new(io::ErrorKind::InvalidInput, msg)
+}
+
+/// What kind of non-regular file `t` is, for an error message.
+fn kind_of(t: std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO";
+        }
+        if t.is_char_device() || t.is_block_device() {
+            return "a device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    if t.is_dir() {
+        "a directory"
+    } else {
+        "not a regular file"
+    }
+}
+
 impl FileSource for DirSource {
     fn read(&self, rel: &str) -> io::Result<Vec<u8>> {
-        std::fs::read(self.root.join(rel))
+        self.read_within(rel, DEFAULT_MAX_BUNDLE_BYTES, DEFAULT_MAX_BUNDLE_BYTES)
+    }
+}
+
+/// The files read so far and their total size.
+#[derive(Default)]
+struct Recorded {
+    files: BTreeMap<String, Vec<u8>>,
+    bytes: u64,
+}
+
+/// A [`FileSource`] over a directory that keeps what it reads (each file
+/// once), so that a bundle holds exactly the bytes that were parsed, and
+/// stops at `limits` for all files together.
+struct Recorder<'a> {
+    dir: &'a DirSource,
+    limits: ReadLimits,
+    read: Mutex<Recorded>,
+}
+
+impl FileSource for Recorder<'_> {
+    fn read(&self, rel: &str) -> io::Result<Vec<u8>> {
+        let mut r = self.read.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(data) = r.files.get(rel) {
+            return Ok(data.clone());
+        }
+        let max = self.limits.max_bytes.saturating_sub(r.bytes);
+        let data = self.dir.read_within(rel, max, self.limits.max_bytes)?;
+        r.bytes += data.len() as u64;
+        r.files.insert(rel.to_string(), data.clone());
+        Ok(data)
     }
 }
 
@@ -86,11 +220,23 @@ impl FileSource for Bundle {
 const MAGIC: &[u8; 8] = b"TREVIBN1";
 
 impl Bundle {
+    /// Reads the scene file at `path` and exactly the files it references,
+    /// within the default [`ReadLimits`] (see [`Bundle::from_scene_file_with`]).
+    pub fn from_scene_file(path: &Path) -> Result<Bundle, crate::SceneError> {
+        Bundle::from_scene_file_with(path, ReadLimits::default())
+    }
+
     /// Reads the scene file at `path` and exactly the files it references:
     /// the scene is parsed (which refuses references outside its directory
-    /// and reports any error with its location), then each referenced file
-    /// is read once more into the bundle.
-    pub fn from_scene_file(path: &Path) -> Result<Bundle, crate::SceneError> {
+    /// and reports any error with its location), and the bundle holds the
+    /// bytes that parse read. Files are read through a [`DirSource`]: a
+    /// link leaving the scene's directory, anything but a regular file, or
+    /// more than `limits.max_bytes` in all is an error located at the
+    /// element that references the file.
+    pub fn from_scene_file_with(
+        path: &Path,
+        limits: ReadLimits,
+    ) -> Result<Bundle, crate::SceneError> {
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -101,17 +247,39 @@ impl Bundle {
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or_else(|| PathBuf::from("."));
         let dir = DirSource { root };
-        let desc = crate::scene::aisxml::parse_scene(&name, &dir)?;
-        let mut files = BTreeMap::new();
-        for rel in std::iter::once(&name).chain(desc.files.iter()) {
-            let data = dir.read(rel).map_err(|e| {
-                crate::SceneError::new(
-                    crate::Location::new(rel.clone(), 1, 1),
-                    format!("cannot read: {e}"),
-                )
-            })?;
-            files.insert(rel.clone(), data);
+        let recorder = Recorder {
+            dir: &dir,
+            limits,
+            read: Mutex::new(Recorded::default()),
+        };
+        let desc = crate::scene::aisxml::parse_scene(&name, &recorder)?;
+        let wanted: Vec<&String> = std::iter::once(&name).chain(desc.files.iter()).collect();
+        for &rel in &wanted {
+            // The parser has read every file it lists; this is a fallback.
+            let missing = !recorder
+                .read
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .files
+                .contains_key(rel);
+            if missing {
+                recorder.read(rel).map_err(|e| {
+                    crate::SceneError::new(
+                        crate::Location::new(rel.clone(), 1, 1),
+                        format!("cannot read: {e}"),
+                    )
+                })?;
+            }
         }
+        let mut read = recorder
+            .read
+            .into_inner()
+            .unwrap_or_else(|e| e.into_inner())
+            .files;
+        let files = wanted
+            .into_iter()
+            .map(|rel| (rel.clone(), read.remove(rel).unwrap_or_default()))
+            .collect();
         Ok(Bundle { scene: name, files })
     }
 
@@ -293,6 +461,130 @@ mod tests {
         assert!(normalize_rel_path("a/../../x.obj").is_err());
         assert!(normalize_rel_path("/etc/passwd").is_err());
         assert!(normalize_rel_path("").is_err());
+    }
+
+    const OBJ: &[u8] = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+
+    /// A scene directory whose scene.xml references `mesh` (line 2, where
+    /// the `file` attribute starts at column 16).
+    fn scene_dir(mesh: &str) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        let xml = format!(
+            "<scene version=\"1\">\n  <mesh id=\"m\" file=\"{mesh}\"/>\n  \
+             <camera id=\"c\" position=\"0 0 5\" lookat=\"0 0 0\" fov=\"40\">\
+             <render width=\"4\" height=\"4\"/></camera>\n</scene>\n"
+        );
+        std::fs::write(dir.path().join("scene.xml"), xml).unwrap();
+        dir
+    }
+
+    /// Reads the bundle, expecting an error at the mesh's `file` attribute.
+    fn refused_at_the_mesh(dir: &Path, limits: ReadLimits, what: &str) -> String {
+        match Bundle::from_scene_file_with(&dir.join("scene.xml"), limits) {
+            Ok(b) => panic!("read {:?}", b.files.keys().collect::<Vec<_>>()),
+            Err(e) => {
+                let msg = e.to_string();
+                assert_eq!(
+                    (e.location.file.as_str(), e.location.line, e.location.column),
+                    ("scene.xml", 2, 16),
+                    "{msg}"
+                );
+                assert!(msg.contains("attribute \"file\" of <mesh>"), "{msg}");
+                assert!(msg.contains(what), "{msg}");
+                msg
+            }
+        }
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn symlinks_leaving_the_scene_directory_are_refused_at_the_referencing_element() {
+        let outside = tempfile::tempdir().unwrap();
+        let secret = outside.path().join("secret.obj");
+        std::fs::write(&secret, OBJ).unwrap();
+        let dir = scene_dir("m.obj");
+        std::os::unix::fs::symlink(&secret, dir.path().join("m.obj")).unwrap();
+        refused_at_the_mesh(
+            dir.path(),
+            ReadLimits::default(),
+            "outside the scene's directory",
+        );
+        // A link to /dev/zero is outside too (and was read until memory ran out).
+        let dir = scene_dir("z.obj");
+        std::os::unix::fs::symlink("/dev/zero", dir.path().join("z.obj")).unwrap();
+        refused_at_the_mesh(
+            dir.path(),
+            ReadLimits::default(),
+            "outside the scene's directory",
+        );
+        // A link that stays inside is followed, and the bundle holds the bytes.
+        let dir = scene_dir("m.obj");
+        std::fs::create_dir(dir.path().join("meshes")).unwrap();
+        std::fs::write(dir.path().join("meshes/real.obj"), OBJ).unwrap();
+        std::os::unix::fs::symlink("meshes/real.obj", dir.path().join("m.obj")).unwrap();
+        let b = Bundle::from_scene_file(&dir.path().join("scene.xml")).unwrap();
+        assert_eq!(b.files["m.obj"], OBJ);
+        assert_eq!(b.files.len(), 2);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_fifo_or_a_directory_is_refused_without_hanging() {
+        let dir = scene_dir("f.obj");
+        let fifo = dir.path().join("f.obj");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            let (tx, rx) = std::sync::mpsc::channel();
+            let path = dir.path().to_path_buf();
+            std::thread::spawn(move || {
+                let r = Bundle::from_scene_file(&path.join("scene.xml"));
+                let _ = tx.send(r.map(|_| ()).map_err(|e| e.to_string()));
+            });
+            // Before the fix the read blocked forever waiting for a writer.
+            match rx.recv_timeout(std::time::Duration::from_secs(10)) {
+                Ok(Err(msg)) => {
+                    assert!(msg.contains("is a FIFO (expected a regular file)"), "{msg}")
+                }
+                other => panic!("expected a refusal, got {other:?}"),
+            }
+        } else {
+            eprintln!("mkfifo unavailable: FIFO case skipped");
+        }
+        let dir = scene_dir("d.obj");
+        std::fs::create_dir(dir.path().join("d.obj")).unwrap();
+        refused_at_the_mesh(dir.path(), ReadLimits::default(), "is a directory");
+    }
+
+    #[test]
+    fn the_size_limit_is_enforced_while_reading() {
+        let dir = scene_dir("m.obj");
+        std::fs::write(dir.path().join("m.obj"), OBJ).unwrap();
+        let scene_len = std::fs::metadata(dir.path().join("scene.xml"))
+            .unwrap()
+            .len();
+        let total = scene_len + OBJ.len() as u64;
+        // Exactly the scene and the mesh fit; one byte less does not.
+        let b = Bundle::from_scene_file_with(
+            &dir.path().join("scene.xml"),
+            ReadLimits { max_bytes: total },
+        )
+        .unwrap();
+        assert_eq!(b.files["m.obj"], OBJ);
+        refused_at_the_mesh(
+            dir.path(),
+            ReadLimits {
+                max_bytes: total - 1,
+            },
+            &format!("past its limit of {} bytes", total - 1),
+        );
+        // The scene file alone over the limit: an error at the scene file.
+        let e = Bundle::from_scene_file_with(
+            &dir.path().join("scene.xml"),
+            ReadLimits { max_bytes: 10 },
+        )
+        .unwrap_err();
+        assert_eq!((e.location.line, e.location.column), (1, 1));
+        assert!(e.message.contains("past its limit of 10 bytes"), "{e}");
     }
 
     #[test]

@@ -72,11 +72,133 @@ pub struct Integrator<'a, O: RayObserver = ()> {
     sampler: SamplerKind,
 }
 
-/// Per-pixel state: the sampler, the current camera sample, and a ray count.
+/// Per-pixel state: the sampler, the current camera sample, a ray count,
+/// and the heap stacks the ray-tree walks reuse from sample to sample.
 pub struct PixelContext {
     sampler: PixelSampler,
     sample: u32,
     pub rays: u64,
+    /// Nodes of the reflection/refraction tree waiting for a child (see
+    /// `Integrator::radiance`).
+    pending: Vec<Pending>,
+    /// Levels of a diffuse gather chain waiting for the level below (see
+    /// `Integrator::gather_chain`).
+    links: Vec<Link>,
+}
+
+/// How many samples [`Sum`] adds in `f32` before moving them to its `f64`
+/// total.
+pub const SUM_BLOCK: u32 = 1024;
+
+/// A sum of many `f32` samples that stays right however many there are.
+///
+/// Summed in plain `f32`, 8000² camera samples stall (the running sum grows
+/// until each new sample is below half its ULP: 140 where 188 is right),
+/// 65536² overflow the count into NaN. Here samples are added in `f32`
+/// within blocks of [`SUM_BLOCK`] and the blocks in `f64`, so the relative
+/// error is at most about `SUM_BLOCK`·2⁻²⁴ ≈ 6·10⁻⁵ whatever the count.
+/// Up to `SUM_BLOCK` samples the mean is bit for bit the plain `f32` sum
+/// divided in `f32` as before (adding the block to a zero `f64` is exact,
+/// and an `f32` quotient computed in `f64` and rounded is the correctly
+/// rounded `f32` quotient), so images with ordinary sample counts keep
+/// their bytes.
+#[derive(Clone, Copy, Default)]
+struct Sum<T: Wide> {
+    block: T,
+    in_block: u32,
+    total: T::Wide,
+}
+
+/// `f32` and `Vec3`, with their `f64` counterparts.
+trait Wide: Copy + Default + std::ops::AddAssign {
+    type Wide: Copy + Default + std::ops::AddAssign;
+    fn widen(self) -> Self::Wide;
+    /// `(total + self) / n`, rounded back.
+    fn mean(self, total: Self::Wide, n: u64) -> Self;
+}
+
+impl Wide for f32 {
+    type Wide = f64;
+    #[inline]
+    fn widen(self) -> f64 {
+        f64::from(self)
+    }
+    #[inline]
+    fn mean(self, total: f64, n: u64) -> f32 {
+        ((total + f64::from(self)) / n as f64) as f32
+    }
+}
+
+impl Wide for Vec3 {
+    type Wide = glam::DVec3;
+    #[inline]
+    fn widen(self) -> glam::DVec3 {
+        self.as_dvec3()
+    }
+    #[inline]
+    fn mean(self, total: glam::DVec3, n: u64) -> Vec3 {
+        ((total + self.as_dvec3()) / n as f64).as_vec3()
+    }
+}
+
+impl<T: Wide> Sum<T> {
+    #[inline]
+    fn add(&mut self, v: T) {
+        self.block += v;
+        self.in_block += 1;
+        if self.in_block == SUM_BLOCK {
+            self.total += self.block.widen();
+            self.block = T::default();
+            self.in_block = 0;
+        }
+    }
+
+    /// The sum divided by `n` (the number of samples, counting those that
+    /// added nothing).
+    #[inline]
+    fn mean(&self, n: u64) -> T {
+        self.block.mean(self.total, n)
+    }
+}
+
+/// A ray of the reflection/refraction tree still to be traced.
+#[derive(Clone, Copy)]
+struct Branch {
+    origin: Vec3,
+    dir: Vec3,
+    /// The node's name, for its sample streams.
+    node: u64,
+    /// The factor its colour gets in the pixel.
+    weight: f32,
+}
+
+/// Which child of a [`Pending`] node is being traced.
+#[derive(Clone, Copy)]
+enum Child {
+    Refracted,
+    Reflected,
+}
+
+/// A node of the reflection/refraction tree whose colour waits for a child.
+#[derive(Clone, Copy)]
+struct Pending {
+    /// The colour so far: local, then blended with the refracted colour.
+    c: Vec3,
+    opacity: f32,
+    reflectivity: f32,
+    depth: u32,
+    /// The reflected ray, when it is still to be traced after the refracted one.
+    reflect: Option<Branch>,
+    awaiting: Child,
+}
+
+/// One level of a diffuse gather chain below the first: D(q) without G'(q)
+/// yet, kd_q, and the distance weight f(s).
+#[derive(Clone, Copy)]
+struct Link {
+    direct: Vec3,
+    kd: Vec3,
+    f: f32,
 }
 
 impl<'a> Integrator<'a> {
@@ -117,11 +239,14 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             },
             sample: 0,
             rays: 0,
+            pending: Vec::new(),
+            links: Vec::new(),
         };
         let value = match r.adaptive {
             None => {
+                // n ≤ MAX_SUPERSAMPLE, so n² fits in a u32 (the parser's bound).
                 let n = r.supersample;
-                let mut sum = Vec3::ZERO;
+                let mut sum = Sum::<Vec3>::default();
                 for s in 0..n * n {
                     let (sx, sy) = if r.jitter {
                         let [jx, jy] = ctx.sampler.get2(STREAM_PIXEL, s);
@@ -135,9 +260,9 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                             ((s / n) as f32 + 0.5) / n as f32,
                         )
                     };
-                    sum += self.camera_sample(&mut ctx, x, y, s, sx, sy);
+                    sum.add(self.camera_sample(&mut ctx, x, y, s, sx, sy));
                 }
-                saturate(sum / (n * n) as f32)
+                saturate(sum.mean(u64::from(n * n)))
             }
             Some(a) => {
                 // Sample until the standard error of the mean (largest over the
@@ -198,63 +323,138 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             [0.5, 0.5]
         };
         let ray = self.camera.ray(x, y, sx, sy, lens);
-        self.radiance(ctx, ray.origin, ray.dir, 0, 0, 1.0)
+        self.radiance(ctx, ray.origin, ray.dir)
     }
 
-    /// The color seen along a ray at recursion `depth`; `node` names the ray's
-    /// place in the reflection/refraction tree (for sample streams);
-    /// `weight` is the factor its color gets in the pixel (the product of
-    /// the blend weights above it).
+    /// The color seen along a camera ray: the Whitted tree below it, walked
+    /// depth first (the refracted subtree, then the reflected one, as the
+    /// spec's blend order has it) with the nodes waiting for a child on a
+    /// heap stack, not the thread's: `max-depth="3000"` in a mirror sphere
+    /// overflowed the render thread's stack and aborted the process. The
+    /// stack holds at most `max-depth` nodes (≤ [`crate::scene::MAX_DEPTH`]).
     ///
-    /// A branch whose weight falls below [`MIN_BRANCH_WEIGHT`] is not traced
-    /// (its term of the blend keeps the local color instead). Without this a
-    /// surface that both reflects and refracts doubles the rays at every
-    /// level, and two such panes facing each other at max-depth 64 are 2⁶⁴
-    /// rays per sample: the render never ends. A pruned branch changes the
-    /// pixel by at most 10⁻⁴ times its radiance, under a 40th of an 8-bit
-    /// level for radiance up to 1.
-    fn radiance(
-        &self,
-        ctx: &mut PixelContext,
-        origin: Vec3,
-        dir: Vec3,
-        depth: u32,
-        node: u64,
-        weight: f32,
-    ) -> Vec3 {
+    /// Each node's `node` names its place in the tree (for sample streams)
+    /// and `weight` is the factor its color gets in the pixel (the product
+    /// of the blend weights above it). A branch whose weight falls below
+    /// [`MIN_BRANCH_WEIGHT`] is not traced (its term of the blend keeps the
+    /// local color instead). Without this a surface that both reflects and
+    /// refracts doubles the rays at every level, and two such panes facing
+    /// each other at max-depth 64 are 2⁶⁴ rays per sample: the render never
+    /// ends. A pruned branch changes the pixel by at most 10⁻⁴ times its
+    /// radiance, under a 40th of an 8-bit level for radiance up to 1.
+    fn radiance(&self, ctx: &mut PixelContext, origin: Vec3, dir: Vec3) -> Vec3 {
+        let mut stack = std::mem::take(&mut ctx.pending);
+        stack.clear();
+        let mut ray = Branch {
+            origin,
+            dir,
+            node: 0,
+            weight: 1.0,
+        };
+        let mut depth = 0u32;
+        let color = 'descend: loop {
+            let mut value = match self.shade(ctx, ray, depth) {
+                Shaded::Leaf(c) => c,
+                Shaded::Node(p, child) => {
+                    stack.push(p);
+                    ray = child;
+                    depth += 1;
+                    continue 'descend;
+                }
+            };
+            // Blend `value` into the nodes waiting for it, bottom up, until
+            // one has another child to trace.
+            loop {
+                let Some(top) = stack.last_mut() else {
+                    break 'descend value;
+                };
+                match top.awaiting {
+                    Child::Refracted => {
+                        top.c = saturate(top.opacity * top.c + (1.0 - top.opacity) * value);
+                        if let Some(child) = top.reflect.take() {
+                            top.awaiting = Child::Reflected;
+                            depth = top.depth + 1;
+                            ray = child;
+                            continue 'descend;
+                        }
+                        value = top.c;
+                    }
+                    Child::Reflected => {
+                        value =
+                            saturate((1.0 - top.reflectivity) * top.c + top.reflectivity * value);
+                    }
+                }
+                stack.pop();
+            }
+        };
+        ctx.pending = stack;
+        color
+    }
+
+    /// Traces `ray` (at `depth` in the tree) and shades its hit: the local
+    /// color, and the refracted and reflected rays to trace if any.
+    fn shade(&self, ctx: &mut PixelContext, ray: Branch, depth: u32) -> Shaded {
+        let Branch {
+            origin,
+            dir,
+            node,
+            weight,
+        } = ray;
         let Some(hit) = self.trace(ctx, origin, dir, f32::INFINITY) else {
-            return self.background;
+            return Shaded::Leaf(self.background);
         };
         let sp = self.view.surface_point(origin, dir, &hit);
         let v = -dir.normalize();
         let surf = sp.surface;
-        let mut c = saturate(self.local(ctx, &sp, v, node));
+        let c = saturate(self.local(ctx, &sp, v, node));
         let max_depth = self.desc.render.max_depth;
         // The refracted color is blended in with 1 − α, then the whole with
-        // 1 − r by the reflection below.
+        // 1 − r by the reflection.
         let w_refract = weight * (1.0 - surf.opacity) * (1.0 - surf.reflectivity);
-        if surf.opacity < 1.0 && depth < max_depth && w_refract >= MIN_BRANCH_WEIGHT {
-            let eta = if sp.front { 1.0 / surf.ior } else { surf.ior };
-            let t = refract(v, sp.ns, eta);
-            let o = sp.spawn(t);
-            let l = self.radiance(ctx, o, t, depth + 1, hash2(node, TAG_REFRACT), w_refract);
-            c = saturate(surf.opacity * c + (1.0 - surf.opacity) * l);
-        }
+        let refract = (surf.opacity < 1.0 && depth < max_depth && w_refract >= MIN_BRANCH_WEIGHT)
+            .then(|| {
+                let eta = if sp.front { 1.0 / surf.ior } else { surf.ior };
+                let t = refract(v, sp.ns, eta);
+                Branch {
+                    origin: sp.spawn(t),
+                    dir: t,
+                    node: hash2(node, TAG_REFRACT),
+                    weight: w_refract,
+                }
+            });
         let w_reflect = weight * surf.reflectivity;
-        if surf.reflectivity > 0.0 && depth < max_depth && w_reflect >= MIN_BRANCH_WEIGHT {
-            let mut r = reflect(-v, sp.ns);
-            // A smooth normal can tilt the mirror direction into the
-            // surface; mirrored back out in the geometric plane it cannot
-            // start on the far side of a thin wall (a light leak).
-            let r_ng = r.dot(sp.ng);
-            if r_ng < 0.0 {
-                r -= 2.0 * r_ng * sp.ng;
-            }
-            let o = sp.spawn(r);
-            let l = self.radiance(ctx, o, r, depth + 1, hash2(node, TAG_REFLECT), w_reflect);
-            c = saturate((1.0 - surf.reflectivity) * c + surf.reflectivity * l);
+        let reflect = (surf.reflectivity > 0.0
+            && depth < max_depth
+            && w_reflect >= MIN_BRANCH_WEIGHT)
+            .then(|| {
+                let mut r = reflect(-v, sp.ns);
+                // A smooth normal can tilt the mirror direction into the
+                // surface; mirrored back out in the geometric plane it cannot
+                // start on the far side of a thin wall (a light leak).
+                let r_ng = r.dot(sp.ng);
+                if r_ng < 0.0 {
+                    r -= 2.0 * r_ng * sp.ng;
+                }
+                Branch {
+                    origin: sp.spawn(r),
+                    dir: r,
+                    node: hash2(node, TAG_REFLECT),
+                    weight: w_reflect,
+                }
+            });
+        let pending = |reflect, awaiting| Pending {
+            c,
+            opacity: surf.opacity,
+            reflectivity: surf.reflectivity,
+            depth,
+            reflect,
+            awaiting,
+        };
+        match (refract, reflect) {
+            (Some(t), r) => Shaded::Node(pending(r, Child::Refracted), t),
+            (None, Some(r)) => Shaded::Node(pending(None, Child::Reflected), r),
+            (None, None) => Shaded::Leaf(c),
         }
-        c
     }
 
     /// `local` of the spec at a hit of the Whitted tree.
@@ -271,7 +471,13 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             };
             c += ka_ambient * a;
         }
-        c += self.direct(ctx, sp, Some(v), hash2(node, TAG_SHADOW), ctx.sample);
+        c += self.direct(
+            ctx,
+            sp,
+            Some(v),
+            hash2(node, TAG_SHADOW),
+            u64::from(ctx.sample),
+        );
         if r.diffuse_samples > 0 && surf.diffuse != Vec3::ZERO {
             let g = self.gather(
                 ctx,
@@ -279,7 +485,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                 1,
                 r.diffuse_samples,
                 hash2(node, TAG_GATHER),
-                ctx.sample,
+                u64::from(ctx.sample),
             );
             c += surf.diffuse * g;
         }
@@ -290,14 +496,15 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
     /// specular term only where N·L > 0 and only when `v` is given (the
     /// diffuse gather uses the diffuse part alone). Soft shadows average
     /// `shadow-samples` jittered light positions; sample `k` of light `j`
-    /// draws index `index·S + k` of stream `hash(stream, j)`.
+    /// draws index `index·S + k` of stream `hash(stream, j)` (in 64 bits:
+    /// the parser's bounds keep every such index below 2⁶⁴).
     fn direct(
         &self,
         ctx: &mut PixelContext,
         sp: &SurfacePoint,
         v: Option<Vec3>,
         stream: u64,
-        index: u32,
+        index: u64,
     ) -> Vec3 {
         let surf = sp.surface;
         let specular = v.is_some() && surf.specular != Vec3::ZERO;
@@ -312,12 +519,11 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                 1
             };
             let light_stream = hash2(stream, j as u64);
-            let mut sum = Vec3::ZERO;
+            let mut sum = Sum::<Vec3>::default();
             for k in 0..samples {
                 let pos = if light.radius > 0.0 {
-                    let u = ctx
-                        .sampler
-                        .get2(light_stream, index.wrapping_mul(samples).wrapping_add(k));
+                    let i = index * u64::from(samples) + u64::from(k);
+                    let u = ctx.sampler.get2_wide(light_stream, i);
                     jittered_position(light, self.view.light_position(j), sp.p, u)
                 } else {
                     self.view.light_position(j)
@@ -345,9 +551,9 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                         term += surf.specular * rv.powf(surf.shininess);
                     }
                 }
-                sum += inc.e * saturate(term) * vis;
+                sum.add(inc.e * saturate(term) * vis);
             }
-            total += sum / samples as f32;
+            total += sum.mean(u64::from(samples));
         }
         saturate(total)
     }
@@ -363,11 +569,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
     /// 1 where nothing is hit within s_max.
     fn ambient_occlusion(&self, ctx: &mut PixelContext, sp: &SurfacePoint, stream: u64) -> f32 {
         let n = self.desc.render.ao_samples;
-        let mut sum = 0.0f32;
+        let mut sum = Sum::<f32>::default();
         for k in 0..n {
-            let u = ctx
-                .sampler
-                .get2(stream, ctx.sample.wrapping_mul(n).wrapping_add(k));
+            let i = u64::from(ctx.sample) * u64::from(n) + u64::from(k);
+            let u = ctx.sampler.get2_wide(stream, i);
             let d = cosine_hemisphere(sp.ns, u);
             if d.dot(sp.ng) <= 0.0 {
                 // Into the surface itself (a smooth normal's hemisphere dips
@@ -375,19 +580,18 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                 continue;
             }
             let o = sp.spawn(d);
-            sum += match self.trace(ctx, o, d, self.s_max) {
+            sum.add(match self.trace(ctx, o, d, self.s_max) {
                 Some(h) => (h.t / self.s_max).min(1.0),
                 None => 1.0,
-            };
+            });
         }
-        sum / n as f32
+        sum.mean(u64::from(n))
     }
 
-    /// G at `level` (1 = the first level): mean over `count` cosine
-    /// directions of f(s_k)·D(q_k), with
-    /// D(q) = kd_q ⊙ (Σ vis·E·max(0,N·L) + G'(q)) and G' one direction
-    /// deeper, `diffuse-depth` levels in all.
-    /// Sample `k` uses index `index·count + k`.
+    /// G at the first level: mean over `count` cosine directions of
+    /// f(s_k)·D(q_k), with D(q) = kd_q ⊙ (Σ vis·E·max(0,N·L) + G'(q)) and
+    /// G' one direction deeper, `diffuse-depth` levels in all (see
+    /// [`Integrator::gather_chain`]). Sample `k` uses index `index·count + k`.
     fn gather(
         &self,
         ctx: &mut PixelContext,
@@ -395,40 +599,108 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         level: u32,
         count: u32,
         stream: u64,
-        index: u32,
+        index: u64,
     ) -> Vec3 {
-        let r = &self.desc.render;
-        let mut sum = Vec3::ZERO;
+        let mut sum = Sum::<Vec3>::default();
         for k in 0..count {
-            let idx = index.wrapping_mul(count).wrapping_add(k);
-            let u = ctx.sampler.get2(hash2(stream, level as u64), idx);
-            let d = cosine_hemisphere(sp.ns, u);
-            if d.dot(sp.ng) <= 0.0 {
-                // Into the surface itself: nothing gathered (see AO).
-                continue;
-            }
-            let o = sp.spawn(d);
-            let Some(hit) = self.trace(ctx, o, d, self.s_max) else {
+            let idx = index * u64::from(count) + u64::from(k);
+            let Some((link, q)) = self.gather_direction(ctx, sp, level, stream, idx) else {
                 continue;
             };
-            let f = (1.0 - hit.t / self.s_max).max(0.0);
-            if f <= 0.0 {
-                continue;
+            let mut d_q = link.direct;
+            if level < self.desc.render.diffuse_depth {
+                d_q += link.kd * self.gather_chain(ctx, q, level + 1, stream, idx);
             }
-            let q = self.view.surface_point(o, d, &hit);
-            if q.surface.diffuse == Vec3::ZERO {
-                continue;
-            }
-            let shadow_stream = hash2(hash2(stream, TAG_GATHER_SHADOW), level as u64);
-            // `direct` already weights by kd_q, so D(q) = direct + kd_q ⊙ G'(q).
-            let mut d_q = self.direct(ctx, &q, None, shadow_stream, idx);
-            if level < r.diffuse_depth {
-                d_q += q.surface.diffuse * self.gather(ctx, &q, level + 1, 1, stream, idx);
-            }
-            sum += d_q * f;
+            sum.add(d_q * link.f);
         }
-        saturate(sum / count as f32)
+        saturate(sum.mean(u64::from(count)))
     }
+
+    /// One gather direction at `level` from `sp` with sample index `idx`:
+    /// the first hit q, kd_q, f(s) and the direct part of D(q); `None` when
+    /// the direction contributes nothing.
+    fn gather_direction(
+        &self,
+        ctx: &mut PixelContext,
+        sp: &SurfacePoint,
+        level: u32,
+        stream: u64,
+        idx: u64,
+    ) -> Option<(Link, SurfacePoint<'a>)> {
+        let u = ctx.sampler.get2_wide(hash2(stream, level as u64), idx);
+        let d = cosine_hemisphere(sp.ns, u);
+        if d.dot(sp.ng) <= 0.0 {
+            // Into the surface itself: nothing gathered (see AO).
+            return None;
+        }
+        let o = sp.spawn(d);
+        let hit = self.trace(ctx, o, d, self.s_max)?;
+        let f = (1.0 - hit.t / self.s_max).max(0.0);
+        if f <= 0.0 {
+            return None;
+        }
+        let q = self.view.surface_point(o, d, &hit);
+        if q.surface.diffuse == Vec3::ZERO {
+            return None;
+        }
+        let shadow_stream = hash2(hash2(stream, TAG_GATHER_SHADOW), level as u64);
+        // `direct` already weights by kd_q, so D(q) = direct + kd_q ⊙ G'(q).
+        let direct = self.direct(ctx, &q, None, shadow_stream, idx);
+        Some((
+            Link {
+                direct,
+                kd: q.surface.diffuse,
+                f,
+            },
+            q,
+        ))
+    }
+
+    /// G' from `sp` at `level` ≥ 2: one direction per level down to
+    /// `diffuse-depth`, walked down a chain kept on the heap and folded back
+    /// up (a recursion as deep as `diffuse-depth` overflowed the thread's
+    /// stack). Each level is the mean of its one term, as a one-direction
+    /// gather computes it.
+    fn gather_chain(
+        &self,
+        ctx: &mut PixelContext,
+        sp: SurfacePoint<'a>,
+        level: u32,
+        stream: u64,
+        idx: u64,
+    ) -> Vec3 {
+        let mut links = std::mem::take(&mut ctx.links);
+        links.clear();
+        let one = |v: Vec3| {
+            let mut sum = Sum::<Vec3>::default();
+            sum.add(v);
+            saturate(sum.mean(1))
+        };
+        let (mut sp, mut level) = (sp, level);
+        let mut g = loop {
+            match self.gather_direction(ctx, &sp, level, stream, idx) {
+                None => break saturate(Sum::<Vec3>::default().mean(1)),
+                Some((link, q)) if level < self.desc.render.diffuse_depth => {
+                    links.push(link);
+                    sp = q;
+                    level += 1;
+                }
+                Some((link, _)) => break one(link.direct * link.f),
+            }
+        };
+        while let Some(link) = links.pop() {
+            g = one((link.direct + link.kd * g) * link.f);
+        }
+        ctx.links = links;
+        g
+    }
+}
+
+/// What shading one ray of the Whitted tree gives: a final color, or a node
+/// waiting for the color of its first child, the ray to trace next.
+enum Shaded {
+    Leaf(Vec3),
+    Node(Pending, Branch),
 }
 
 /// Overflow guard: +∞ components become `f32::MAX`. Radiance can overflow
@@ -470,6 +742,132 @@ pub fn refract(v: Vec3, n: Vec3, eta: f32) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::MAX_DEPTH;
+    use crate::{Bundle, Scene};
+    use std::collections::BTreeMap;
+
+    fn scene(xml: &str) -> Scene {
+        let mut files = BTreeMap::new();
+        files.insert("s.xml".to_string(), xml.as_bytes().to_vec());
+        Scene::from_bundle(&Bundle {
+            scene: "s.xml".into(),
+            files,
+        })
+        .unwrap()
+    }
+
+    /// Runs `f` on a thread with a 256 KiB stack: what a recursion as deep
+    /// as the scene allows would overflow (and abort the process).
+    fn on_a_small_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+        std::thread::Builder::new()
+            .stack_size(256 << 10)
+            .spawn(f)
+            .unwrap()
+            .join()
+            .unwrap()
+    }
+
+    /// Issue 15 item 9: a perfect mirror sphere round the camera at the
+    /// largest max-depth. The walk is MAX_DEPTH + 1 rays deep on the heap;
+    /// every level passes its child's colour up unchanged (r = 1), so the
+    /// pixel is the deepest hit's local colour, ka ⊙ ambient.
+    #[test]
+    fn a_mirror_sphere_at_the_largest_max_depth_does_not_overflow_the_stack() {
+        let s = scene(&format!(
+            r#"<scene version="1"><settings ambient="0.5 0.5 0.5"/>
+  <sphere id="m" center="0 0 0" radius="5">
+    <surface reflectivity="1" diffuse="0 0 0" ambient="0.2 0.4 0.6"/></sphere>
+  <camera id="c" position="0 0 0" direction="0 0 -1" fov="30">
+    <render width="1" height="1" max-depth="{MAX_DEPTH}"/></camera></scene>"#
+        ));
+        let (px, rays) =
+            on_a_small_stack(move || Integrator::new(&s, 0, RenderOptions::default()).pixel(0, 0));
+        assert_eq!(rays, u64::from(MAX_DEPTH) + 1);
+        assert_eq!(px, [0.2f32 * 0.5, 0.4 * 0.5, 0.6 * 0.5]);
+    }
+
+    /// The same for the diffuse gather chain: diffuse-depth at its largest,
+    /// inside a closed diffuse sphere, one direction per level, every one
+    /// hitting (ao-distance far beyond the sphere).
+    #[test]
+    fn a_gather_chain_at_the_largest_diffuse_depth_does_not_overflow_the_stack() {
+        let s = scene(&format!(
+            r#"<scene version="1">
+  <sphere id="m" center="0 0 0" radius="5"><surface diffuse="0.5 0.5 0.5"/></sphere>
+  <light position="0 4 0"/>
+  <camera id="c" position="0 0 0" direction="0 0 -1" fov="30">
+    <render width="1" height="1" max-depth="0" diffuse-samples="1" ao-distance="1000"
+            diffuse-depth="{MAX_DEPTH}"/></camera></scene>"#
+        ));
+        let (px, rays) =
+            on_a_small_stack(move || Integrator::new(&s, 0, RenderOptions::default()).pixel(0, 0));
+        // One camera ray, then per level a gather ray and a shadow ray.
+        assert!(rays >= 2 * u64::from(MAX_DEPTH), "{rays}");
+        assert!(px.iter().all(|c| c.is_finite() && *c > 0.0), "{px:?}");
+    }
+
+    /// Issue 15 item 10: 8000² samples of one value, summed in plain f32,
+    /// stall far below the right mean; `Sum` gets it.
+    #[test]
+    fn sums_of_64_million_samples_keep_their_mean() {
+        let n = 8000u64 * 8000;
+        let v = Vec3::new(0.737, 0.25, 1.0 / 3.0);
+        let mut sum = Sum::<Vec3>::default();
+        let mut plain = Vec3::ZERO;
+        for _ in 0..n {
+            sum.add(v);
+            plain += v;
+        }
+        let mean = sum.mean(n);
+        assert!(((mean - v) / v).abs().max_element() < 1e-5, "{mean} vs {v}");
+        // What the renderer used to compute: far off.
+        let old = plain / n as f32;
+        assert!(((old - v) / v).abs().max_element() > 0.1, "{old}");
+        let mut sum = Sum::<f32>::default();
+        for _ in 0..n {
+            sum.add(0.737);
+        }
+        assert!((sum.mean(n) - 0.737).abs() < 1e-5, "{}", sum.mean(n));
+    }
+
+    /// Up to SUM_BLOCK samples a mean is bit for bit the plain f32 sum
+    /// divided in f32, so images with ordinary sample counts keep their
+    /// bytes.
+    #[test]
+    fn small_sums_are_bit_identical_to_plain_f32() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            x = crate::sampling::mix64(x);
+            // Radiance-like values over many magnitudes, some zero.
+            let m = (x >> 40) as f32 / (1u64 << 24) as f32;
+            m * [0.0, 1e-3, 1.0, 37.0, 1e6][(x & 3) as usize + usize::from(x & 4 != 0)]
+        };
+        for n in [1u32, 2, 4, 9, 16, 25, 64, 100, 256, 1000, SUM_BLOCK] {
+            for _ in 0..50 {
+                let mut sum = Sum::<Vec3>::default();
+                let mut plain = Vec3::ZERO;
+                let mut sum1 = Sum::<f32>::default();
+                let mut plain1 = 0.0f32;
+                for _ in 0..n {
+                    let v = Vec3::new(next(), next(), next());
+                    sum.add(v);
+                    plain += v;
+                    sum1.add(v.x);
+                    plain1 += v.x;
+                }
+                let (a, b) = (sum.mean(u64::from(n)), plain / n as f32);
+                assert_eq!(
+                    a.to_array().map(f32::to_bits),
+                    b.to_array().map(f32::to_bits),
+                    "{n}"
+                );
+                assert_eq!(
+                    sum1.mean(u64::from(n)).to_bits(),
+                    (plain1 / n as f32).to_bits()
+                );
+            }
+        }
+    }
 
     #[test]
     fn refraction_obeys_snell_and_total_internal_reflection_starts_at_the_critical_angle() {

@@ -82,6 +82,23 @@ impl PixelSampler {
     }
 }
 
+impl PixelSampler {
+    /// Point `index` of stream `stream` for a 64-bit index: [`get2`]
+    /// itself below 2³², and beyond, point `index mod 2³²` of a stream
+    /// named after `(stream, index / 2³²)`. A pixel may draw more than 2³²
+    /// points from one stream (`supersample²` × `shadow-samples` can pass
+    /// it); a 32-bit index wrapped round and drew the same points again.
+    ///
+    /// [`get2`]: PixelSampler::get2
+    #[inline]
+    pub fn get2_wide(&self, stream: u64, index: u64) -> [f32; 2] {
+        match u32::try_from(index) {
+            Ok(i) => self.get2(stream, i),
+            Err(_) => self.get2(hash2(stream, index >> 32), index as u32),
+        }
+    }
+}
+
 #[inline]
 fn hash32(a: u32, b: u32) -> u32 {
     (mix64(((a as u64) << 32) | b as u64) >> 16) as u32
@@ -276,6 +293,22 @@ mod tests {
             kind: SamplerKind::Sobol,
         };
         assert_ne!(a.get2(1, 5), c.get2(1, 5));
+    }
+
+    #[test]
+    fn wide_indices_continue_the_stream_instead_of_wrapping() {
+        let s = PixelSampler {
+            seed: 99,
+            kind: SamplerKind::Sobol,
+        };
+        for i in [0u32, 1, 77, u32::MAX] {
+            assert_eq!(s.get2_wide(5, i as u64), s.get2(5, i));
+        }
+        // Past 2^32 the points are new, not index mod 2^32 again.
+        for i in [0u64, 1, 77] {
+            assert_ne!(s.get2_wide(5, (1 << 32) + i), s.get2(5, i as u32));
+            assert_ne!(s.get2_wide(5, (2 << 32) + i), s.get2_wide(5, (1 << 32) + i));
+        }
     }
 
     #[test]

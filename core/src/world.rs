@@ -27,6 +27,7 @@ use crate::geometry::{offset_from_surface, plane, sphere, triangle, Aabb};
 use crate::sampling::hash_str;
 use crate::scene::{aisxml, AoDistance, SceneDesc, Sided, Surface};
 use glam::{Affine3A, DMat4, DVec3, Mat3, Vec3};
+use std::collections::HashMap;
 use std::sync::OnceLock;
 
 /// A model instance as the traversal sees it.
@@ -128,8 +129,14 @@ impl SurfacePoint<'_> {
 pub struct Scene {
     pub desc: SceneDesc,
     blas: Vec<Bvh>,
-    /// One view per distinct camera position.
-    frames: Vec<Frame>,
+    /// One view per distinct camera position, built when first asked for:
+    /// building every camera's view up front cost cameras × objects (a
+    /// scene of 5,000 cameras and 5,000 spheres built 25 million entries
+    /// and 5,000 BVHs before rendering anything), while a render needs the
+    /// views of the cameras it renders.
+    frames: Vec<OnceLock<Frame>>,
+    /// Per entry of `frames`, the camera position it is seen from.
+    frame_eyes: Vec<DVec3>,
     /// Per camera, its index in `frames`.
     camera_frame: Vec<usize>,
     /// The view from the world's origin, built on first use unless a camera
@@ -185,18 +192,17 @@ impl Scene {
             }
         }
         drop(orders);
-        let mut frames: Vec<Frame> = Vec::new();
+        let mut frame_eyes: Vec<DVec3> = Vec::new();
+        let mut frame_of_eye: HashMap<[u64; 3], usize> = HashMap::new();
         let mut camera_frame = Vec::with_capacity(desc.cameras.len());
         for c in &desc.cameras {
-            let i = match frames.iter().position(|f| f.eye == c.position) {
-                Some(i) => i,
-                None => {
-                    frames.push(build_frame(&desc, &blas, c.position));
-                    frames.len() - 1
-                }
-            };
+            let i = *frame_of_eye.entry(eye_key(c.position)).or_insert_with(|| {
+                frame_eyes.push(c.position);
+                frame_eyes.len() - 1
+            });
             camera_frame.push(i);
         }
+        let frames = frame_eyes.iter().map(|_| OnceLock::new()).collect();
         let mut bounds = Aabb::EMPTY;
         for model in &desc.models {
             let b = world_box(blas[model.mesh].bounds(), &model.transform);
@@ -222,6 +228,7 @@ impl Scene {
             desc,
             blas,
             frames,
+            frame_eyes,
             camera_frame,
             world: OnceLock::new(),
             bounds,
@@ -236,14 +243,25 @@ impl Scene {
     pub fn view(&self, camera: usize) -> View<'_> {
         View {
             scene: self,
-            frame: &self.frames[self.camera_frame[camera]],
+            frame: self.frame(self.camera_frame[camera]),
         }
+    }
+
+    /// Entry `i` of `frames`, built on first use.
+    fn frame(&self, i: usize) -> &Frame {
+        self.frames[i].get_or_init(|| build_frame(&self.desc, &self.blas, self.frame_eyes[i]))
+    }
+
+    /// How many camera views have been built so far.
+    pub fn built_views(&self) -> usize {
+        self.frames.iter().filter(|f| f.get().is_some()).count()
+            + usize::from(self.world.get().is_some())
     }
 
     /// The view in world coordinates (origin at the world's origin).
     pub fn world_view(&self) -> View<'_> {
-        let frame = match self.frames.iter().find(|f| f.eye == DVec3::ZERO) {
-            Some(f) => f,
+        let frame = match self.frame_eyes.iter().position(|&e| e == DVec3::ZERO) {
+            Some(i) => self.frame(i),
             None => self
                 .world
                 .get_or_init(|| build_frame(&self.desc, &self.blas, DVec3::ZERO)),
@@ -268,7 +286,7 @@ impl Scene {
             AoDistance::Auto => {
                 // Measured in the camera's view: the same box, without the
                 // rounding of world coordinates far from the origin.
-                let frame = &self.frames[self.camera_frame[camera]];
+                let frame = self.frame(self.camera_frame[camera]);
                 let mut b = frame.bounds;
                 if b.diagonal() <= 0.0 {
                     for &l in &frame.light_positions {
@@ -407,14 +425,27 @@ impl<'a> View<'a> {
                 let i = prim - n_inst;
                 let s = &scene.desc.spheres[i as usize];
                 let center = frame.sphere_centers[i as usize];
-                match sphere::intersect(origin, dir, center, s.radius, t_max) {
-                    Some((t, front)) if front || s.surface.sided == Sided::Two => f(Hit {
-                        t,
-                        kind: HitKind::Sphere(i),
-                        front,
-                    }),
-                    _ => Visit::Miss,
+                // Both crossings: the far one is offered only to a visitor
+                // that asked for more after the near one (transmittance,
+                // which counts every crossing), never to a closest- or
+                // any-hit query, whose answer it cannot change.
+                let mut result = Visit::Miss;
+                for (t, front) in sphere::crossings(origin, dir, center, s.radius, t_max)
+                    .into_iter()
+                    .flatten()
+                {
+                    if front || s.surface.sided == Sided::Two {
+                        result = f(Hit {
+                            t,
+                            kind: HitKind::Sphere(i),
+                            front,
+                        });
+                        if !matches!(result, Visit::Miss) {
+                            break;
+                        }
+                    }
                 }
+                result
             }
         });
         let mut t_max = t_max;
@@ -608,6 +639,12 @@ fn build_frame(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> Frame {
     }
 }
 
+/// A camera position as a hash key: positions equal as numbers (0 and −0
+/// included) give the same key.
+fn eye_key(p: DVec3) -> [u64; 3] {
+    (p + DVec3::ZERO).to_array().map(f64::to_bits)
+}
+
 /// `v` normalised whatever its magnitude (zero for zero or non-finite
 /// input). Plain normalisation squares the length: a triangle 10¹⁰ units
 /// across has a cross product of 10²⁰ whose square overflows f32, one of
@@ -656,4 +693,50 @@ fn world_box(b: Aabb, m: &DMat4) -> Aabb {
         min: lo.as_vec3(),
         max: hi.as_vec3(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeMap;
+
+    /// Building every camera's view up front cost cameras × objects; a view
+    /// is now built when a camera first renders (issue 15 item 14's class:
+    /// work quadratic in the size of the scene file).
+    #[test]
+    fn camera_views_are_built_for_the_cameras_rendered_only() {
+        let n = 300;
+        let mut xml = String::from("<scene version=\"1\">\n");
+        for i in 0..n {
+            xml.push_str(&format!(
+                "<sphere id=\"s{i}\" center=\"{i} 0 -10\" radius=\"0.4\"/>\n\
+                 <camera id=\"c{i}\" position=\"{i} 0 0\" direction=\"0 0 -1\" fov=\"10\">\
+                 <render width=\"1\" height=\"1\"/></camera>\n"
+            ));
+        }
+        // Two cameras at one position share a view.
+        xml.push_str(
+            "<camera id=\"twin\" position=\"7 0 0\" direction=\"0 0 -1\" fov=\"10\">\
+             <render width=\"1\" height=\"1\"/></camera>\n</scene>\n",
+        );
+        let mut files = BTreeMap::new();
+        files.insert("s.xml".to_string(), xml.into_bytes());
+        let bundle = Bundle {
+            scene: "s.xml".into(),
+            files,
+        };
+        let scene = Scene::from_bundle(&bundle).unwrap();
+        assert_eq!(scene.built_views(), 0);
+        let hit = |c: usize| {
+            let v = scene.view(c);
+            v.intersect(Vec3::ZERO, -Vec3::Z, f32::INFINITY)
+                .map(|h| h.kind)
+        };
+        assert_eq!(hit(7), Some(HitKind::Sphere(7)));
+        assert_eq!(scene.built_views(), 1);
+        assert_eq!(hit(n), Some(HitKind::Sphere(7)));
+        assert_eq!(scene.built_views(), 1);
+        assert_eq!(hit(250), Some(HitKind::Sphere(250)));
+        assert_eq!(scene.built_views(), 2);
+    }
 }

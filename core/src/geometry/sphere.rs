@@ -14,6 +14,21 @@ pub fn intersect(
     radius: f32,
     t_max: f32,
 ) -> Option<(f32, bool)> {
+    crossings(origin, dir, center, radius, t_max)[0]
+}
+
+/// Every `t` in `(0, t_max)` where the ray crosses the sphere, nearest
+/// first, each with whether it enters there (meets the front): a ray
+/// through a sphere crosses it twice, one starting inside once. (A shadow
+/// ray's transmittance counts every crossing; the spec says so.)
+#[inline]
+pub fn crossings(
+    origin: Vec3,
+    dir: Vec3,
+    center: Vec3,
+    radius: f32,
+    t_max: f32,
+) -> [Option<(f32, bool)>; 2] {
     let f = origin - center;
     let a = dir.dot(dir);
     let b = -f.dot(dir);
@@ -21,7 +36,7 @@ pub fn intersect(
     let r2 = radius * radius;
     let disc = r2 - l.dot(l);
     if !(disc >= 0.0) {
-        return None;
+        return [None, None];
     }
     let c = f.dot(f) - r2;
     // √a·√disc rather than √(a·disc): a shadow ray's direction spans the
@@ -36,13 +51,18 @@ pub fn intersect(
     if t0 > t1 {
         std::mem::swap(&mut t0, &mut t1);
     }
-    for t in [t0, t1] {
-        if t > 0.0 && t < t_max {
+    let at = |t: f32| {
+        (t > 0.0 && t < t_max).then(|| {
             let n = origin + dir * t - center;
-            return Some((t, n.dot(dir) < 0.0));
-        }
+            (t, n.dot(dir) < 0.0)
+        })
+    };
+    match (at(t0), at(t1)) {
+        (None, second) => [second, None],
+        // A tangent ray (one double root) touches once.
+        (Some(first), _) if t1 == t0 => [Some(first), None],
+        (first, second) => [first, second],
     }
-    None
 }
 
 #[cfg(test)]
@@ -61,6 +81,25 @@ mod tests {
         // Tangent ray at distance r: hits (disc = 0) or misses, but no NaN.
         let r = intersect(Vec3::new(1.0, 0.0, 0.0), -Vec3::Z, c, 1.0, f32::INFINITY);
         assert!(r.is_none_or(|(t, _)| t.is_finite()));
+    }
+
+    #[test]
+    fn a_ray_through_a_sphere_crosses_it_twice_and_from_inside_once() {
+        let c = Vec3::new(0.0, 0.0, -5.0);
+        let [a, b] = crossings(Vec3::ZERO, -Vec3::Z, c, 1.0, f32::INFINITY);
+        let (a, b) = (a.unwrap(), b.unwrap());
+        assert!((a.0 - 4.0).abs() < 1e-6 && a.1, "{a:?}");
+        assert!((b.0 - 6.0).abs() < 1e-6 && !b.1, "{b:?}");
+        assert_eq!(crossings(c, Vec3::X, c, 1.0, f32::INFINITY)[1], None);
+        assert!(crossings(c, Vec3::X, c, 1.0, f32::INFINITY)[0].is_some());
+        // The segment ends inside: one crossing.
+        let [a, b] = crossings(Vec3::ZERO, -Vec3::Z, c, 1.0, 5.0);
+        assert!(a.is_some() && b.is_none());
+        // Behind the origin: none.
+        assert_eq!(
+            crossings(Vec3::ZERO, Vec3::Z, c, 1.0, f32::INFINITY),
+            [None, None]
+        );
     }
 
     #[test]

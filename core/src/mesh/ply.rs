@@ -1,11 +1,15 @@
 //! PLY loader (Stanford polygon format), ASCII and binary of both endiannesses.
 //!
 //! The header may declare any elements and properties; only `vertex`
-//! (`x y z`, optional `nx ny nz`, any scalar types) and the `face` list
-//! property `vertex_indices` (or `vertex_index`, any integer types) are used.
-//! Everything else is read and skipped, so it is still checked for being
-//! well-formed and complete. Polygons are fan-triangulated in file order, as
-//! for OBJ.
+//! (`x y z`, optional `nx ny nz`, any scalar types) and the list property
+//! `vertex_indices` (or `vertex_index`, any integer types) of `face` and of
+//! `tristrips` are used. Everything else is read and skipped, so it is still
+//! checked for being well-formed and complete. Polygons are fan-triangulated
+//! in file order, as for OBJ. Triangle strips (`element tristrips`, as in the
+//! Stanford scans: one long list with `-1` between strips) become triangles
+//! with alternating winding corrected, strip-stitching triangles that repeat
+//! a vertex dropped (see [`read_strips`]); with both elements, triangles are
+//! numbered in the order of the elements in the file.
 //!
 //! Resource bounds: before anything is allocated, the element counts of the
 //! header are checked against the size of the body (every element has a
@@ -23,6 +27,8 @@
 //! caller then computes smooth ones). Non-finite coordinates or normals are
 //! errors. Trailing data after the last element is an error in ASCII; in
 //! binary only trailing ASCII whitespace is tolerated.
+
+use std::collections::HashSet;
 
 use glam::Vec3;
 
@@ -158,6 +164,9 @@ struct Property {
 enum Use {
     Vertex,
     Face,
+    /// `element tristrips`: one or more lists of strip vertices, `-1`
+    /// restarting the strip.
+    Strips,
     Other,
 }
 
@@ -189,6 +198,11 @@ impl Header {
         let mut elements: Vec<Element> = Vec::new();
         // Offset of each element's count token, for errors about counts.
         let mut count_at: Vec<usize> = Vec::new();
+        // The property names of the current (last) element, so that a
+        // duplicate is found in constant time: a header may have hundreds of
+        // thousands of property lines, and scanning the earlier ones for
+        // each made the header quadratic (200k lines took 19 s).
+        let mut prop_names: HashSet<&[u8]> = HashSet::new();
         let mut pos = 0usize;
         let mut line_no = 0u32;
         let (body_start, end_header_at) = loop {
@@ -284,6 +298,7 @@ impl Header {
                     let used = match name {
                         b"vertex" => Use::Vertex,
                         b"face" => Use::Face,
+                        b"tristrips" => Use::Strips,
                         _ => Use::Other,
                     };
                     if used != Use::Other && elements.iter().any(|e| e.used == used) {
@@ -296,6 +311,7 @@ impl Header {
                         used,
                     });
                     count_at.push(c_at);
+                    prop_names.clear();
                 }
                 b"property" => {
                     let Some(el) = elements.last_mut() else {
@@ -327,7 +343,7 @@ impl Header {
                             (Kind::Scalar(scalar(tokens[1])?), tokens[2])
                         }
                     };
-                    if el.props.iter().any(|p| p.name.as_bytes() == name) {
+                    if !prop_names.insert(name) {
                         return Err(err(
                             name_at,
                             format!(
@@ -357,14 +373,18 @@ impl Header {
                         (Use::Vertex, b"nx", _) => Role::Vertex(3),
                         (Use::Vertex, b"ny", _) => Role::Vertex(4),
                         (Use::Vertex, b"nz", _) => Role::Vertex(5),
-                        (Use::Face, b"vertex_indices" | b"vertex_index", Kind::Scalar(_)) => {
+                        (
+                            Use::Face | Use::Strips,
+                            b"vertex_indices" | b"vertex_index",
+                            Kind::Scalar(_),
+                        ) => {
                             return Err(err(
                                 name_at,
-                                format!("face property \"{}\" must be a list", show(name)),
+                                format!("{} property \"{}\" must be a list", el.name, show(name)),
                             ))
                         }
                         (
-                            Use::Face,
+                            Use::Face | Use::Strips,
                             b"vertex_indices" | b"vertex_index",
                             Kind::List { item, .. },
                         ) => {
@@ -377,7 +397,10 @@ impl Header {
                             if el.props.iter().any(|p| p.role == Role::Indices) {
                                 return Err(err(
                                     name_at,
-                                    "face element has both vertex_indices and vertex_index".into(),
+                                    format!(
+                                        "{} element has both vertex_indices and vertex_index",
+                                        el.name
+                                    ),
                                 ));
                             }
                             Role::Indices
@@ -433,26 +456,29 @@ impl Header {
                 }
             }
         }
-        // Faces: at least one, with a vertex index list. (Every face yields at
-        // least one triangle, since smaller polygons are errors.)
-        match elements.iter().position(|e| e.used == Use::Face) {
-            None => {
+        // Faces or triangle strips (or both), each with a vertex index list,
+        // and at least one of them. (Every face yields at least one triangle,
+        // since smaller polygons are errors; a strip may yield none, which
+        // the body checks.)
+        let polygons: Vec<usize> = (0..elements.len())
+            .filter(|&i| matches!(elements[i].used, Use::Face | Use::Strips))
+            .collect();
+        if polygons.is_empty() {
+            return Err(err(
+                end_header_at,
+                "mesh has no triangles (no face or tristrips element)".into(),
+            ));
+        }
+        for &i in &polygons {
+            if !elements[i].props.iter().any(|p| p.role == Role::Indices) {
                 return Err(err(
-                    end_header_at,
-                    "mesh has no triangles (no face element)".into(),
-                ))
+                    count_at[i],
+                    format!("{} element has no vertex_indices list", elements[i].name),
+                ));
             }
-            Some(fi) => {
-                if !elements[fi].props.iter().any(|p| p.role == Role::Indices) {
-                    return Err(err(
-                        count_at[fi],
-                        "face element has no vertex_indices list".into(),
-                    ));
-                }
-                if elements[fi].count == 0 {
-                    return Err(err(count_at[fi], "mesh has no triangles".into()));
-                }
-            }
+        }
+        if polygons.iter().all(|&i| elements[i].count == 0) {
+            return Err(err(count_at[polygons[0]], "mesh has no triangles".into()));
         }
 
         // Counts against the body size, before anything is allocated.
@@ -597,6 +623,10 @@ fn read_body(src: &mut impl Body, h: &Header) -> Result<Mesh, SceneError> {
                             src.skip(n, item, &ctx)?;
                             continue;
                         }
+                        if el.used == Use::Strips {
+                            read_strips(src, n, item, nv, &ctx, &mut triangles)?;
+                            continue;
+                        }
                         if n < 3 {
                             return Err(src.error(format!(
                                 "{ctx}: a face needs at least 3 vertices, found {n}"
@@ -634,6 +664,14 @@ fn read_body(src: &mut impl Body, h: &Header) -> Result<Mesh, SceneError> {
         }
     }
     src.finish()?;
+    if triangles.is_empty() {
+        // Only strips can get here (a face is at least one triangle).
+        return Err(src.error(
+            "mesh has no triangles (every triangle strip has fewer than 3 vertices \
+             or only repeated ones)"
+                .into(),
+        ));
+    }
     if zero_normal {
         normals = Vec::new();
     }
@@ -642,6 +680,49 @@ fn read_body(src: &mut impl Body, h: &Header) -> Result<Mesh, SceneError> {
         normals,
         triangles,
     })
+}
+
+/// Reads one `tristrips` index list of `n` items: `-1` ends a strip and
+/// starts the next. In a strip `v0 v1 v2 v3 …`, triangle k is
+/// `(v_k, v_k+1, v_k+2)` for even k and `(v_k+1, v_k, v_k+2)` for odd k, so
+/// that every triangle of the strip has the winding of the first. A
+/// triangle naming a vertex twice is the strip's way of turning a corner or
+/// joining strips, not geometry: it is dropped (it still counts for the
+/// parity of the ones after it). Triangles are numbered in file order.
+fn read_strips(
+    src: &mut impl Body,
+    n: u64,
+    item: Scalar,
+    nv: u32,
+    ctx: &Ctx,
+    triangles: &mut Vec<[u32; 3]>,
+) -> Result<(), SceneError> {
+    // Vertices in the current strip so far, and its last two.
+    let mut run = 0u64;
+    let (mut a, mut b) = (0u32, 0u32);
+    for _ in 0..n {
+        let i = src.read(item, ctx)?;
+        if i == -1.0 {
+            run = 0;
+            continue;
+        }
+        if !(0.0..nv as f64).contains(&i) {
+            return Err(src.error(format!(
+                "{ctx}: vertex index {i} out of range ({nv} vertices; -1 restarts a strip)"
+            )));
+        }
+        let c = i as u32;
+        if run >= 2 && a != b && b != c && a != c {
+            triangles.push(if (run - 2).is_multiple_of(2) {
+                [a, b, c]
+            } else {
+                [b, a, c]
+            });
+        }
+        (a, b) = (b, c);
+        run += 1;
+    }
+    Ok(())
 }
 
 struct AsciiBody<'a> {
@@ -1409,6 +1490,139 @@ property list int char bytes
             assert!(parse("m.ply", &ply(format, &header, &rows)).is_err());
         }
         assert!(start.elapsed() < std::time::Duration::from_secs(1));
+    }
+
+    /// A zig-zag of 8 vertices in the z = 0 plane: even ones on y = 0,
+    /// odd ones on y = 1, x increasing.
+    fn zigzag_rows() -> Vec<Vec<V>> {
+        (0..8)
+            .map(|i| {
+                vec![
+                    V::F32((i / 2) as f32 + (i % 2) as f32 * 0.5),
+                    V::F32((i % 2) as f32),
+                    V::F32(0.0),
+                ]
+            })
+            .collect()
+    }
+
+    const STRIP_HEADER: &str =
+        "element vertex 8\nproperty float x\nproperty float y\nproperty float z\n\
+         element tristrips 1\nproperty list int int vertex_indices\n";
+
+    #[test]
+    fn tristrips_become_triangles_with_alternating_winding_and_no_stitching() {
+        // Three strips and a one-vertex one: 0 1 2 3 4 | 5 6 7 | 1 | 3 4 4 5 6 7.
+        let list = [0, 1, 2, 3, 4, -1, 5, 6, 7, -1, 1, -1, 3, 4, 4, 5, 6, 7];
+        // By hand: strip k-th triangle is (v_k, v_k+1, v_k+2), odd k swapped;
+        // (3 4 4) and (4 4 5) of the last strip repeat a vertex and go.
+        let expect = vec![
+            [0, 1, 2],
+            [2, 1, 3],
+            [2, 3, 4],
+            [5, 6, 7],
+            [4, 5, 6],
+            [6, 5, 7],
+        ];
+        for format in FORMATS {
+            let mut rows = zigzag_rows();
+            let mut strip = vec![V::I32(list.len() as i32)];
+            strip.extend(list.iter().map(|&i| V::I32(i)));
+            rows.push(strip);
+            let m = ok(&ply(format, STRIP_HEADER, &rows));
+            assert_eq!(m.triangles, expect, "{format}");
+            assert_eq!(m.positions.len(), 8);
+            // The first strip's triangles all face the same way.
+            for t in &m.triangles[..3] {
+                let [a, b, c] = t.map(|i| m.positions[i as usize]);
+                assert!((b - a).cross(c - a).z < 0.0, "{format}: {t:?}");
+            }
+        }
+        // Faces and strips together: numbered in element order.
+        let header =
+            format!("{STRIP_HEADER}element face 1\nproperty list uchar int vertex_indices\n");
+        let mut rows = zigzag_rows();
+        rows.push(vec![V::I32(3), V::I32(0), V::I32(1), V::I32(2)]);
+        rows.push(vec![V::U8(3), V::I32(7), V::I32(6), V::I32(5)]);
+        assert_eq!(
+            ok(&ply("ascii", &header, &rows)).triangles,
+            vec![[0, 1, 2], [7, 6, 5]]
+        );
+    }
+
+    #[test]
+    fn tristrip_errors_are_located() {
+        let file = |list: &str| {
+            let body = "0 0 0\n1 0 0\n0 1 0\n1 1 0\n2 0 0\n2 1 0\n3 0 0\n3 1 0\n";
+            head(&format!("{STRIP_HEADER}end_header\n{body}{list}\n"))
+        };
+        // The header has 9 lines, the vertices 8: the strip is line 18.
+        assert_eq!(ok(&file("3 0 1 2")).triangles, vec![[0, 1, 2]]);
+        fails(
+            &file("5 0 1 2 8 3"),
+            18,
+            9,
+            "property \"vertex_indices\" of tristrips 0: vertex index 8 out of range (8 vertices",
+        );
+        fails(&file("4 0 1 -2 3"), 18, 7, "vertex index -2 out of range");
+        fails(&file("4 0 1 2"), 19, 1, "unexpected end of file");
+        fails(&file("5 0 1 -1 2 2"), 18, 12, "mesh has no triangles");
+        fails(
+            &head(&STRIP_HEADER.replace("list int int", "int")),
+            8,
+            14,
+            "tristrips property \"vertex_indices\" must be a list",
+        );
+        fails(
+            &head(&format!(
+                "{}end_header\n",
+                STRIP_HEADER.replace("vertex_indices", "other")
+            )),
+            7,
+            19,
+            "tristrips element has no vertex_indices list",
+        );
+        for format in ["binary_little_endian", "binary_big_endian"] {
+            let mut rows = zigzag_rows();
+            rows.push(vec![V::I32(3), V::I32(0), V::I32(9), V::I32(2)]);
+            // Vertices take 96 bytes, the count 4 more: index 9 is at byte 104.
+            fails(
+                &ply(format, STRIP_HEADER, &rows),
+                10,
+                105,
+                "byte 104 of the binary body: property \"vertex_indices\" of tristrips 0: vertex index 9 out of range",
+            );
+        }
+    }
+
+    /// Issue 15 item 14: checking each property name against every earlier
+    /// one made the header quadratic (200,000 property lines took 19 s).
+    #[test]
+    fn a_header_with_200k_properties_parses_in_linear_time() {
+        let mut header = String::from(TRI_HEADER);
+        header.push_str("element extra 0\n");
+        for i in 0..200_000 {
+            header.push_str(&format!("property uchar p{i}\n"));
+        }
+        let rows = vec![
+            vec![V::F32(0.0), V::F32(0.0), V::F32(0.0)],
+            vec![V::F32(1.0), V::F32(0.0), V::F32(0.0)],
+            vec![V::F32(0.0), V::F32(1.0), V::F32(0.0)],
+            vec![V::U8(3), V::I32(0), V::I32(1), V::I32(2)],
+        ];
+        let bytes = ply("ascii", &header, &rows);
+        let start = std::time::Instant::now();
+        assert_eq!(ok(&bytes).triangles, vec![[0, 1, 2]]);
+        let took = start.elapsed();
+        assert!(took < std::time::Duration::from_secs(2), "{took:?}");
+        // A duplicate among them is still found, at its line.
+        let dup = header.replace("property uchar p150000\n", "property uchar p7\n");
+        fails(
+            &ply("ascii", &dup, &rows),
+            150_010,
+            16,
+            "duplicate property \"p7\" in element \"extra\"",
+        );
     }
 
     fn edit() -> impl Strategy<Value = Edit> {

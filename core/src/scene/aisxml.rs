@@ -23,7 +23,8 @@ mod tests;
 
 use super::{
     Adaptive, AoDistance, CameraDesc, Lens, Light, LightKind, Model, Plane, RenderSettings,
-    SceneDesc, Settings, Sided, Sphere, Surface,
+    SceneDesc, Settings, Sided, Sphere, Surface, MAX_ADAPTIVE_SAMPLES, MAX_DEPTH, MAX_IMAGE_SIDE,
+    MAX_MESH_ELEMENTS, MAX_OBJECTS, MAX_RAY_SAMPLES, MAX_SUPERSAMPLE,
 };
 use crate::bundle::{normalize_rel_path, FileSource};
 use crate::error::{Location, SceneError};
@@ -148,6 +149,16 @@ impl<'a> Resolver<'a> {
         Ok(())
     }
 
+    /// Fails when the scene already has [`MAX_OBJECTS`] models and spheres.
+    fn room_for_an_object(&self, el: &El) -> Result<()> {
+        if self.desc.models.len() + self.desc.spheres.len() >= MAX_OBJECTS {
+            return Err(el.err(format!(
+                "too many models and spheres (expected at most {MAX_OBJECTS} together)"
+            )));
+        }
+        Ok(())
+    }
+
     fn scene(&mut self, root: &'a Elem) -> Result<()> {
         let el = self.el(root);
         let Some(v) = el.get("version") else {
@@ -248,6 +259,17 @@ impl<'a> Resolver<'a> {
             }
             None => inline_mesh(&el, &id)?,
         };
+        for (n, what) in [
+            (mesh.positions.len(), "vertices"),
+            (mesh.triangles.len(), "triangles"),
+        ] {
+            if n > MAX_MESH_ELEMENTS {
+                return Err(el.err(format!(
+                    "<mesh> \"{}\" has {n} {what} (expected at most {MAX_MESH_ELEMENTS})",
+                    excerpt(&id)
+                )));
+            }
+        }
         if mesh.normals.is_empty() {
             mesh.compute_smooth_normals();
         }
@@ -330,6 +352,7 @@ impl<'a> Resolver<'a> {
     fn model(&mut self, e: &'a Elem) -> Result<()> {
         let el = self.el(e);
         el.check_attrs(&["id", "mesh"])?;
+        self.room_for_an_object(&el)?;
         let (id_attr, id) = el.id("id")?;
         Self::claim(self.src, &mut self.object_ids, &el, id_attr, &id)?;
         let mesh_attr = el.req("mesh")?;
@@ -566,6 +589,7 @@ impl<'a> Resolver<'a> {
     fn sphere(&mut self, e: &'a Elem) -> Result<()> {
         let el = self.el(e);
         el.check_attrs(&["id", "center", "radius"])?;
+        self.room_for_an_object(&el)?;
         let (id_attr, id) = el.id("id")?;
         Self::claim(self.src, &mut self.object_ids, &el, id_attr, &id)?;
         let center = req_vec3(&el, "center")?;
@@ -822,13 +846,18 @@ impl<'a> Resolver<'a> {
         ])?;
         el.req("width")?;
         el.req("height")?;
-        let width = el.u32_min("width", 1)?.unwrap_or(1);
-        let height = el.u32_min("height", 1)?.unwrap_or(1);
-        let supersample = el.u32_min("supersample", 1)?.unwrap_or(1);
+        // Every count has a maximum (see the constants and the limits table
+        // of docs/aisxml-extensions.md): past it, arithmetic on it would
+        // overflow or lose precision, or memory would grow without bound.
+        let width = el.u32_in("width", 1, MAX_IMAGE_SIDE)?.unwrap_or(1);
+        let height = el.u32_in("height", 1, MAX_IMAGE_SIDE)?.unwrap_or(1);
+        let supersample = el.u32_in("supersample", 1, MAX_SUPERSAMPLE)?.unwrap_or(1);
         let jitter = el.boolean("jitter")?.unwrap_or(false);
-        let max_depth = el.u32_min("max-depth", 0)?.unwrap_or(5);
-        let shadow_samples = el.u32_min("shadow-samples", 1)?.unwrap_or(1);
-        let ao_samples = el.u32_min("ao-samples", 0)?.unwrap_or(0);
+        let max_depth = el.u32_in("max-depth", 0, MAX_DEPTH)?.unwrap_or(5);
+        let shadow_samples = el
+            .u32_in("shadow-samples", 1, MAX_RAY_SAMPLES)?
+            .unwrap_or(1);
+        let ao_samples = el.u32_in("ao-samples", 0, MAX_RAY_SAMPLES)?.unwrap_or(0);
         let ao_distance = match el.get("ao-distance") {
             Some(a) if a.value.trim_matches(is_xml_ws) == "auto" => AoDistance::Auto,
             Some(_) => AoDistance::Fixed(
@@ -837,8 +866,10 @@ impl<'a> Resolver<'a> {
             ),
             None => AoDistance::Auto,
         };
-        let diffuse_samples = el.u32_min("diffuse-samples", 0)?.unwrap_or(0);
-        let diffuse_depth = el.u32_min("diffuse-depth", 1)?.unwrap_or(1);
+        let diffuse_samples = el
+            .u32_in("diffuse-samples", 0, MAX_RAY_SAMPLES)?
+            .unwrap_or(0);
+        let diffuse_depth = el.u32_in("diffuse-depth", 1, MAX_DEPTH)?.unwrap_or(1);
         let seed = el.uint("seed", 0, u64::MAX)?.unwrap_or(0);
 
         let output_attr = el.get("output");
@@ -886,8 +917,8 @@ impl<'a> Resolver<'a> {
         self.outputs.insert(output.clone(), e.pos);
 
         let threshold = el.real_in("noise-threshold", "a number > 0", |v| v > 0.0)?;
-        let min_samples = el.u32_min("min-samples", 1)?;
-        let max_samples = el.u32_min("max-samples", 1)?;
+        let min_samples = el.u32_in("min-samples", 1, MAX_ADAPTIVE_SAMPLES)?;
+        let max_samples = el.u32_in("max-samples", 1, MAX_ADAPTIVE_SAMPLES)?;
         let adaptive = match threshold {
             None => {
                 if let Some(a) = el.get("min-samples").or_else(|| el.get("max-samples")) {

@@ -151,6 +151,39 @@ pub struct Adaptive {
     pub max_samples: u32,
 }
 
+/// Largest `width` and `height` of a `<render>`. Pixel coordinates reach the
+/// camera as `f32`; up to 2¹⁶ a sample's position inside its pixel keeps 7
+/// bits (1/128 of a pixel). Far beyond any frame the farm accepts by
+/// default (16384² at supersample 8).
+pub const MAX_IMAGE_SIDE: u32 = 1 << 16;
+
+/// Largest `supersample` n: the n² camera samples of a pixel are counted
+/// (and indexed) in a `u32`, and 65535² < 2³² ≤ 65536².
+pub const MAX_SUPERSAMPLE: u32 = 65_535;
+
+/// Largest `shadow-samples`, `ao-samples` and `diffuse-samples`. With at most
+/// 2³² camera samples per pixel, every sample index the integrator forms
+/// (camera sample × gather direction × shadow ray) stays below 2⁶⁴.
+pub const MAX_RAY_SAMPLES: u32 = 65_536;
+
+/// Largest `max-depth` and `diffuse-depth`. The ray-tree walks keep one
+/// small record per level on the heap (not the thread's stack), so this
+/// bounds that memory per rendering thread (under a megabyte), not
+/// correctness.
+pub const MAX_DEPTH: u32 = 10_000;
+
+/// Largest `min-samples` and `max-samples` (adaptive sampling): a pixel's
+/// samples are counted in a `u32`.
+pub const MAX_ADAPTIVE_SAMPLES: u32 = u32::MAX;
+
+/// Most vertices and most triangles in one mesh: both are indexed with `u32`
+/// (and `u32::MAX` is kept free as a marker).
+pub const MAX_MESH_ELEMENTS: usize = u32::MAX as usize - 1;
+
+/// Most models and spheres in a scene together (the top-level BVH indexes
+/// them with `u32`).
+pub const MAX_OBJECTS: usize = u32::MAX as usize - 1;
+
 /// `<render>`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RenderSettings {

@@ -1121,6 +1121,114 @@ fn render_missing_or_repeated() {
     );
 }
 
+/// Issue 15 item 10: every count of `<render>` has a documented maximum
+/// (the limits table of docs/aisxml-extensions.md). At the maximum the scene
+/// parses; one past it is an error at the attribute (`ao-samples` of
+/// 4294967295 used to be accepted, `supersample` 65537 overflowed n²).
+#[test]
+fn render_counts_have_documented_maxima() {
+    use crate::scene::{
+        MAX_ADAPTIVE_SAMPLES, MAX_DEPTH, MAX_IMAGE_SIDE, MAX_RAY_SAMPLES, MAX_SUPERSAMPLE,
+    };
+    type Case = (&'static str, u32, u32, fn(&RenderSettings) -> u32);
+    let cases: [Case; 10] = [
+        ("width", 1, MAX_IMAGE_SIDE, |r| r.width),
+        ("height", 1, MAX_IMAGE_SIDE, |r| r.height),
+        ("supersample", 1, MAX_SUPERSAMPLE, |r| r.supersample),
+        ("max-depth", 0, MAX_DEPTH, |r| r.max_depth),
+        ("shadow-samples", 1, MAX_RAY_SAMPLES, |r| r.shadow_samples),
+        ("ao-samples", 0, MAX_RAY_SAMPLES, |r| r.ao_samples),
+        ("diffuse-samples", 0, MAX_RAY_SAMPLES, |r| r.diffuse_samples),
+        ("diffuse-depth", 1, MAX_DEPTH, |r| r.diffuse_depth),
+        ("min-samples", 1, MAX_ADAPTIVE_SAMPLES, |r| {
+            r.adaptive.map_or(0, |a| a.min_samples)
+        }),
+        ("max-samples", 1, MAX_ADAPTIVE_SAMPLES, |r| {
+            r.adaptive.map_or(0, |a| a.max_samples)
+        }),
+    ];
+    for (name, min, max, get) in cases {
+        let text = |v: u64| {
+            let mut attrs = String::new();
+            for (n, d) in [("width", 3u64), ("height", 3)] {
+                if n != name {
+                    attrs.push_str(&format!(r#"{n}="{d}" "#));
+                }
+            }
+            match name {
+                "min-samples" => attrs.push_str(&format!(r#"max-samples="{}" "#, u32::MAX)),
+                "max-samples" => attrs.push_str(r#"min-samples="1" "#),
+                _ => {}
+            }
+            if name.ends_with("-samples") && name.starts_with('m') {
+                attrs.push_str(r#"noise-threshold="0.1" "#);
+            }
+            attrs.push_str(&format!(r#"{name}="{v}""#));
+            doc(&format!(
+                r#"<camera id="d" position="0 0 0" lookat="0 0 -1" fov="20"><render {attrs}/></camera>"#
+            ))
+        };
+        let ok = text(u64::from(max));
+        match parse(&ok) {
+            Ok(desc) => assert_eq!(get(&desc.cameras[0].render), max, "{name}"),
+            Err(e) => panic!("{name}=\"{max}\" is the documented maximum: {e}"),
+        }
+        let bad = text(u64::from(max) + 1);
+        let line = bad.lines().nth(1).unwrap();
+        let col = line.find(&format!(" {name}=")).unwrap() as u32 + 2;
+        check(
+            &bad,
+            2,
+            col,
+            &[
+                &format!("attribute \"{name}\" of <render>"),
+                &format!(
+                    "expected an integer in [{min}, {max}], found \"{}\"",
+                    u64::from(max) + 1
+                ),
+            ],
+        );
+    }
+    // The reported ones.
+    for (attr, v) in [("ao-samples", "4294967295"), ("supersample", "65537")] {
+        let text = doc(&format!(
+            r#"<camera id="d" position="0 0 0" lookat="0 0 -1" fov="20"><render width="3" height="3" {attr}="{v}"/></camera>"#
+        ));
+        check(
+            &text,
+            2,
+            87,
+            &[&format!("attribute \"{attr}\""), "expected an integer in"],
+        );
+    }
+}
+
+/// Issue 15 item 14's class in the scene reader: the duplicate-attribute
+/// check compared each attribute with every earlier one, quadratic in a
+/// tag's attributes (200,000 of them: tens of seconds).
+#[test]
+fn a_tag_with_200k_attributes_is_checked_in_linear_time() {
+    let mut tag = String::from(r#"<scene version="1""#);
+    for i in 0..200_000 {
+        tag.push_str(&format!(r#" a{i}="""#));
+    }
+    let first = tag.find(" a7=").unwrap() + 2;
+    let col = tag.len() as u32 + 2;
+    tag.push_str(r#" a7="">"#);
+    let text = format!("{tag}\n{CAM}\n</scene>\n");
+    let start = std::time::Instant::now();
+    check(
+        &text,
+        1,
+        col,
+        &[&format!(
+            "attribute \"a7\" is given twice (first at 1:{first})"
+        )],
+    );
+    let took = start.elapsed();
+    assert!(took < std::time::Duration::from_secs(2), "{took:?}");
+}
+
 #[test]
 fn render_values() {
     let cam = |attrs: &str| {
@@ -1135,7 +1243,7 @@ fn render_values() {
         66,
         &[
             "attribute \"width\" of <render>",
-            "expected an integer in [1, 4294967295], found \"0\"",
+            "expected an integer in [1, 65536], found \"0\"",
         ],
     );
     check(

@@ -252,10 +252,10 @@ impl<'a> El<'a> {
         }
     }
 
-    /// `u32` integer ≥ `min`.
-    pub fn u32_min(&self, name: &str, min: u32) -> Result<Option<u32>> {
+    /// `u32` integer in `[min, max]`.
+    pub fn u32_in(&self, name: &str, min: u32, max: u32) -> Result<Option<u32>> {
         Ok(self
-            .uint(name, u64::from(min), u64::from(u32::MAX))?
+            .uint(name, u64::from(min), u64::from(max))?
             .map(|v| v as u32))
     }
 

@@ -11,6 +11,7 @@
 use crate::error::{Location, SceneError};
 use quick_xml::events::Event;
 use quick_xml::Reader;
+use std::collections::HashMap;
 
 /// The scene file being parsed: its name (for error locations) and its text.
 pub(super) struct Src<'a> {
@@ -258,6 +259,11 @@ fn start_tag(src: &Src, content: &[u8], pos: usize) -> Result<(String, Vec<Attr>
     let b = content.as_bytes();
     let mut i = name_end;
     let mut attrs: Vec<Attr> = Vec::new();
+    // Attribute name → index in `attrs`, so that a duplicate is found in
+    // constant time: scanning the earlier attributes for each made a tag
+    // with many attributes quadratic (AISXML elements have at most ten
+    // legal ones, but the duplicate check runs before that check does).
+    let mut seen: HashMap<&str, usize> = HashMap::new();
     loop {
         let ws_start = i;
         while i < b.len() && is_xml_ws_byte(b[i]) {
@@ -332,7 +338,7 @@ fn start_tag(src: &Src, content: &[u8], pos: usize) -> Result<(String, Vec<Attr>
         };
         let raw = &content[value_start..value_start + len];
         i = value_start + len + 1;
-        if let Some(prev) = attrs.iter().find(|a| a.name == attr_name) {
+        if let Some(prev) = seen.get(attr_name).map(|&i| &attrs[i]) {
             return Err(src.err(
                 base + name_start,
                 format!(
@@ -343,6 +349,7 @@ fn start_tag(src: &Src, content: &[u8], pos: usize) -> Result<(String, Vec<Attr>
             ));
         }
         let value = attr_value(src, raw, base + value_start)?;
+        seen.insert(attr_name, attrs.len());
         attrs.push(Attr {
             name: attr_name.to_string(),
             pos: base + name_start,
