@@ -71,7 +71,7 @@ pub struct Limits {
 impl Default for Limits {
     fn default() -> Self {
         Limits {
-            max_bundle_bytes: crate::grpc::MAX_BUNDLE_BYTES as u64,
+            max_bundle_bytes: trevi_core::bundle::DEFAULT_MAX_BUNDLE_BYTES,
             max_bundle_files: 10_000,
             max_message_bytes: trevi_proto::MAX_MESSAGE_SIZE,
             // A 16384×16384 frame at supersample 8.

@@ -16,10 +16,6 @@ use tonic::{Request, Response, Status, Streaming};
 use trevi_proto::pb::{self, tile_upload::Part};
 use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
 
-/// Largest bundle the coordinator takes by default (see
-/// [`crate::farm::Limits`]).
-pub const MAX_BUNDLE_BYTES: usize = 256 << 20;
-
 /// How long a `LeaseTile` call waits for work before answering "none" (a
 /// worker may ask for less).
 const LEASE_WAIT: Duration = Duration::from_secs(2);

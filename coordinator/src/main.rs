@@ -67,7 +67,7 @@ struct Args {
     #[arg(long, env = "TREVI_WORKER_TOKEN_FILE")]
     worker_token_file: Option<PathBuf>,
     /// Largest scene bundle accepted, in MiB.
-    #[arg(long, env = "TREVI_MAX_BUNDLE_MIB", default_value_t = 256)]
+    #[arg(long, env = "TREVI_MAX_BUNDLE_MIB", default_value_t = Limits::default().max_bundle_bytes >> 20)]
     max_bundle_mib: u64,
     /// Most files in a bundle.
     #[arg(long, env = "TREVI_MAX_BUNDLE_FILES", default_value_t = 10_000)]
