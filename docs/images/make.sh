@@ -13,7 +13,7 @@
 # monitor; the browser test takes one (tests/tests/monitor.rs; with
 # TREVI_ARTIFACTS_DIR=DIR it is written to DIR/monitor.png).
 #
-# tests/tests/ci.rs checks that this list and the README's image links agree.
+# tests/tests/repo.rs checks that this list and the README's image links agree.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
