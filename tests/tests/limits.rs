@@ -150,15 +150,15 @@ fn many_concurrent_large_uploads_stream_to_disk_within_a_memory_bound() {
     assert_eq!(bundle_files(&c, ".upload-"), Vec::<String>::new());
 }
 
+/// An upload call's answer and how long it took.
+type UploadCall = tokio::task::JoinHandle<(Result<pb::BundleRef, tonic::Status>, Duration)>;
+
 /// An upload that sends `first` and then nothing, until the returned
 /// sender is dropped.
 fn stalled_upload(
     mut b: BundlesClient<tonic::transport::Channel>,
     first: Vec<u8>,
-) -> (
-    tokio::sync::mpsc::Sender<pb::BundleChunk>,
-    tokio::task::JoinHandle<(Result<pb::BundleRef, tonic::Status>, Duration)>,
-) {
+) -> (tokio::sync::mpsc::Sender<pb::BundleChunk>, UploadCall) {
     let (tx, rx) = tokio::sync::mpsc::channel(2);
     tx.try_send(pb::BundleChunk { data: first }).unwrap();
     let call = tokio::spawn(async move {

@@ -12,20 +12,13 @@ use tonic::transport::Channel;
 use tonic::Code;
 use trevi_proto::pb::{self, jobs_client::JobsClient, workers_client::WorkersClient};
 
-/// One 64×64 tile that takes tens of seconds on one thread (SLOW_SCENE's
-/// tiles take tens of milliseconds at 36 samples a pixel; this has 2304).
-const EXPENSIVE: &str = r#"<scene version="1">
-  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
-  <sphere id="ball" center="0 1 0" radius="1">
-    <surface diffuse="0.8 0.3 0.2" specular="0.5 0.5 0.5" reflectivity="0.2"/>
-  </sphere>
-  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
-  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
-  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
-    <render width="64" height="64" supersample="48" shadow-samples="8" ao-samples="16" output="expensive.png"/>
-  </camera>
-</scene>
-"#;
+/// One 64×64 tile that takes tens of seconds on one thread: SLOW_SCENE at
+/// 2304 samples a pixel instead of 36.
+fn expensive_scene() -> String {
+    let from = r#"width="96" height="64" supersample="6""#;
+    assert!(SLOW_SCENE.contains(from), "SLOW_SCENE changed");
+    SLOW_SCENE.replace(from, r#"width="64" height="64" supersample="48""#)
+}
 
 /// A single 16×16 tile, quick.
 const ONE_TILE: &str = r#"<scene version="1">
@@ -192,7 +185,7 @@ fn rendering(dir: &Dir, rt: &tokio::runtime::Runtime, url: &str, id: u64) {
 #[test]
 fn cancel_stops_a_tile_in_progress_within_a_second() {
     let dir = Dir::new();
-    let expensive = dir.write("scene/expensive.xml", EXPENSIVE);
+    let expensive = dir.write("scene/expensive.xml", &expensive_scene());
     let one = dir.write("scene/one.xml", ONE_TILE);
     let c = coordinator_with(
         &dir,
@@ -231,7 +224,7 @@ fn cancel_stops_a_tile_in_progress_within_a_second() {
 #[test]
 fn sigterm_stops_a_worker_within_a_second_and_gives_its_tile_back() {
     let dir = Dir::new();
-    let expensive = dir.write("scene/expensive.xml", EXPENSIVE);
+    let expensive = dir.write("scene/expensive.xml", &expensive_scene());
     // Leases live long: the tile comes back at once only if it is given back.
     let c = coordinator_with(
         &dir,
@@ -276,7 +269,7 @@ fn a_lease_is_held_only_by_a_tile_being_rendered() {
     // must go to the worker that is free, not sit leased (and heartbeated)
     // by the busy one until its tile is done.
     let dir = Dir::new();
-    let expensive = dir.write("scene/expensive.xml", EXPENSIVE);
+    let expensive = dir.write("scene/expensive.xml", &expensive_scene());
     let tiny = dir.write("scene/tiny.xml", &tiny_scene(1));
     let c = coordinator_with(
         &dir,
