@@ -11,7 +11,6 @@ use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use tonic::Code;
-use trevi_core::Bundle;
 use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient};
 
 async fn bundles(c: &Coordinator) -> BundlesClient<tonic::transport::Channel> {
@@ -23,6 +22,15 @@ async fn bundles(c: &Coordinator) -> BundlesClient<tonic::transport::Channel> {
     BundlesClient::new(ch)
 }
 
+/// Uploads `data` as one chunk.
+async fn upload_one(c: &Coordinator, data: Vec<u8>) -> Result<pb::BundleRef, tonic::Status> {
+    bundles(c)
+        .await
+        .upload_bundle(tokio_stream::iter([pb::BundleChunk { data }]))
+        .await
+        .map(|r| r.into_inner())
+}
+
 async fn jobs(c: &Coordinator) -> JobsClient<tonic::transport::Channel> {
     let ch = trevi_proto::endpoint(&c.url, &c.tls)
         .unwrap()
@@ -30,15 +38,6 @@ async fn jobs(c: &Coordinator) -> JobsClient<tonic::transport::Channel> {
         .await
         .unwrap();
     JobsClient::new(ch)
-}
-
-fn bundle_of(scene: &str) -> Bundle {
-    let mut files = std::collections::BTreeMap::new();
-    files.insert("s.xml".to_string(), scene.as_bytes().to_vec());
-    Bundle {
-        scene: "s.xml".into(),
-        files,
-    }
 }
 
 const MIB: usize = 1 << 20;
@@ -198,11 +197,7 @@ fn uploads_beyond_the_cap_are_refused_and_a_stalled_one_is_dropped_after_the_idl
         }
         // A third, while two are in progress: refused at once.
         let good = bundle_of(&tiny_scene(2)).encode();
-        let e = bundles(&c)
-            .await
-            .upload_bundle(tokio_stream::iter([pb::BundleChunk { data: good.clone() }]))
-            .await
-            .unwrap_err();
+        let e = upload_one(&c, good.clone()).await.unwrap_err();
         assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
         assert!(e.message().contains("--max-uploads"), "{}", e.message());
         // The stalled ones are dropped after the idle timeout, their
@@ -220,10 +215,7 @@ fn uploads_beyond_the_cap_are_refused_and_a_stalled_one_is_dropped_after_the_idl
         drop((tx1, tx2));
         assert_eq!(bundle_files(&c, ".upload-"), Vec::<String>::new());
         // The slots are free again.
-        let r = bundles(&c)
-            .await
-            .upload_bundle(tokio_stream::iter([pb::BundleChunk { data: good }]))
-            .await;
+        let r = upload_one(&c, good).await;
         assert!(r.is_ok(), "{r:?}\n{}", dir.logs());
     });
 }
@@ -260,14 +252,8 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
     });
     let rt = runtime();
     rt.block_on(async {
-        let mut b = bundles(&c).await;
         // Refused content.
-        let e = b
-            .upload_bundle(tokio_stream::iter([pb::BundleChunk {
-                data: b"not a bundle".to_vec(),
-            }]))
-            .await
-            .unwrap_err();
+        let e = upload_one(&c, b"not a bundle".to_vec()).await.unwrap_err();
         assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
         // An upload the client abandons half way.
         let (tx, call) = stalled_upload(bundles(&c).await, vec![1u8; 4096]);
@@ -289,21 +275,13 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         // One bundle a job uses, one no job uses.
-        let used = b
-            .upload_bundle(tokio_stream::iter([pb::BundleChunk {
-                data: bundle_of(&tiny_scene(1)).encode(),
-            }]))
+        let used = upload_one(&c, bundle_of(&tiny_scene(1)).encode())
             .await
             .unwrap()
-            .into_inner()
             .hash;
-        let unused = b
-            .upload_bundle(tokio_stream::iter([pb::BundleChunk {
-                data: bundle_of(&tiny_scene(2)).encode(),
-            }]))
+        let unused = upload_one(&c, bundle_of(&tiny_scene(2)).encode())
             .await
             .unwrap()
-            .into_inner()
             .hash;
         jobs(&c)
             .await
@@ -338,15 +316,7 @@ fn a_damaged_bundle_fails_its_jobs_by_name_and_uploading_it_again_repairs_it() {
     let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
     let rt = runtime();
     let bytes = bundle_of(&tiny_scene(3)).encode();
-    let upload = |bytes: Vec<u8>| async {
-        bundles(&c)
-            .await
-            .upload_bundle(tokio_stream::iter([pb::BundleChunk { data: bytes }]))
-            .await
-            .unwrap()
-            .into_inner()
-            .hash
-    };
+    let upload = |bytes: Vec<u8>| async { upload_one(&c, bytes).await.unwrap().hash };
     let submit = |hash: String| async {
         jobs(&c)
             .await
@@ -442,14 +412,9 @@ fn cross_site_posts_to_the_monitor_api_are_refused() {
     let addr = c.http.clone().unwrap();
     let rt = runtime();
     let hash = rt.block_on(async {
-        bundles(&c)
-            .await
-            .upload_bundle(tokio_stream::iter([pb::BundleChunk {
-                data: bundle_of(&tiny_scene(1)).encode(),
-            }]))
+        upload_one(&c, bundle_of(&tiny_scene(1)).encode())
             .await
             .unwrap()
-            .into_inner()
             .hash
     });
     let id = rt.block_on(async {

@@ -9,7 +9,6 @@ use std::path::Path;
 use std::process::Command;
 use tonic::transport::Channel;
 use tonic::Code;
-use trevi_core::Bundle;
 use trevi_proto::pb::{
     self, bundles_client::BundlesClient, jobs_client::JobsClient, workers_client::WorkersClient,
 };
@@ -38,15 +37,6 @@ async fn workers(c: &Coordinator, token: Option<&str>) -> WorkersClient<AuthChan
 async fn bundles(c: &Coordinator, token: Option<&str>) -> BundlesClient<AuthChannel> {
     BundlesClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
         .max_encoding_message_size(64 << 20)
-}
-
-fn bundle_of(scene: &str) -> Bundle {
-    let mut files = std::collections::BTreeMap::new();
-    files.insert("s.xml".to_string(), scene.as_bytes().to_vec());
-    Bundle {
-        scene: "s.xml".into(),
-        files,
-    }
 }
 
 async fn upload(

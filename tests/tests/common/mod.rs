@@ -434,3 +434,13 @@ pub fn wait_child(dir: &Dir, child: &mut Child, secs: u64) -> std::process::Exit
         std::thread::sleep(Duration::from_millis(20));
     }
 }
+
+/// A bundle of one scene file, `s.xml`, for tests that speak gRPC directly.
+pub fn bundle_of(scene: &str) -> trevi_core::Bundle {
+    let mut files = std::collections::BTreeMap::new();
+    files.insert("s.xml".to_string(), scene.as_bytes().to_vec());
+    trevi_core::Bundle {
+        scene: "s.xml".into(),
+        files,
+    }
+}
