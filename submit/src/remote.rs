@@ -13,6 +13,10 @@ use trevi_core::Bundle;
 use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient, JobState};
 use trevi_proto::{AuthChannel, Bearer, ClientTls, CHUNK_SIZE, MAX_MESSAGE_SIZE};
 
+/// How long `trevi-submit` keeps retrying an upload that a coordinator
+/// refuses only because all its upload slots (`--max-uploads`) are busy.
+const UPLOAD_BUSY_PATIENCE: Duration = Duration::from_secs(300);
+
 /// How progress is shown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Progress {
@@ -95,13 +99,33 @@ impl Client {
             .chunks(CHUNK_SIZE)
             .map(|c| pb::BundleChunk { data: c.to_vec() })
             .collect();
-        let got = self
-            .bundles
-            .upload_bundle(tokio_stream::iter(chunks))
-            .await
-            .map_err(status_error)
-            .context("the coordinator refused the scene bundle")?
-            .into_inner();
+        // A busy coordinator (its --max-uploads slots all taken by other
+        // submitters) says "try again shortly": wait and retry, doubling
+        // the wait to 5 s, for at most UPLOAD_BUSY_PATIENCE.
+        let started = std::time::Instant::now();
+        let mut backoff = Duration::from_millis(100);
+        let got = loop {
+            match self
+                .bundles
+                .upload_bundle(tokio_stream::iter(chunks.clone()))
+                .await
+            {
+                Err(s)
+                    if s.code() == tonic::Code::ResourceExhausted
+                        && s.message().contains("--max-uploads")
+                        && started.elapsed() < UPLOAD_BUSY_PATIENCE =>
+                {
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(Duration::from_secs(5));
+                }
+                r => {
+                    break r
+                        .map_err(status_error)
+                        .context("the coordinator refused the scene bundle")?
+                        .into_inner()
+                }
+            }
+        };
         if got.hash != want {
             bail!(
                 "the coordinator stored the bundle as {} instead of {want}",
