@@ -50,9 +50,11 @@ struct Instance {
     any_front_only: bool,
 }
 
-/// The world as seen from `eye`: everything instance- or world-positioned,
-/// shifted by −eye in f64 and then rounded to f32.
-struct Frame {
+/// The world relative to an eye (a camera position): everything instance-
+/// or world-positioned, shifted by −eye in f64 and then rounded to f32. Only
+/// shifted, not turned to the camera's axes, so cameras at one position
+/// share it. A [`View`] renders with one.
+struct WorldFromEye {
     eye: DVec3,
     instances: Vec<Instance>,
     /// Top-level primitives `0..instances.len()` are instances, the rest spheres.
@@ -72,7 +74,7 @@ struct Frame {
 #[derive(Clone, Copy)]
 pub struct View<'a> {
     scene: &'a Scene,
-    frame: &'a Frame,
+    world: &'a WorldFromEye,
 }
 
 /// What a closest-hit query found.
@@ -129,19 +131,19 @@ impl SurfacePoint<'_> {
 pub struct Scene {
     pub desc: SceneDesc,
     blas: Vec<Bvh>,
-    /// One view per distinct camera position, built when first asked for:
-    /// building every camera's view up front cost cameras × objects (a
-    /// scene of 5,000 cameras and 5,000 spheres built 25 million entries
-    /// and 5,000 BVHs before rendering anything), while a render needs the
-    /// views of the cameras it renders.
-    frames: Vec<OnceLock<Frame>>,
-    /// Per entry of `frames`, the camera position it is seen from.
-    frame_eyes: Vec<DVec3>,
-    /// Per camera, its index in `frames`.
-    camera_frame: Vec<usize>,
-    /// The view from the world's origin, built on first use unless a camera
-    /// sits there.
-    world: OnceLock<Frame>,
+    /// The world from each distinct camera position, built when first asked
+    /// for: building every camera's up front would cost cameras × objects (a
+    /// scene of 5,000 cameras and 5,000 spheres would build 25 million
+    /// entries and 5,000 BVHs before rendering anything), while a render
+    /// needs those of the cameras it renders.
+    from_eyes: Vec<OnceLock<WorldFromEye>>,
+    /// Per entry of `from_eyes`, the camera position it is seen from.
+    eyes: Vec<DVec3>,
+    /// Per camera, its index in `from_eyes`.
+    camera_eye: Vec<usize>,
+    /// The world from its own origin (for the world-space queries), built on
+    /// first use unless a camera sits there.
+    from_origin: OnceLock<WorldFromEye>,
     /// World-space bounds of the finite geometry (planes excluded).
     pub bounds: Aabb,
     /// Some surface has opacity < 1: shadow rays must gather every occluder.
@@ -192,17 +194,17 @@ impl Scene {
             }
         }
         drop(orders);
-        let mut frame_eyes: Vec<DVec3> = Vec::new();
-        let mut frame_of_eye: HashMap<[u64; 3], usize> = HashMap::new();
-        let mut camera_frame = Vec::with_capacity(desc.cameras.len());
+        let mut eyes: Vec<DVec3> = Vec::new();
+        let mut index_of_eye: HashMap<[u64; 3], usize> = HashMap::new();
+        let mut camera_eye = Vec::with_capacity(desc.cameras.len());
         for c in &desc.cameras {
-            let i = *frame_of_eye.entry(eye_key(c.position)).or_insert_with(|| {
-                frame_eyes.push(c.position);
-                frame_eyes.len() - 1
+            let i = *index_of_eye.entry(eye_key(c.position)).or_insert_with(|| {
+                eyes.push(c.position);
+                eyes.len() - 1
             });
-            camera_frame.push(i);
+            camera_eye.push(i);
         }
-        let frames = frame_eyes.iter().map(|_| OnceLock::new()).collect();
+        let from_eyes = eyes.iter().map(|_| OnceLock::new()).collect();
         let mut bounds = Aabb::EMPTY;
         for model in &desc.models {
             let b = world_box(blas[model.mesh].bounds(), &model.transform);
@@ -227,10 +229,10 @@ impl Scene {
         Scene {
             desc,
             blas,
-            frames,
-            frame_eyes,
-            camera_frame,
-            world: OnceLock::new(),
+            from_eyes,
+            eyes,
+            camera_eye,
+            from_origin: OnceLock::new(),
             bounds,
             has_translucency,
             cameras,
@@ -243,30 +245,30 @@ impl Scene {
     pub fn view(&self, camera: usize) -> View<'_> {
         View {
             scene: self,
-            frame: self.frame(self.camera_frame[camera]),
+            world: self.from_eye(self.camera_eye[camera]),
         }
     }
 
-    /// Entry `i` of `frames`, built on first use.
-    fn frame(&self, i: usize) -> &Frame {
-        self.frames[i].get_or_init(|| build_frame(&self.desc, &self.blas, self.frame_eyes[i]))
+    /// Entry `i` of `from_eyes`, built on first use.
+    fn from_eye(&self, i: usize) -> &WorldFromEye {
+        self.from_eyes[i].get_or_init(|| build_world_from_eye(&self.desc, &self.blas, self.eyes[i]))
     }
 
     /// How many camera views have been built so far.
     pub fn built_views(&self) -> usize {
-        self.frames.iter().filter(|f| f.get().is_some()).count()
-            + usize::from(self.world.get().is_some())
+        self.from_eyes.iter().filter(|w| w.get().is_some()).count()
+            + usize::from(self.from_origin.get().is_some())
     }
 
     /// The view in world coordinates (origin at the world's origin).
     pub fn world_view(&self) -> View<'_> {
-        let frame = match self.frame_eyes.iter().position(|&e| e == DVec3::ZERO) {
-            Some(i) => self.frame(i),
+        let world = match self.eyes.iter().position(|&e| e == DVec3::ZERO) {
+            Some(i) => self.from_eye(i),
             None => self
-                .world
-                .get_or_init(|| build_frame(&self.desc, &self.blas, DVec3::ZERO)),
+                .from_origin
+                .get_or_init(|| build_world_from_eye(&self.desc, &self.blas, DVec3::ZERO)),
         };
-        View { scene: self, frame }
+        View { scene: self, world }
     }
 
     pub fn camera_index(&self, id: &str) -> Option<usize> {
@@ -286,14 +288,14 @@ impl Scene {
             AoDistance::Auto => {
                 // Measured in the camera's view: the same box, without the
                 // rounding of world coordinates far from the origin.
-                let frame = self.frame(self.camera_frame[camera]);
-                let mut b = frame.bounds;
+                let world = self.from_eye(self.camera_eye[camera]);
+                let mut b = world.bounds;
                 if b.diagonal() <= 0.0 {
-                    for &l in &frame.light_positions {
+                    for &l in &world.light_positions {
                         b = b.grow(l);
                     }
                     for c in &self.desc.cameras {
-                        b = b.grow((c.position - frame.eye).as_vec3());
+                        b = b.grow((c.position - world.eye).as_vec3());
                     }
                 }
                 let half = 0.5 * b.diagonal();
@@ -326,13 +328,13 @@ impl Scene {
 impl<'a> View<'a> {
     /// Where this view's origin is in the world.
     pub fn eye(&self) -> DVec3 {
-        self.frame.eye
+        self.world.eye
     }
 
     /// Light `i`'s position in this view's coordinates.
     #[inline]
     pub fn light_position(&self, i: usize) -> Vec3 {
-        self.frame.light_positions[i]
+        self.world.light_positions[i]
     }
 
     fn surface_of(&self, kind: HitKind) -> &'a Surface {
@@ -341,7 +343,7 @@ impl<'a> View<'a> {
             HitKind::Triangle {
                 instance, triangle, ..
             } => {
-                let m = &scene.desc.models[self.frame.instances[instance as usize].model as usize];
+                let m = &scene.desc.models[self.world.instances[instance as usize].model as usize];
                 let s = if m.triangle_surface.is_empty() {
                     0
                 } else {
@@ -365,11 +367,11 @@ impl<'a> View<'a> {
         t_max: f32,
         mut f: F,
     ) -> (f32, bool) {
-        let (scene, frame) = (self.scene, self.frame);
-        let n_inst = frame.instances.len() as u32;
-        let (t_max, hit_a) = frame.tlas.traverse(origin, dir, t_max, |prim, t_max| {
+        let (scene, world) = (self.scene, self.world);
+        let n_inst = world.instances.len() as u32;
+        let (t_max, hit_a) = world.tlas.traverse(origin, dir, t_max, |prim, t_max| {
             if prim < n_inst {
-                let inst = &frame.instances[prim as usize];
+                let inst = &world.instances[prim as usize];
                 let o = inst.to_object.transform_point3(origin);
                 let d = inst.to_object.transform_vector3(dir);
                 let sheared = triangle::ShearedRay::new(o, d);
@@ -424,7 +426,7 @@ impl<'a> View<'a> {
             } else {
                 let i = prim - n_inst;
                 let s = &scene.desc.spheres[i as usize];
-                let center = frame.sphere_centers[i as usize];
+                let center = world.sphere_centers[i as usize];
                 // Both crossings: the far one is offered only to a visitor
                 // that asked for more after the near one (transmittance,
                 // which counts every crossing), never to a closest- or
@@ -451,7 +453,7 @@ impl<'a> View<'a> {
         let mut t_max = t_max;
         let mut hit = hit_a;
         for (i, pl) in scene.desc.planes.iter().enumerate() {
-            let point = frame.plane_points[i];
+            let point = world.plane_points[i];
             if let Some((t, front)) = plane::intersect(origin, dir, point, pl.normal, t_max) {
                 if !front && pl.surface.sided == Sided::Front {
                     continue;
@@ -508,7 +510,7 @@ impl<'a> View<'a> {
 
     /// Position, normals and surface at a hit of ray `origin + t·dir`.
     pub fn surface_point(&self, origin: Vec3, dir: Vec3, hit: &Hit) -> SurfacePoint<'a> {
-        let (scene, frame) = (self.scene, self.frame);
+        let (scene, world) = (self.scene, self.world);
         let surface = self.surface_of(hit.kind);
         let (p, ng, ns, scale) = match hit.kind {
             HitKind::Triangle {
@@ -516,7 +518,7 @@ impl<'a> View<'a> {
                 triangle,
                 bary,
             } => {
-                let inst = &frame.instances[instance as usize];
+                let inst = &world.instances[instance as usize];
                 let mesh = &scene.desc.meshes[inst.mesh as usize];
                 let [i0, i1, i2] = mesh.triangles[triangle as usize].map(|i| i as usize);
                 let (a, b, c) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
@@ -538,7 +540,7 @@ impl<'a> View<'a> {
             }
             HitKind::Sphere(i) => {
                 let s = &scene.desc.spheres[i as usize];
-                let center = frame.sphere_centers[i as usize];
+                let center = world.sphere_centers[i as usize];
                 let p = origin + dir * hit.t;
                 let n = ((p - center) / s.radius).normalize_or_zero();
                 // Project onto the surface to remove the error of o + t·d.
@@ -547,7 +549,7 @@ impl<'a> View<'a> {
             }
             HitKind::Plane(i) => {
                 let pl = &scene.desc.planes[i as usize];
-                let point = frame.plane_points[i as usize];
+                let point = world.plane_points[i as usize];
                 let p = origin + dir * hit.t;
                 // Project onto the plane.
                 let p = p - pl.normal * (p - point).dot(pl.normal);
@@ -569,7 +571,7 @@ impl<'a> View<'a> {
 
 /// The world seen from `eye`: instance transforms composed with the shift
 /// by −eye in f64 before rounding, and every position likewise.
-fn build_frame(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> Frame {
+fn build_world_from_eye(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> WorldFromEye {
     let shift = DMat4::from_translation(-eye);
     let instances: Vec<Instance> = desc
         .models
@@ -628,7 +630,7 @@ fn build_frame(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> Frame {
         .iter()
         .map(|l| (l.position - eye).as_vec3())
         .collect();
-    Frame {
+    WorldFromEye {
         eye,
         instances,
         tlas,
@@ -700,9 +702,9 @@ mod tests {
     use super::*;
     use std::collections::BTreeMap;
 
-    /// Building every camera's view up front cost cameras × objects; a view
-    /// is now built when a camera first renders (issue 15 item 14's class:
-    /// work quadratic in the size of the scene file).
+    /// Building every camera's view up front would cost cameras × objects
+    /// (work quadratic in the size of the scene file): a view is built when
+    /// a camera first renders, and cameras at one position share it.
     #[test]
     fn camera_views_are_built_for_the_cameras_rendered_only() {
         let n = 300;
