@@ -1,0 +1,276 @@
+//! Build and traversal against the reference tree (visit for visit, on
+//! random, lattice, nested and degenerate scenes), against brute force, and
+//! the tree's own invariants.
+
+use super::*;
+use crate::geometry::ray_box;
+
+fn lcg(state: &mut u64) -> f32 {
+    *state = state
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    ((*state >> 40) as f32) / (1u64 << 24) as f32
+}
+
+fn random_boxes(n: usize, seed: u64) -> Vec<Aabb> {
+    let mut s = seed;
+    (0..n)
+        .map(|_| {
+            let c = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * 10.0;
+            let e = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * 0.3;
+            Aabb {
+                min: c - e,
+                max: c + e,
+            }
+        })
+        .collect()
+}
+
+/// Unit boxes on an integer lattice, some repeated: many equal entry
+/// distances, shared faces, and rays along the axes.
+fn lattice_boxes(n: usize) -> Vec<Aabb> {
+    (0..n)
+        .map(|i| {
+            let c = Vec3::new((i % 7) as f32, ((i / 7) % 5) as f32, (i / 35 % 6) as f32);
+            Aabb {
+                min: c,
+                max: c + Vec3::ONE,
+            }
+        })
+        .collect()
+}
+
+/// Nested boxes halving in size: a chain far deeper than the stack.
+fn nested_boxes(n: usize) -> Vec<Aabb> {
+    (0..n)
+        .map(|i| {
+            let s = 0.5f32.powi(i as i32 / 2) * 100.0;
+            Aabb {
+                min: Vec3::ZERO,
+                max: Vec3::splat(s),
+            }
+        })
+        .collect()
+}
+
+fn ref_leaves(r: &reference::RefBvh) -> Vec<Vec<u32>> {
+    let mut out = Vec::new();
+    let mut stack = vec![0usize];
+    while let Some(i) = stack.pop() {
+        let n = r.nodes[i];
+        if n.count > 0 {
+            out.push(r.prims[n.first as usize..(n.first + n.count) as usize].to_vec());
+        } else {
+            stack.push(n.first as usize + 1);
+            stack.push(n.first as usize);
+        }
+    }
+    out
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Mode {
+    Closest,
+    Gather,
+    StopAfter(usize),
+}
+
+type Trace = (Vec<(u32, u32)>, u32, bool);
+
+fn run(
+    boxes: &[Aabb],
+    o: Vec3,
+    d: Vec3,
+    mode: Mode,
+    traverse: impl FnOnce(&mut dyn FnMut(u32, f32) -> Visit) -> (f32, bool),
+) -> Trace {
+    let inv = d.recip();
+    let mut seen = Vec::new();
+    let mut f = |p: u32, tm: f32| {
+        seen.push((p, tm.to_bits()));
+        let b = boxes[p as usize];
+        match (mode, ray_box(o, inv, b.min, b.max, tm)) {
+            (Mode::Closest, Some(t)) => Visit::Hit(t),
+            (Mode::StopAfter(k), Some(_)) if seen.len() > k => Visit::Stop,
+            _ => Visit::Miss,
+        }
+    };
+    let (t, h) = traverse(&mut f);
+    (seen, t.to_bits(), h)
+}
+
+fn rays(seed: u64, n: usize, boxes: &[Aabb]) -> Vec<(Vec3, Vec3, f32)> {
+    let mut s = seed;
+    let b = boxes.iter().fold(Aabb::EMPTY, |a, &b| a.union(b));
+    let ext = b.max - b.min;
+    let mut out = Vec::new();
+    for i in 0..n {
+        let mut o =
+            b.min - ext * 0.2 + Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * ext * 1.4;
+        let mut d = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) - 0.5;
+        match i % 5 {
+            // Along an axis: zero direction components (inf in 1/d).
+            1 => d = [Vec3::X, -Vec3::Y, Vec3::Z, Vec3::new(0.0, 1.0, -1.0)][i / 5 % 4],
+            // From a lattice point, on box faces.
+            2 => o = o.round(),
+            3 => {
+                o = o.round();
+                d = d.signum() * Vec3::new(1.0, 0.0, 1.0);
+            }
+            _ => {}
+        }
+        let t_max = if i % 7 == 0 { 2.5 } else { f32::INFINITY };
+        out.push((o, d, t_max));
+    }
+    out
+}
+
+#[test]
+fn build_and_traversal_match_the_reference_visit_for_visit() {
+    let scenes = [
+        (random_boxes(3000, 7), 4),
+        (random_boxes(500, 8), 2),
+        (lattice_boxes(400), 4),
+        (lattice_boxes(300), 1),
+        (nested_boxes(300), 2),
+        (
+            vec![
+                Aabb {
+                    min: Vec3::ZERO,
+                    max: Vec3::ONE
+                };
+                50
+            ],
+            4,
+        ),
+        (random_boxes(1, 3), 4),
+    ];
+    for (k, (boxes, max_leaf)) in scenes.iter().enumerate() {
+        let new = Bvh::build(boxes, *max_leaf);
+        let old = reference::RefBvh::build(boxes, *max_leaf);
+        let leaves: Vec<Vec<u32>> = new.leaves().iter().map(|l| l.1.to_vec()).collect();
+        assert_eq!(leaves, ref_leaves(&old), "scene {k}: leaves");
+        assert_eq!(new.bounds(), old.bounds(), "scene {k}");
+        let sah_old = old.sah_cost();
+        assert!(
+            (new.sah_cost() - sah_old).abs() <= 1e-4 * sah_old.max(1.0),
+            "scene {k}"
+        );
+        for (i, &(o, d, t_max)) in rays(k as u64 + 1, 400, boxes).iter().enumerate() {
+            for mode in [Mode::Closest, Mode::Gather, Mode::StopAfter(i % 4)] {
+                let a = run(boxes, o, d, mode, |f| new.traverse(o, d, t_max, f));
+                let b = run(boxes, o, d, mode, |f| old.traverse(o, d, t_max, f));
+                assert_eq!(a, b, "scene {k}, ray {i} {o} {d}, {mode:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn after_taking_the_leaf_order_the_walk_reports_leaf_positions() {
+    let boxes = random_boxes(2000, 21);
+    let rays = rays(5, 300, &boxes);
+    let modes = [Mode::Gather, Mode::Closest];
+    let mut bvh = Bvh::build(&boxes, 4);
+    let before: Vec<Trace> = rays
+        .iter()
+        .flat_map(|&(o, d, t_max)| {
+            let bvh = &bvh;
+            let boxes = &boxes;
+            modes.map(move |m| run(boxes, o, d, m, |f| bvh.traverse(o, d, t_max, f)))
+        })
+        .collect();
+    let order = bvh.take_leaf_order();
+    let mut sorted = order.clone();
+    sorted.sort_unstable();
+    assert!(
+        sorted.iter().copied().eq(0..boxes.len() as u32),
+        "a permutation"
+    );
+    // Primitive k is now the old order[k]: the same visits, renamed.
+    let renumbered: Vec<Aabb> = order.iter().map(|&p| boxes[p as usize]).collect();
+    let mut i = 0;
+    for &(o, d, t_max) in &rays {
+        for m in modes {
+            let (seen, t, h) = run(&renumbered, o, d, m, |f| bvh.traverse(o, d, t_max, f));
+            let seen: Vec<(u32, u32)> = seen
+                .iter()
+                .map(|&(k, tm)| (order[k as usize], tm))
+                .collect();
+            assert_eq!((seen, t, h), before[i], "ray {} {m:?}", i / 2);
+            i += 1;
+        }
+    }
+}
+
+#[test]
+fn every_primitive_is_in_exactly_one_leaf_and_inside_its_boxes() {
+    let boxes = random_boxes(5000, 7);
+    let bvh = Bvh::build(&boxes, 4);
+    let mut seen = vec![0; boxes.len()];
+    for (b, prims) in bvh.leaves() {
+        for &p in prims {
+            seen[p as usize] += 1;
+            let pb = boxes[p as usize];
+            assert!(pb.min.cmpge(b.min).all() && pb.max.cmple(b.max).all());
+        }
+    }
+    assert!(seen.iter().all(|&c| c == 1));
+}
+
+#[test]
+fn traversal_finds_the_same_closest_box_as_brute_force() {
+    let boxes = random_boxes(2000, 11);
+    let bvh = Bvh::build(&boxes, 4);
+    let mut s = 99u64;
+    for _ in 0..500 {
+        let o = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * 14.0 - 2.0;
+        let d = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) - 0.5;
+        let inv = d.recip();
+        let brute = boxes
+            .iter()
+            .filter_map(|b| ray_box(o, inv, b.min, b.max, f32::INFINITY))
+            .fold(f32::INFINITY, f32::min);
+        let (t, hit) = bvh.traverse(o, d, f32::INFINITY, |p, tmax| {
+            let b = boxes[p as usize];
+            match ray_box(o, inv, b.min, b.max, tmax) {
+                Some(t) => Visit::Hit(t),
+                None => Visit::Miss,
+            }
+        });
+        assert_eq!(hit, brute.is_finite());
+        if hit {
+            assert_eq!(t, brute);
+        }
+    }
+}
+
+#[test]
+fn sah_beats_a_single_leaf_and_identical_boxes_still_build() {
+    let boxes = random_boxes(1000, 3);
+    let bvh = Bvh::build(&boxes, 4);
+    assert!(bvh.sah_cost() < 1000.0 / 10.0);
+    let same = vec![
+        Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ONE
+        };
+        100
+    ];
+    let bvh = Bvh::build(&same, 4);
+    assert!(bvh.leaves().iter().all(|l| l.1.len() <= 4));
+    assert_eq!(
+        Bvh::build(&[], 4).traverse(Vec3::ZERO, Vec3::X, 1.0, |_, _| Visit::Stop),
+        (1.0, false)
+    );
+}
+
+#[test]
+fn large_builds_take_the_parallel_path_and_still_match() {
+    // Above the parallel thresholds: parallel binning and subtrees.
+    let boxes = random_boxes(150_000, 5);
+    let new = Bvh::build(&boxes, 4);
+    let old = reference::RefBvh::build(&boxes, 4);
+    let leaves: Vec<Vec<u32>> = new.leaves().iter().map(|l| l.1.to_vec()).collect();
+    assert_eq!(leaves, ref_leaves(&old));
+}
