@@ -6,6 +6,7 @@
 
 pub mod obj;
 pub mod ply;
+mod read;
 
 use glam::Vec3;
 

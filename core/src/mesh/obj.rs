@@ -26,8 +26,9 @@ use std::collections::HashMap;
 
 use glam::Vec3;
 
+use super::read::{parse_token, show, unit_normal, MeshFile};
 use super::Mesh;
-use crate::error::{Location, SceneError};
+use crate::error::SceneError;
 
 /// "No normal" marker in a face corner.
 const NONE: u32 = u32::MAX;
@@ -35,8 +36,7 @@ const NONE: u32 = u32::MAX;
 /// Parses a OBJ file's bytes. `file` is the bundle-relative name used in errors.
 pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {
     Parser {
-        file,
-        bytes,
+        file: MeshFile { name: file, bytes },
         positions: Vec::new(),
         normals: Vec::new(),
         texcoords: 0,
@@ -50,16 +50,6 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {
 /// Blanks separating tokens inside a statement.
 fn is_blank(c: u8) -> bool {
     matches!(c, b' ' | b'\t' | b'\r' | 0x0b | 0x0c)
-}
-
-/// A token for an error message: lossy, and cut short if it is very long.
-pub(crate) fn show(tok: &[u8]) -> String {
-    const MAX: usize = 40;
-    if tok.len() > MAX {
-        format!("{}…", String::from_utf8_lossy(&tok[..MAX]))
-    } else {
-        String::from_utf8_lossy(tok).into_owned()
-    }
 }
 
 /// Splits the file into statements and statements into tokens, without
@@ -129,8 +119,7 @@ impl<'a> Lexer<'a> {
 }
 
 struct Parser<'a> {
-    file: &'a str,
-    bytes: &'a [u8],
+    file: MeshFile<'a>,
     positions: Vec<Vec3>,
     /// Raw `vn` values, as written.
     normals: Vec<Vec3>,
@@ -151,15 +140,15 @@ struct Corner {
 
 impl Parser<'_> {
     fn err(&self, at: usize, msg: impl Into<String>) -> SceneError {
-        SceneError::new(Location::at_offset(self.file, self.bytes, at), msg)
+        self.file.error_at(at, msg)
     }
 
     fn run(mut self) -> Result<Mesh, SceneError> {
         let mut lx = Lexer {
-            b: self.bytes,
+            b: self.file.bytes,
             pos: 0,
         };
-        while lx.pos < self.bytes.len() {
+        while lx.pos < self.file.bytes.len() {
             if let Some((at, keyword)) = lx.token() {
                 match keyword {
                     b"v" => self.vertex(&mut lx, at)?,
@@ -175,9 +164,7 @@ impl Parser<'_> {
     }
 
     fn number(&self, at: usize, tok: &[u8]) -> Result<f32, SceneError> {
-        let x = std::str::from_utf8(tok)
-            .ok()
-            .and_then(|s| s.parse::<f32>().ok())
+        let x = parse_token::<f32>(tok)
             .ok_or_else(|| self.err(at, format!("malformed number \"{}\"", show(tok))))?;
         if !x.is_finite() {
             return Err(self.err(
@@ -250,9 +237,7 @@ impl Parser<'_> {
     /// Resolves a 1-based or negative (relative) index against the `count`
     /// elements defined so far into a 0-based one.
     fn index(&self, at: usize, tok: &[u8], count: usize, what: &str) -> Result<u32, SceneError> {
-        let raw = std::str::from_utf8(tok)
-            .ok()
-            .and_then(|s| s.parse::<i64>().ok())
+        let raw = parse_token::<i64>(tok)
             .ok_or_else(|| self.err(at, format!("malformed {what} index \"{}\"", show(tok))))?;
         if raw == 0 {
             return Err(self.err(
@@ -354,9 +339,9 @@ impl Parser<'_> {
 
     fn finish(self) -> Result<Mesh, SceneError> {
         if self.triangles.is_empty() {
-            return Err(self.err(self.bytes.len(), "mesh has no triangles"));
+            return Err(self.err(self.file.bytes.len(), "mesh has no triangles"));
         }
-        let (file, bytes) = (self.file, self.bytes);
+        let file = self.file;
         let mut mesh = Mesh {
             positions: self.positions,
             normals: Vec::new(),
@@ -375,24 +360,9 @@ impl Parser<'_> {
             }
         }
         if let Err(at) = split_by_normal(&mut mesh, &corner_normals) {
-            return Err(SceneError::new(
-                Location::at_offset(file, bytes, at),
-                "too many vertices after splitting by normal",
-            ));
+            return Err(file.error_at(at, "too many vertices after splitting by normal"));
         }
         Ok(mesh)
-    }
-}
-
-/// `n` normalised, or `None` if it has no direction. `-0.0` becomes `0.0`
-/// so that equal normals compare equal bit for bit.
-pub(crate) fn unit_normal(n: Vec3) -> Option<Vec3> {
-    let d = n.as_dvec3();
-    let len = d.length();
-    if len > 0.0 && len.is_finite() {
-        Some((d / len).as_vec3() + Vec3::ZERO)
-    } else {
-        None
     }
 }
 
