@@ -201,14 +201,9 @@ struct Link {
     f: f32,
 }
 
-impl<'a> Integrator<'a> {
-    pub fn new(scene: &'a Scene, camera: usize, options: RenderOptions) -> Self {
-        Integrator::observed(scene, camera, options, &())
-    }
-}
-
 impl<'a, O: RayObserver> Integrator<'a, O> {
-    /// [`Integrator::new`] with every traced ray shown to `observer` first.
+    /// The integrator of camera `camera` of `scene`, showing every traced ray
+    /// to `observer` first (`&()` shows them to no one).
     pub fn observed(
         scene: &'a Scene,
         camera: usize,
@@ -767,8 +762,8 @@ mod tests {
             .unwrap()
     }
 
-    /// Issue 15 item 9: a perfect mirror sphere round the camera at the
-    /// largest max-depth. The walk is MAX_DEPTH + 1 rays deep on the heap;
+    /// A perfect mirror sphere round the camera at the largest max-depth:
+    /// a recursion per bounce would overflow a thread's stack. The walk is MAX_DEPTH + 1 rays deep on the heap;
     /// every level passes its child's colour up unchanged (r = 1), so the
     /// pixel is the deepest hit's local colour, ka ⊙ ambient.
     #[test]
@@ -780,8 +775,9 @@ mod tests {
   <camera id="c" position="0 0 0" direction="0 0 -1" fov="30">
     <render width="1" height="1" max-depth="{MAX_DEPTH}"/></camera></scene>"#
         ));
-        let (px, rays) =
-            on_a_small_stack(move || Integrator::new(&s, 0, RenderOptions::default()).pixel(0, 0));
+        let (px, rays) = on_a_small_stack(move || {
+            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0)
+        });
         assert_eq!(rays, u64::from(MAX_DEPTH) + 1);
         assert_eq!(px, [0.2f32 * 0.5, 0.4 * 0.5, 0.6 * 0.5]);
     }
@@ -799,15 +795,17 @@ mod tests {
     <render width="1" height="1" max-depth="0" diffuse-samples="1" ao-distance="1000"
             diffuse-depth="{MAX_DEPTH}"/></camera></scene>"#
         ));
-        let (px, rays) =
-            on_a_small_stack(move || Integrator::new(&s, 0, RenderOptions::default()).pixel(0, 0));
+        let (px, rays) = on_a_small_stack(move || {
+            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0)
+        });
         // One camera ray, then per level a gather ray and a shadow ray.
         assert!(rays >= 2 * u64::from(MAX_DEPTH), "{rays}");
         assert!(px.iter().all(|c| c.is_finite() && *c > 0.0), "{px:?}");
     }
 
-    /// Issue 15 item 10: 8000² samples of one value, summed in plain f32,
-    /// stall far below the right mean; `Sum` gets it.
+    /// 8000² samples of one value, summed in plain f32, stall far below the
+    /// right mean (the sum stops growing once a sample is below half its
+    /// ULP); `Sum` gets it.
     #[test]
     fn sums_of_64_million_samples_keep_their_mean() {
         let n = 8000u64 * 8000;
@@ -820,9 +818,12 @@ mod tests {
         }
         let mean = sum.mean(n);
         assert!(((mean - v) / v).abs().max_element() < 1e-5, "{mean} vs {v}");
-        // What the renderer used to compute: far off.
-        let old = plain / n as f32;
-        assert!(((old - v) / v).abs().max_element() > 0.1, "{old}");
+        // The plain f32 mean is far off: the test would catch a plain sum.
+        let plain_mean = plain / n as f32;
+        assert!(
+            ((plain_mean - v) / v).abs().max_element() > 0.1,
+            "{plain_mean}"
+        );
         let mut sum = Sum::<f32>::default();
         for _ in 0..n {
             sum.add(0.737);
