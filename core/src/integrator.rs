@@ -86,7 +86,7 @@ pub struct PixelContext {
     links: Vec<Link>,
 }
 
-/// How many samples [`Sum`] adds in `f32` before moving them to its `f64`
+/// How many samples `Sum` adds in `f32` before moving them to its `f64`
 /// total.
 pub const SUM_BLOCK: u32 = 1024;
 

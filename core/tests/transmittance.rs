@@ -141,7 +141,8 @@ fn every_crossing_of_every_primitive_multiplies() {
 }
 
 /// A rendered pixel: the plane point under the sphere, lit straight from
-/// above, is kd · E · (1 − α)² (was kd · E · (1 − α): 0.2 instead of 0.08).
+/// above, is kd · E · (1 − α)² (counting only one of the sphere's two
+/// surfaces would give kd · E · (1 − α): 0.2 instead of 0.08).
 #[test]
 fn the_pixel_under_a_glass_sphere_has_the_spec_value() {
     let s = scene(&format!(

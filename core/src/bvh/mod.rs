@@ -6,8 +6,8 @@
 //! caller's closure intersects the primitives, so traversal is generic and
 //! statically dispatched.
 //!
-//! This file holds the tree's layout; [`build`](self::build) makes it and
-//! [`traverse`](self::traverse) walks it.
+//! This file holds the tree's layout; `build.rs` makes it and `traverse.rs`
+//! walks it.
 //!
 //! Layout: an interior node is stored as the *pair* of its children's boxes
 //! (64 bytes, one cache line, laid out so that SSE tests both boxes at once)

@@ -72,7 +72,7 @@ impl PngSink {
         encoder.set_source_srgb(::png::SrgbRenderingIntent::Perceptual);
         // png's fast preset: its own deflate tuned for PNG rows (fdeflate)
         // with adaptive filtering. The coordinator encodes every farm frame,
-        // and zlib's level 1 was a quarter of its time per tile.
+        // and zlib's level 1 costs it a quarter of its time per tile.
         encoder.set_compression(::png::Compression::Fast);
         let stream = encoder
             .write_header()

@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 /// stitching the coordinator's bottleneck. The code is a step function of the
 /// input, so it is exact to compare the input with the 255 smallest `f32`
 /// inputs of each code (computed once from the closed form in
-/// [`linear_to_srgb8_exact`]). Positive `f32`s sort like their bit patterns,
+/// `linear_to_srgb8_exact`). Positive `f32`s sort like their bit patterns,
 /// so a second table indexed by the top bits of the input gives the code at
 /// the start of its bucket of 2^16 neighbouring floats; a bucket never spans
 /// more than one step of the curve, so at most one or two comparisons finish

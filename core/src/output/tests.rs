@@ -430,9 +430,9 @@ fn the_bytes_written_carry_the_signature_of_the_extension() {
     assert_eq!(Format::sniff(b""), None);
 }
 
-/// `-o /dev/full` once replaced the device node: the finished file was
-/// renamed over it. A target that exists and is not a regular file is
-/// refused, before anything is written and again before the rename.
+/// Renaming the finished file over `-o /dev/full` would replace the device
+/// node. A target that exists and is not a regular file is refused, before
+/// anything is written and again before the rename.
 #[cfg(unix)]
 #[test]
 fn a_target_that_is_not_a_regular_file_is_refused_and_left_alone() {
