@@ -245,12 +245,12 @@ impl Scene {
     pub fn view(&self, camera: usize) -> View<'_> {
         View {
             scene: self,
-            world: self.from_eye(self.camera_eye[camera]),
+            world: self.world_from_eye(self.camera_eye[camera]),
         }
     }
 
     /// Entry `i` of `from_eyes`, built on first use.
-    fn from_eye(&self, i: usize) -> &WorldFromEye {
+    fn world_from_eye(&self, i: usize) -> &WorldFromEye {
         self.from_eyes[i].get_or_init(|| build_world_from_eye(&self.desc, &self.blas, self.eyes[i]))
     }
 
@@ -263,7 +263,7 @@ impl Scene {
     /// The view in world coordinates (origin at the world's origin).
     pub fn world_view(&self) -> View<'_> {
         let world = match self.eyes.iter().position(|&e| e == DVec3::ZERO) {
-            Some(i) => self.from_eye(i),
+            Some(i) => self.world_from_eye(i),
             None => self
                 .from_origin
                 .get_or_init(|| build_world_from_eye(&self.desc, &self.blas, DVec3::ZERO)),
@@ -288,7 +288,7 @@ impl Scene {
             AoDistance::Auto => {
                 // Measured in the camera's view: the same box, without the
                 // rounding of world coordinates far from the origin.
-                let world = self.from_eye(self.camera_eye[camera]);
+                let world = self.world_from_eye(self.camera_eye[camera]);
                 let mut b = world.bounds;
                 if b.diagonal() <= 0.0 {
                     for &l in &world.light_positions {
