@@ -18,7 +18,8 @@
 //!   cannot keep its job running for ever. A lease the worker gives back
 //!   without an error (it is stopping) re-queues the tile and counts nothing.
 
-use crate::workers::{WorkerEntry, WorkerInfo};
+use crate::limits::Limits;
+use crate::workers::{WorkerInfo, Workers};
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::{Duration, Instant};
@@ -26,7 +27,7 @@ use trevi_core::tile::Rect;
 
 pub type JobId = u64;
 pub type LeaseId = u64;
-pub type WorkerId = u64;
+pub use crate::workers::WorkerId;
 
 /// Where a job is in its life.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -200,41 +201,6 @@ pub fn encoder_bytes(spec: &JobSpec) -> u64 {
     spec.width as u64 * ENCODER_ROWS * 12
 }
 
-/// Tunables.
-#[derive(Debug, Clone, Copy)]
-pub struct SchedulerConfig {
-    /// How long a lease lives without a heartbeat.
-    pub lease_ttl: Duration,
-    /// Budget per job, in bytes, for the rows held by the stitcher and its
-    /// encoder (counted at 12 bytes a pixel) and the bookkeeping of the
-    /// tiles in flight: after [`encoder_bytes`], it holds
-    /// `room / band_bytes` bands (at least one; a frame whose one band does
-    /// not fit is refused at submission). The job's preview (at most
-    /// 512×512, [`crate::preview`]) comes on top.
-    pub window_bytes: u64,
-    /// A tile that fails this many times (its lease runs out, or its result
-    /// is invalid) fails its job.
-    pub max_tile_failures: u32,
-    /// A worker that fails this many tiles of a job takes no more of them.
-    pub max_worker_failures: u32,
-    /// A tile whose lease runs out this many times (the worker holding it
-    /// was lost) fails its job; these count towards `max_tile_failures` too.
-    pub max_tile_losses: u32,
-}
-
-impl Default for SchedulerConfig {
-    fn default() -> Self {
-        SchedulerConfig {
-            lease_ttl: Duration::from_secs(10),
-            // A 16384-pixel-wide frame in 64-pixel tiles: two bands.
-            window_bytes: 32 << 20,
-            max_tile_failures: 5,
-            max_worker_failures: 3,
-            max_tile_losses: 3,
-        }
-    }
-}
-
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum TileState {
     Pending,
@@ -372,18 +338,15 @@ enum Release {
 
 /// The job queue and leases.
 pub struct Scheduler {
-    cfg: SchedulerConfig,
+    cfg: Limits,
     jobs: HashMap<JobId, Job>,
     /// Unfinished jobs in the order they get workers.
     queue: BTreeSet<(Reverse<i32>, JobId)>,
     leases: HashMap<LeaseId, LeaseEntry>,
-    workers: HashMap<WorkerId, WorkerEntry>,
-    /// Time zero of the workers' per-second rates.
-    epoch: Instant,
+    workers: Workers,
     counters: Counters,
     next_job: JobId,
     next_lease: LeaseId,
-    next_worker: WorkerId,
     finished: u64,
     /// Jobs failed by their tiles' failures, for the caller to wind up.
     failed: Vec<(JobId, String)>,
@@ -392,58 +355,42 @@ pub struct Scheduler {
 impl Scheduler {
     /// `worker_id_base` keeps worker ids of different coordinator runs apart,
     /// so a worker that outlived a restart is told to register again.
-    pub fn new(cfg: SchedulerConfig, worker_id_base: u64) -> Self {
+    pub fn new(cfg: Limits, worker_id_base: u64) -> Self {
         Scheduler {
             cfg,
             jobs: HashMap::new(),
             queue: BTreeSet::new(),
             leases: HashMap::new(),
-            workers: HashMap::new(),
-            epoch: Instant::now(),
+            workers: Workers::new(worker_id_base),
             counters: Counters::default(),
             next_job: 1,
             // Like worker ids: a result under a lease of an earlier run
             // never matches a lease of this one.
             next_lease: worker_id_base.max(1),
-            next_worker: worker_id_base.max(1),
             finished: 0,
             failed: Vec::new(),
         }
     }
 
-    pub fn config(&self) -> SchedulerConfig {
+    pub fn config(&self) -> Limits {
         self.cfg
     }
 
-    pub fn register_worker(&mut self, now: Instant) -> WorkerId {
-        let id = self.next_worker;
-        self.next_worker += 1;
-        self.workers.insert(id, WorkerEntry::new(now));
-        id
-    }
-
-    /// Registers a worker whose every later call must present `session`.
-    pub fn register_worker_session(&mut self, now: Instant, session: [u8; 32]) -> WorkerId {
-        let id = self.register_worker(now);
-        if let Some(w) = self.workers.get_mut(&id) {
-            w.session = Some(session);
-        }
-        id
+    /// Registers a worker; with a `session`, its every later call must
+    /// present that secret.
+    pub fn register_worker(&mut self, now: Instant, session: Option<[u8; 32]>) -> WorkerId {
+        self.workers.register(now, session)
     }
 
     /// Whether `presented` is `worker`'s session secret (`None`: no such
     /// worker).
     pub fn session_is(&self, worker: WorkerId, presented: &[u8]) -> Option<bool> {
-        self.workers.get(&worker).map(|w| w.session_is(presented))
+        self.workers.session_is(worker, presented)
     }
 
     /// Records what a worker said about itself when it registered.
     pub fn describe_worker(&mut self, worker: WorkerId, name: &str, threads: u32) {
-        if let Some(w) = self.workers.get_mut(&worker) {
-            // Names come from the network: keep them short.
-            w.name = name.chars().take(64).collect();
-            w.threads = threads;
-        }
+        self.workers.describe(worker, name, threads);
     }
 
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
@@ -628,8 +575,7 @@ impl Scheduler {
         // Workers silent for ten lease lifetimes are forgotten; one that
         // comes back is told to register again.
         let forget = (self.cfg.lease_ttl * 10).max(Duration::from_secs(60));
-        self.workers
-            .retain(|_, w| now.saturating_duration_since(w.last_seen) <= forget);
+        self.workers.forget_silent(forget, now);
         self.fail_stranded_jobs(now);
         expired.len()
     }
@@ -640,12 +586,7 @@ impl Scheduler {
     /// a job whose workers all crashed waits for new ones.
     fn fail_stranded_jobs(&mut self, now: Instant) {
         let ttl = self.cfg.lease_ttl;
-        let live: Vec<WorkerId> = self
-            .workers
-            .iter()
-            .filter(|(_, w)| now.saturating_duration_since(w.last_seen) <= ttl)
-            .map(|(&id, _)| id)
-            .collect();
+        let live = self.workers.live(ttl, now);
         if live.is_empty() {
             return;
         }
@@ -854,11 +795,8 @@ impl Scheduler {
         let last = j.done == j.tiles_total as u64;
         self.counters.tiles_accepted += 1;
         self.counters.rays = self.counters.rays.saturating_add(rays);
-        let sec = now_sec(self.epoch, now);
-        if let Some(w) = worker.and_then(|w| self.workers.get_mut(&w)) {
-            w.tiles_done += 1;
-            w.rays = w.rays.saturating_add(rays);
-            w.rate.add(sec, 1, rays);
+        if let Some(w) = worker {
+            self.workers.credit(w, rays, now);
         }
         Ok(Accepted::New { last })
     }
@@ -1064,55 +1002,21 @@ impl Scheduler {
             let rect = self.jobs[&e.job].rect(e.tile);
             held.entry(e.worker).or_default().push((e.job, rect));
         }
-        let sec = now_sec(self.epoch, now);
-        let mut out: Vec<WorkerInfo> = self
-            .workers
-            .iter()
-            .map(|(&id, w)| {
-                let mut leases = held.remove(&id).unwrap_or_default();
-                leases.sort_unstable_by_key(|&(j, r)| (j, r.y, r.x));
-                let (tiles_per_s, rays_per_s) = w.rate.per_second(sec);
-                WorkerInfo {
-                    id,
-                    name: w.name.clone(),
-                    threads: w.threads,
-                    state: w.state(leases.len(), self.cfg.lease_ttl, now),
-                    silent_for: now.saturating_duration_since(w.last_seen),
-                    leases,
-                    tiles_done: w.tiles_done,
-                    rays: w.rays,
-                    tiles_per_s,
-                    rays_per_s,
-                }
-            })
-            .collect();
-        out.sort_unstable_by_key(|w| w.id);
-        out
+        self.workers.list(held, self.cfg.lease_ttl, now)
     }
 
     /// Rays per second of the whole farm over the last few seconds.
     pub fn rays_per_second(&self, now: Instant) -> f64 {
-        let sec = now_sec(self.epoch, now);
-        self.workers
-            .values()
-            .map(|w| w.rate.per_second(sec).1)
-            .sum()
+        self.workers.rays_per_second(now)
     }
 
     fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<(), SchedError> {
-        match self.workers.get_mut(&worker) {
-            Some(w) => {
-                w.last_seen = now;
-                Ok(())
-            }
-            None => Err(SchedError::UnknownWorker(worker)),
+        if self.workers.touch(worker, now) {
+            Ok(())
+        } else {
+            Err(SchedError::UnknownWorker(worker))
         }
     }
-}
-
-/// Whole seconds from `epoch` to `now` (0 before it).
-fn now_sec(epoch: Instant, now: Instant) -> u64 {
-    now.saturating_duration_since(epoch).as_secs()
 }
 
 #[cfg(test)]
@@ -1135,14 +1039,14 @@ mod tests {
     fn sched() -> (Scheduler, Instant, WorkerId) {
         let now = Instant::now();
         let mut s = Scheduler::new(
-            SchedulerConfig {
+            Limits {
                 lease_ttl: Duration::from_secs(5),
                 window_bytes: 1 << 30,
-                ..SchedulerConfig::default()
+                ..Limits::default()
             },
             100,
         );
-        let w = s.register_worker(now);
+        let w = s.register_worker(now, None);
         (s, now, w)
     }
 
@@ -1181,15 +1085,15 @@ mod tests {
         let now = Instant::now();
         // One band of a 16-wide frame with 4-pixel tiles is 16*4*12 bytes.
         let mut s = Scheduler::new(
-            SchedulerConfig {
+            Limits {
                 lease_ttl: Duration::from_secs(5),
                 window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
                     + 16 * 12 * ENCODER_ROWS,
-                ..SchedulerConfig::default()
+                ..Limits::default()
             },
             1,
         );
-        let w = s.register_worker(now);
+        let w = s.register_worker(now, None);
         let j = s.submit(spec(0, 16, 64, 4), now);
         let mut leased = Vec::new();
         while let Some(l) = s.lease(w, now).unwrap() {
@@ -1227,7 +1131,7 @@ mod tests {
     #[test]
     fn first_valid_result_wins_late_and_duplicate_ignored() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         let j = s.submit(spec(0, 4, 4, 4), t0);
         let l1 = s.lease(w, t0).unwrap().unwrap();
         let t1 = t0 + Duration::from_secs(6);
@@ -1252,7 +1156,7 @@ mod tests {
     #[test]
     fn rejected_result_requeues_only_its_own_lease() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         s.submit(spec(0, 4, 4, 4), t0);
         let l1 = s.lease(w, t0).unwrap().unwrap();
         s.reject_tile(l1.id, "bad");
@@ -1293,15 +1197,15 @@ mod tests {
     fn bookkeeping_stays_within_the_window_whatever_the_height() {
         let now = Instant::now();
         let mut s = Scheduler::new(
-            SchedulerConfig {
+            Limits {
                 lease_ttl: Duration::from_secs(5),
                 window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
                     + 16 * 12 * ENCODER_ROWS,
-                ..SchedulerConfig::default()
+                ..Limits::default()
             },
             1,
         );
-        let w = s.register_worker(now);
+        let w = s.register_worker(now, None);
         let j = s.submit(spec(0, 16, 4000, 4), now);
         let mut peak = 0;
         loop {
@@ -1338,7 +1242,7 @@ mod tests {
     #[test]
     fn counters_follow_every_tile_event() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         // 2×2 tiles of 4 pixels.
         let j = s.submit(spec(0, 8, 8, 4), t0);
         let a = s.lease(w, t0).unwrap().unwrap();
@@ -1374,7 +1278,7 @@ mod tests {
     #[test]
     fn workers_show_their_tiles_state_and_rate() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         s.describe_worker(w, "render-01", 8);
         let j = s.submit(spec(0, 8, 8, 4), t0);
         let a = s.lease(w, t0).unwrap().unwrap();
@@ -1395,7 +1299,8 @@ mod tests {
         assert_eq!((ws[0].tiles_done, ws[0].rays), (1, 400));
         assert_eq!(ws[1].state, WorkerState::Lost);
         // Averaged over the 10 s window once the second is over.
-        let later = s.epoch + Duration::from_secs(t1.duration_since(s.epoch).as_secs() + 1);
+        let epoch = s.workers.epoch();
+        let later = epoch + Duration::from_secs(t1.duration_since(epoch).as_secs() + 1);
         let ws = s.workers(later.max(t2));
         assert!(
             (ws[0].rays_per_s - 40.0).abs() < 1e-9,
@@ -1429,7 +1334,7 @@ mod tests {
         // max_worker_failures 3, max_tile_failures 5: w fails three
         // different tiles once each, so no tile reaches its limit.
         // While a second worker may still take tiles, nothing fails.
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         let j = s.submit(spec(0, 16, 4, 4), t0);
         for _ in 0..3 {
             let l = s.lease(w, t0).unwrap().unwrap();
@@ -1465,7 +1370,7 @@ mod tests {
         let first = s.lease(w, now).unwrap().unwrap();
         s.accept_tile(j, first.rect, 1, now).unwrap();
         for n in 1..=3 {
-            let w = s.register_worker(now);
+            let w = s.register_worker(now, None);
             let l = s.lease(w, now).unwrap().unwrap();
             assert_eq!(l.rect, Rect::new(4, 0, 4, 4));
             now += Duration::from_secs(6);
@@ -1487,14 +1392,14 @@ mod tests {
     fn tiles_lost_together_are_all_named() {
         let now = Instant::now();
         let mut s = Scheduler::new(
-            SchedulerConfig {
+            Limits {
                 lease_ttl: Duration::from_secs(5),
                 max_tile_losses: 1,
-                ..SchedulerConfig::default()
+                ..Limits::default()
             },
             1,
         );
-        let w = s.register_worker(now);
+        let w = s.register_worker(now, None);
         let j = s.submit(spec(0, 8, 4, 4), now);
         s.lease(w, now).unwrap().unwrap();
         s.lease(w, now).unwrap().unwrap();
@@ -1509,7 +1414,7 @@ mod tests {
     #[test]
     fn a_returned_lease_requeues_for_free_and_a_failed_render_counts() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         let j = s.submit(spec(0, 4, 4, 4), t0);
         // Given back unrendered (the worker is stopping), many times over:
         // the tile is re-queued at once and nothing is counted.
