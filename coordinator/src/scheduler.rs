@@ -18,10 +18,15 @@
 //!   cannot keep its job running for ever. A lease the worker gives back
 //!   without an error (it is stopping) re-queues the tile and counts nothing.
 
+mod window;
+
+pub use window::{band_bytes, encoder_bytes, ENCODER_ROWS, TILE_BOOKKEEPING_BYTES};
+use window::{BandWindow, TileState};
+
 use crate::limits::Limits;
 use crate::workers::{WorkerInfo, Workers};
 use std::cmp::Reverse;
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
 
@@ -175,57 +180,12 @@ pub struct QueueDepth {
     pub tiles: u64,
 }
 
-/// What the bookkeeping of one tile in a job's band window may cost, in
-/// bytes: its state in the window, a lease, a re-queue entry (counted
-/// generously; see [`band_bytes`]).
-pub const TILE_BOOKKEEPING_BYTES: u64 = 96;
-
-/// What one band of `spec`'s tiles costs the coordinator while it is in the
-/// window, in bytes: its rows in the writer (12 bytes a pixel, the most any
-/// format holds) and the bookkeeping of its tiles. The band window holds
-/// `window_bytes / band_bytes` bands, at least one.
-pub fn band_bytes(spec: &JobSpec) -> u64 {
-    let tile = spec.tile_size.max(1) as u64;
-    let rows = tile.min(spec.height.max(1) as u64);
-    let cols = (spec.width as u64).div_ceil(tile).max(1);
-    spec.width as u64 * rows * 12 + cols * TILE_BOOKKEEPING_BYTES
-}
-
-/// Rows a job's encoder holds beyond those in the band window: EXR
-/// compresses one 16-row block while the next one waits (PNG needs two).
-pub const ENCODER_ROWS: u64 = 32;
-
-/// What a job's encoder holds whatever the window: [`ENCODER_ROWS`] rows at
-/// 12 bytes a pixel. Taken from the window before it is divided into bands.
-pub fn encoder_bytes(spec: &JobSpec) -> u64 {
-    spec.width as u64 * ENCODER_ROWS * 12
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum TileState {
-    Pending,
-    Leased(LeaseId),
-    Done,
-}
-
-/// A job's tiles, numbered in band order. Only the tiles between the first
-/// one not done and the first one never leased are stored; the window keeps
-/// that span to a few bands, so the bookkeeping does not grow with the
-/// image height either.
+/// A job: its spec, its tiles' [`BandWindow`], its progress and the
+/// failures of its tiles and workers.
 struct Job {
     spec: JobSpec,
     state: JobState,
-    cols: u32,
-    tiles_total: u32,
-    window_bands: u32,
-    /// Every tile before this one is done.
-    first_undone: u32,
-    /// Every tile from this one on is pending and was never leased.
-    next_fresh: u32,
-    /// States of tiles `first_undone..next_fresh`.
-    active: BTreeMap<u32, TileState>,
-    /// Pending tiles before `next_fresh` (re-queued), smallest first.
-    requeued: BTreeSet<u32>,
+    window: BandWindow,
     done: u64,
     rays: u64,
     submitted: Instant,
@@ -243,75 +203,16 @@ struct Job {
 }
 
 impl Job {
-    fn rect(&self, idx: u32) -> Rect {
-        let t = self.spec.tile_size;
-        let (x, y) = ((idx % self.cols) * t, (idx / self.cols) * t);
-        Rect::new(
-            x,
-            y,
-            t.min(self.spec.width - x),
-            t.min(self.spec.height - y),
-        )
-    }
-
-    fn tile_index(&self, rect: Rect) -> Option<u32> {
-        let t = self.spec.tile_size;
-        if rect.x % t != 0 || rect.y % t != 0 || rect.x >= self.spec.width {
-            return None;
-        }
-        let idx = (rect.y / t) as u64 * self.cols as u64 + (rect.x / t) as u64;
-        let idx = u32::try_from(idx).ok().filter(|&i| i < self.tiles_total)?;
-        (self.rect(idx) == rect).then_some(idx)
-    }
-
-    fn tile_state(&self, idx: u32) -> TileState {
-        if idx < self.first_undone {
-            TileState::Done
-        } else if idx >= self.next_fresh {
-            TileState::Pending
-        } else {
-            self.active[&idx]
-        }
-    }
-
-    /// The pending tile to hand out next, if the window allows one.
-    fn next_tile(&self) -> Option<u32> {
-        let idx = match self.requeued.first() {
-            Some(&i) => i,
-            None if self.next_fresh < self.tiles_total => self.next_fresh,
-            None => return None,
-        };
-        let limit = (self.first_undone / self.cols) as u64 + self.window_bands as u64;
-        (((idx / self.cols) as u64) < limit).then_some(idx)
-    }
-
-    fn set_leased(&mut self, idx: u32, lease: LeaseId) {
-        if idx == self.next_fresh {
-            self.next_fresh += 1;
-        } else {
-            self.requeued.remove(&idx);
-        }
-        self.active.insert(idx, TileState::Leased(lease));
-    }
-
-    /// Marks a tile done and moves `first_undone` past the done prefix.
+    /// Marks a tile done: it has no failures or past leases any more.
     fn set_done(&mut self, idx: u32) {
-        self.requeued.remove(&idx);
+        self.window.set_done(idx);
         self.failures.remove(&idx);
         self.past_leases.retain(|_, (t, _)| *t != idx);
-        self.active.insert(idx, TileState::Done);
-        while self.first_undone < self.next_fresh
-            && self.active.get(&self.first_undone) == Some(&TileState::Done)
-        {
-            self.active.remove(&self.first_undone);
-            self.first_undone += 1;
-        }
     }
 
     /// Drops the bookkeeping only a running job needs.
     fn retire(&mut self) {
-        self.active = BTreeMap::new();
-        self.requeued = BTreeSet::new();
+        self.window.retire();
         self.failures = HashMap::new();
         self.worker_failures = HashMap::new();
         self.past_leases = HashMap::new();
@@ -423,27 +324,12 @@ impl Scheduler {
         let mut done: Vec<u32> = r
             .done_tiles
             .into_iter()
-            .filter(|&i| i < job.tiles_total)
+            .filter(|&i| i < job.window.tiles_total())
             .collect();
         done.sort_unstable();
         done.dedup();
-        if let Some(&last) = done.last() {
-            // The done prefix needs no entries; only the span after it does
-            // (a window's worth, as when the tiles were leased).
-            let prefix = done
-                .iter()
-                .enumerate()
-                .take_while(|&(i, &t)| i as u32 == t)
-                .count() as u32;
-            job.first_undone = prefix;
-            job.next_fresh = last + 1;
-            for i in prefix..job.next_fresh {
-                job.active.insert(i, TileState::Pending);
-                job.requeued.insert(i);
-            }
-            for &i in &done[prefix as usize..] {
-                job.set_done(i);
-            }
+        if !done.is_empty() {
+            job.window.restore(&done);
             job.state = JobState::Running;
         }
         job.done = done.len() as u64;
@@ -458,19 +344,9 @@ impl Scheduler {
             tile_size: tile,
             ..spec
         };
-        let cols = spec.width.div_ceil(tile).max(1);
-        let rows = spec.height.div_ceil(tile);
-        let room = self.cfg.window_bytes.saturating_sub(encoder_bytes(&spec));
-        let window_bands = (room / band_bytes(&spec).max(1)).clamp(1, u32::MAX as u64);
         Job {
             state: JobState::Queued,
-            cols,
-            tiles_total: u32::try_from(cols as u64 * rows as u64).unwrap_or(u32::MAX),
-            window_bands: window_bands as u32,
-            first_undone: 0,
-            next_fresh: 0,
-            active: BTreeMap::new(),
-            requeued: BTreeSet::new(),
+            window: BandWindow::new(&spec, self.cfg.window_bytes),
             done: 0,
             rays: 0,
             submitted: now,
@@ -486,13 +362,13 @@ impl Scheduler {
 
     /// The index of `rect` among `job`'s tiles (band order), if it is one.
     pub fn tile_index(&self, job: JobId, rect: Rect) -> Option<u32> {
-        self.jobs.get(&job)?.tile_index(rect)
+        self.jobs.get(&job)?.window.tile_index(rect)
     }
 
     /// The rectangle of tile `idx` of `job`.
     pub fn tile_rect(&self, job: JobId, idx: u32) -> Option<Rect> {
         let j = self.jobs.get(&job)?;
-        (idx < j.tiles_total).then(|| j.rect(idx))
+        (idx < j.window.tiles_total()).then(|| j.window.rect(idx))
     }
 
     /// The next tile for `worker`, if any job has one it may hand out now.
@@ -509,13 +385,13 @@ impl Scheduler {
             {
                 continue;
             }
-            let Some(idx) = job.next_tile() else {
+            let Some(idx) = job.window.next_tile() else {
                 continue;
             };
             let lease_id = self.next_lease;
             self.next_lease += 1;
             self.counters.leases_granted += 1;
-            job.set_leased(idx, lease_id);
+            job.window.set_leased(idx, lease_id);
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
             }
@@ -533,7 +409,7 @@ impl Scheduler {
                 job: id,
                 bundle_hash: job.spec.bundle_hash.clone(),
                 camera: job.spec.camera.clone(),
-                rect: job.rect(idx),
+                rect: job.window.rect(idx),
             }));
         }
         Ok(None)
@@ -628,18 +504,17 @@ impl Scheduler {
         let Some(job) = self.jobs.get_mut(&e.job) else {
             return;
         };
-        if job.state.is_final() || job.tile_state(e.tile) != TileState::Leased(lease) {
+        if job.state.is_final() || job.window.tile_state(e.tile) != TileState::Leased(lease) {
             return;
         }
-        job.active.insert(e.tile, TileState::Pending);
-        job.requeued.insert(e.tile);
+        job.window.requeue(e.tile);
         self.counters.tiles_requeued += 1;
         job.past_leases.insert(lease, (e.tile, e.worker));
         if why == Release::Returned {
             return;
         }
         *job.worker_failures.entry(e.worker).or_default() += 1;
-        let r = job.rect(e.tile);
+        let r = job.window.rect(e.tile);
         let f = job.failures.entry(e.tile).or_insert((0, 0, String::new()));
         f.0 += 1;
         if why == Release::Lost {
@@ -684,7 +559,7 @@ impl Scheduler {
         self.touch(worker, now)?;
         match self.leases.get(&lease) {
             Some(e) if e.worker != worker => {
-                let (job, rect) = (e.job, self.jobs[&e.job].rect(e.tile));
+                let (job, rect) = (e.job, self.jobs[&e.job].window.rect(e.tile));
                 Err(SchedError::NotYourLease(lease, worker, rect, job))
             }
             Some(_) => {
@@ -722,8 +597,11 @@ impl Scheduler {
         if j.state.is_final() {
             return Ok(());
         }
-        let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
-        if j.tile_state(idx) == TileState::Done {
+        let idx = j
+            .window
+            .tile_index(rect)
+            .ok_or(SchedError::NotATile(rect, job))?;
+        if j.window.tile_state(idx) == TileState::Done {
             return Ok(());
         }
         let holder = match self.leases.get(&lease) {
@@ -752,7 +630,8 @@ impl Scheduler {
         if j.state.is_final() {
             return Ok(()); // Retired: the result will be ignored anyway.
         }
-        j.tile_index(rect)
+        j.window
+            .tile_index(rect)
             .map(|_| ())
             .ok_or(SchedError::NotATile(rect, job))
     }
@@ -770,11 +649,14 @@ impl Scheduler {
             self.counters.tiles_ignored += 1;
             return Ok(Accepted::Ignored);
         }
-        let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
-        let worker = match j.tile_state(idx) {
+        let idx = j
+            .window
+            .tile_index(rect)
+            .ok_or(SchedError::NotATile(rect, job))?;
+        let worker = match j.window.tile_state(idx) {
             TileState::Done => None,
             // Never handed out: not a result of this coordinator's leases.
-            TileState::Pending if idx >= j.next_fresh => None,
+            TileState::Pending if j.window.is_fresh(idx) => None,
             TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| e.worker)),
             // A late result under a lease that ran out.
             TileState::Pending => Some(
@@ -792,7 +674,7 @@ impl Scheduler {
         j.done += 1;
         // Ray counts come from workers: a huge one saturates, never wraps.
         j.rays = j.rays.saturating_add(rays);
-        let last = j.done == j.tiles_total as u64;
+        let last = j.done == j.window.tiles_total() as u64;
         self.counters.tiles_accepted += 1;
         self.counters.rays = self.counters.rays.saturating_add(rays);
         if let Some(w) = worker {
@@ -932,7 +814,7 @@ impl Scheduler {
             id: job,
             spec: j.spec.clone(),
             state: j.state,
-            tiles_total: j.tiles_total as u64,
+            tiles_total: j.window.tiles_total() as u64,
             tiles_done: j.done,
             rays: j.rays,
             elapsed: j
@@ -987,7 +869,7 @@ impl Scheduler {
         for &(_, id) in &self.queue {
             let j = &self.jobs[&id];
             d.jobs += 1;
-            d.tiles += (j.tiles_total as u64)
+            d.tiles += (j.window.tiles_total() as u64)
                 .saturating_sub(j.done)
                 .saturating_sub(leased.get(&id).copied().unwrap_or(0));
         }
@@ -999,7 +881,7 @@ impl Scheduler {
     pub fn workers(&self, now: Instant) -> Vec<WorkerInfo> {
         let mut held: HashMap<WorkerId, Vec<(JobId, Rect)>> = HashMap::new();
         for e in self.leases.values() {
-            let rect = self.jobs[&e.job].rect(e.tile);
+            let rect = self.jobs[&e.job].window.rect(e.tile);
             held.entry(e.worker).or_default().push((e.job, rect));
         }
         self.workers.list(held, self.cfg.lease_ttl, now)
@@ -1078,35 +960,6 @@ mod tests {
         assert_eq!(rects, band_order_tiles(20, 10, 8));
         assert_eq!(s.lease(w, now).unwrap().unwrap().job, b);
         assert_eq!(s.info(a, now).unwrap().state, JobState::Running);
-    }
-
-    #[test]
-    fn leasing_stays_within_the_band_window() {
-        let now = Instant::now();
-        // One band of a 16-wide frame with 4-pixel tiles is 16*4*12 bytes.
-        let mut s = Scheduler::new(
-            Limits {
-                lease_ttl: Duration::from_secs(5),
-                window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
-                    + 16 * 12 * ENCODER_ROWS,
-                ..Limits::default()
-            },
-            1,
-        );
-        let w = s.register_worker(now, None);
-        let j = s.submit(spec(0, 16, 64, 4), now);
-        let mut leased = Vec::new();
-        while let Some(l) = s.lease(w, now).unwrap() {
-            leased.push(l);
-        }
-        assert_eq!(leased.len(), 8, "two bands of four tiles");
-        // Completing the first band opens the third.
-        for l in &leased[..4] {
-            s.accept_tile(j, l.rect, 1, now).unwrap();
-        }
-        let more: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
-        assert_eq!(more.len(), 4);
-        assert!(more.iter().all(|l| l.rect.y == 8));
     }
 
     #[test]
@@ -1191,35 +1044,6 @@ mod tests {
         assert_eq!((ib.state, ib.finish_order), (JobState::Done, 1));
         assert_eq!((ia.state, ia.finish_order), (JobState::Failed, 2));
         assert_eq!(ia.error.as_deref(), Some("disk full"));
-    }
-
-    #[test]
-    fn bookkeeping_stays_within_the_window_whatever_the_height() {
-        let now = Instant::now();
-        let mut s = Scheduler::new(
-            Limits {
-                lease_ttl: Duration::from_secs(5),
-                window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
-                    + 16 * 12 * ENCODER_ROWS,
-                ..Limits::default()
-            },
-            1,
-        );
-        let w = s.register_worker(now, None);
-        let j = s.submit(spec(0, 16, 4000, 4), now);
-        let mut peak = 0;
-        loop {
-            let leased: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
-            if leased.is_empty() {
-                break;
-            }
-            for l in leased.iter().rev() {
-                s.accept_tile(j, l.rect, 1, now).unwrap();
-                peak = peak.max(s.jobs[&j].active.len());
-            }
-        }
-        assert_eq!(s.info(j, now).unwrap().tiles_done, 4000);
-        assert!(peak <= 8, "tracked {peak} tiles at once");
     }
 
     #[test]
