@@ -5,7 +5,8 @@
 //!   token; `trevi.v1.Bundles` either (uploading needs the submit token,
 //!   workers only download).
 //! - A role without a configured token is open: with neither token the farm
-//!   is open to anyone who can reach it, as it was before tokens existed.
+//!   is open to anyone who can reach it, so a farm on a trusted network
+//!   needs no setup.
 //! - No token, or one matching neither role, is `UNAUTHENTICATED`; the other
 //!   role's token is `PERMISSION_DENIED`.
 //! - Health and reflection are always open (probes and `grpcurl list`).

@@ -2,11 +2,11 @@
 //! validation and stitching into each job's output.
 //!
 //! The gRPC services in [`crate::grpc`] are thin wrappers around [`Farm`];
-//! tests drive it directly with synthetic pixels. Beside this file:
-//! [`checks`] (what is refused before it is taken in), [`restore`] (picking
-//! up after a restart), [`previews`] (each job's live preview),
-//! [`retention`] (how long ended jobs are kept) and [`upkeep`] (the
-//! periodic lease reaper and bundle collector).
+//! tests drive it directly with synthetic pixels. Beside this file, in
+//! `farm/`: `checks.rs` (what is refused before it is taken in),
+//! `restore.rs` (picking up after a restart), `previews.rs` (each job's
+//! live preview), `retention.rs` (how long ended jobs are kept) and
+//! `upkeep.rs` (the periodic lease reaper and bundle collector).
 //!
 //! Locking: `state` (scheduler, watchers) is held only for bookkeeping; each
 //! job's output has its own lock, taken after `state` is released, so

@@ -273,10 +273,6 @@ impl Scheduler {
         }
     }
 
-    pub fn config(&self) -> Limits {
-        self.cfg
-    }
-
     /// Registers a worker; with a `session`, its every later call must
     /// present that secret.
     pub fn register_worker(&mut self, now: Instant, session: Option<[u8; 32]>) -> WorkerId {
@@ -850,8 +846,9 @@ impl Scheduler {
         (page, next)
     }
 
-    /// Number of live leases (for tests and metrics).
-    pub fn lease_count(&self) -> usize {
+    /// Number of live leases.
+    #[cfg(test)]
+    fn lease_count(&self) -> usize {
         self.leases.len()
     }
 
