@@ -307,10 +307,10 @@ fn direct(args: &[String]) {
 struct NullSink;
 
 impl trevi_coordinator::TileSink for NullSink {
-    fn write_tile(&mut self, _: Rect, _: &[[f32; 3]]) -> Result<(), String> {
+    fn write_tile(&mut self, _: Rect, _: &[[f32; 3]]) -> Result<(), trevi_coordinator::SinkError> {
         Ok(())
     }
-    fn finish(self: Box<Self>) -> Result<(), String> {
+    fn finish(self: Box<Self>) -> Result<(), trevi_coordinator::SinkError> {
         Ok(())
     }
     fn rows_held(&self) -> usize {
@@ -319,7 +319,7 @@ impl trevi_coordinator::TileSink for NullSink {
 }
 
 fn farm(args: &[String]) {
-    use trevi_coordinator::{Farm, FarmConfig, JobSpec};
+    use trevi_coordinator::{Farm, FarmConfig, JobSpec, SubmitOptions, TileResult, WorkerOptions};
     let (w, h) = (
         num(args, "--width", 4096) as u32,
         num(args, "--height", 4096) as u32,
@@ -342,13 +342,19 @@ fn farm(args: &[String]) {
         };
         let start = Instant::now();
         let job = if sink == "png" {
-            farm.submit(spec).unwrap().id
+            farm.submit(spec, SubmitOptions::default()).unwrap().id
         } else {
-            farm.submit_with_sink(spec, |_| Ok(Box::new(NullSink)))
-                .unwrap()
-                .id
+            farm.submit(
+                spec,
+                SubmitOptions {
+                    sink: Some(Box::new(|_| Ok(Box::new(NullSink)))),
+                    ..SubmitOptions::default()
+                },
+            )
+            .unwrap()
+            .id
         };
-        let worker = farm.register_worker();
+        let worker = farm.register_worker(WorkerOptions::default()).unwrap().id;
         let mut n = 0usize;
         while let Some(l) = farm.lease(worker).unwrap() {
             let pixels = if l.rect.w == tile && l.rect.h == tile {
@@ -357,7 +363,15 @@ fn farm(args: &[String]) {
                 trevi_proto::pixels_from_bytes(&smooth_tile(n as u32, l.rect.w, l.rect.h)).unwrap()
             };
             n += 1;
-            farm.put_tile(l.id, job, l.rect, 1, &pixels).unwrap();
+            farm.put_tile(TileResult {
+                lease: l.id,
+                job,
+                rect: l.rect,
+                rays: 1,
+                pixels: &pixels,
+                worker: None,
+            })
+            .unwrap();
         }
         let secs = start.elapsed().as_secs_f64();
         assert_eq!(

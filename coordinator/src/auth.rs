@@ -5,7 +5,8 @@
 //!   token; `trevi.v1.Bundles` either (uploading needs the submit token,
 //!   workers only download).
 //! - A role without a configured token is open: with neither token the farm
-//!   is open to anyone who can reach it, as it was before tokens existed.
+//!   is open to anyone who can reach it, so a farm on a trusted network
+//!   needs no setup.
 //! - No token, or one matching neither role, is `UNAUTHENTICATED`; the other
 //!   role's token is `PERMISSION_DENIED`.
 //! - Health and reflection are always open (probes and `grpcurl list`).
@@ -15,8 +16,25 @@
 //! was right.
 
 use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use tonic::{Request, Status};
+
+/// Why a token cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum TokenError {
+    #[error("the {role} token is empty")]
+    Empty { role: &'static str },
+    #[error("the {role} token must be printable ASCII without spaces")]
+    NotPrintable { role: &'static str },
+    #[error("give the token or {}, not both", .file.display())]
+    Both { file: PathBuf },
+    #[error("cannot read {}: {source}", .file.display())]
+    Read {
+        file: PathBuf,
+        source: std::io::Error,
+    },
+}
 
 /// The configured tokens (digests only).
 #[derive(Clone, Default)]
@@ -37,16 +55,14 @@ fn same(a: &[u8; 32], b: &[u8; 32]) -> bool {
 
 impl Tokens {
     /// `None` leaves that role open. Empty tokens are refused.
-    pub fn new(submit: Option<&str>, worker: Option<&str>) -> Result<Tokens, String> {
-        for (name, t) in [("submit", submit), ("worker", worker)] {
+    pub fn new(submit: Option<&str>, worker: Option<&str>) -> Result<Tokens, TokenError> {
+        for (role, t) in [("submit", submit), ("worker", worker)] {
             if let Some(t) = t {
                 if t.trim().is_empty() {
-                    return Err(format!("the {name} token is empty"));
+                    return Err(TokenError::Empty { role });
                 }
                 if t.chars().any(|c| !c.is_ascii_graphic()) {
-                    return Err(format!(
-                        "the {name} token must be printable ASCII without spaces"
-                    ));
+                    return Err(TokenError::NotPrintable { role });
                 }
             }
         }
@@ -174,14 +190,17 @@ impl tonic::service::Interceptor for Auth {
 /// Reads a token from a flag's value or a file (trailing newline dropped).
 pub fn token_from(
     value: Option<String>,
-    file: Option<&std::path::Path>,
-) -> Result<Option<String>, String> {
+    file: Option<&Path>,
+) -> Result<Option<String>, TokenError> {
     match (value, file) {
-        (Some(_), Some(f)) => Err(format!("give the token or {}, not both", f.display())),
+        (Some(_), Some(f)) => Err(TokenError::Both { file: f.into() }),
         (Some(v), None) => Ok(Some(v)),
         (None, Some(f)) => std::fs::read_to_string(f)
             .map(|s| Some(s.trim_end_matches(['\n', '\r']).to_string()))
-            .map_err(|e| format!("cannot read {}: {e}", f.display())),
+            .map_err(|source| TokenError::Read {
+                file: f.into(),
+                source,
+            }),
         (None, None) => Ok(None),
     }
 }

@@ -60,7 +60,7 @@ impl Upload {
     pub fn write(&mut self, data: &[u8]) -> Result<(), FarmError> {
         self.file
             .write_all(data)
-            .map_err(|e| FarmError::Io(format!("storing an uploaded bundle: {e}")))?;
+            .map_err(|e| FarmError::io("storing an uploaded bundle", e))?;
         self.hasher.update(data);
         self.size += data.len() as u64;
         Ok(())
@@ -99,7 +99,7 @@ impl BundleStore {
     /// uploads a previous run left behind.
     pub fn open(dir: &Path) -> Result<Self, FarmError> {
         std::fs::create_dir_all(dir)
-            .map_err(|e| FarmError::Io(format!("cannot create {}: {e}", dir.display())))?;
+            .map_err(|e| FarmError::io(format!("cannot create {}", dir.display()), e))?;
         let store = BundleStore {
             dir: dir.to_path_buf(),
             files: Mutex::new(()),
@@ -145,7 +145,7 @@ impl BundleStore {
             .write(true)
             .create_new(true)
             .open(&path)
-            .map_err(|e| FarmError::Io(format!("cannot create {}: {e}", path.display())))?;
+            .map_err(|e| FarmError::io(format!("cannot create {}", path.display()), e))?;
         Ok(Upload {
             path,
             file,
@@ -158,7 +158,7 @@ impl BundleStore {
     /// and stores it under its hash, replacing any copy already there (which
     /// repairs a damaged one). Returns the hash.
     pub fn finish_upload(&self, mut up: Upload, max_files: usize) -> Result<String, FarmError> {
-        let io = |e: std::io::Error| FarmError::Io(format!("storing an uploaded bundle: {e}"));
+        let io = |e: std::io::Error| FarmError::io("storing an uploaded bundle", e);
         up.file.sync_all().map_err(io)?;
         let read = std::fs::File::open(&up.path).map_err(io)?;
         let files = trevi_core::bundle::check_encoding(read).map_err(FarmError::BadBundle)?;
@@ -173,13 +173,6 @@ impl BundleStore {
         let _files = lock(&self.files);
         std::fs::rename(&up.path, &path).map_err(io)?;
         Ok(hash)
-    }
-
-    /// Checks and stores a bundle encoding held in memory; returns its hash.
-    pub fn put(&self, bytes: &[u8]) -> Result<String, FarmError> {
-        let mut up = self.begin_upload()?;
-        up.write(bytes)?;
-        self.finish_upload(up, usize::MAX)
     }
 
     /// Opens the stored file of `hash` and marks the bundle as used (see
@@ -201,8 +194,7 @@ impl BundleStore {
     /// saying so.
     pub fn open_verified(&self, hash: &str) -> Result<(std::fs::File, u64), FarmError> {
         let mut file = self.open_used(hash)?;
-        let io =
-            |e: std::io::Error| FarmError::Io(format!("reading the stored bundle {hash}: {e}"));
+        let io = |e: std::io::Error| FarmError::io(format!("reading the stored bundle {hash}"), e);
         let mut hasher = Sha256::new();
         let mut buf = vec![0u8; 1 << 20];
         let mut size = 0u64;
@@ -225,7 +217,7 @@ impl BundleStore {
         let mut bytes = Vec::new();
         self.open_used(hash)?
             .read_to_end(&mut bytes)
-            .map_err(|e| FarmError::Io(format!("reading the stored bundle {hash}: {e}")))?;
+            .map_err(|e| FarmError::io(format!("reading the stored bundle {hash}"), e))?;
         check_hash(hash, &trevi_core::bundle::sha256_hex(&bytes))?;
         Ok(bytes)
     }
@@ -280,6 +272,14 @@ mod tests {
         .encode()
     }
 
+    /// Stores a bundle encoding held in memory as an upload would; returns
+    /// its hash.
+    fn put(store: &BundleStore, bytes: &[u8]) -> Result<String, FarmError> {
+        let mut up = store.begin_upload()?;
+        up.write(bytes)?;
+        store.finish_upload(up, usize::MAX)
+    }
+
     fn names(dir: &Path) -> Vec<String> {
         let mut v: Vec<String> = std::fs::read_dir(dir)
             .unwrap()
@@ -315,7 +315,7 @@ mod tests {
         assert_eq!(names(tmp.path()), Vec::<String>::new());
         // A crash's leftovers go when the store opens again.
         std::fs::write(tmp.path().join(".upload-1-2"), b"half").unwrap();
-        let hash = store.put(&bundle("<scene/>")).unwrap();
+        let hash = put(&store, &bundle("<scene/>")).unwrap();
         drop(store);
         let _store = BundleStore::open(tmp.path()).unwrap();
         assert_eq!(names(tmp.path()), vec![hash]);
@@ -326,14 +326,14 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let store = BundleStore::open(tmp.path()).unwrap();
         let bytes = bundle("<scene/>");
-        let hash = store.put(&bytes).unwrap();
+        let hash = put(&store, &bytes).unwrap();
         assert_eq!(store.get_bytes(&hash).unwrap(), bytes);
         let mut bad = bytes.clone();
         *bad.last_mut().unwrap() ^= 1;
         std::fs::write(tmp.path().join(&hash), &bad).unwrap();
         let e = store.open_verified(&hash).unwrap_err();
         assert!(e.to_string().contains("damaged"), "{e}");
-        assert_eq!(store.put(&bytes).unwrap(), hash);
+        assert_eq!(put(&store, &bytes).unwrap(), hash);
         assert_eq!(store.get_bytes(&hash).unwrap(), bytes);
     }
 
@@ -341,8 +341,8 @@ mod tests {
     fn collection_keeps_bundles_in_use_or_young() {
         let tmp = tempfile::tempdir().unwrap();
         let store = BundleStore::open(tmp.path()).unwrap();
-        let used = store.put(&bundle("<scene>a</scene>")).unwrap();
-        let unused = store.put(&bundle("<scene>b</scene>")).unwrap();
+        let used = put(&store, &bundle("<scene>a</scene>")).unwrap();
+        let unused = put(&store, &bundle("<scene>b</scene>")).unwrap();
         let keep: HashSet<String> = [used.clone()].into();
         // Young: kept even though no job uses it.
         assert_eq!(store.collect(&keep, Duration::from_secs(3600)), 0);

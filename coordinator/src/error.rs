@@ -26,8 +26,31 @@ pub enum FarmError {
     NoOutput(u64, String),
     #[error("job {0} is over")]
     JobOver(u64),
+    /// Reading or writing the coordinator's own files or database failed.
+    #[error("{what}: {source}")]
+    Io {
+        /// What was being done, naming the file or job.
+        what: String,
+        source: BoxError,
+    },
+    /// Stored state that cannot be used as it is (a database SQLite would
+    /// open by dropping what it holds, a stored tile outside its frame).
     #[error("{0}")]
-    Io(String),
+    Damaged(String),
+}
+
+/// The underlying error of [`FarmError::Io`]: an I/O, database, image or
+/// random-source error, kept whole.
+pub type BoxError = Box<dyn std::error::Error + Send + Sync>;
+
+impl FarmError {
+    /// [`FarmError::Io`]: `what` failed because of `source`.
+    pub fn io(what: impl Into<String>, source: impl Into<BoxError>) -> FarmError {
+        FarmError::Io {
+            what: what.into(),
+            source: source.into(),
+        }
+    }
 }
 
 impl From<SchedError> for FarmError {
@@ -56,7 +79,7 @@ impl FarmError {
             FarmError::NotYourLease(_) => Code::PermissionDenied,
             FarmError::Limit(_) => Code::ResourceExhausted,
             FarmError::Invalid(_) => Code::InvalidArgument,
-            FarmError::Io(_) => Code::Internal,
+            FarmError::Io { .. } | FarmError::Damaged(_) => Code::Internal,
         }
     }
 }
@@ -83,7 +106,8 @@ mod tests {
             (FarmError::BadTile("x".into()), Code::InvalidArgument),
             (FarmError::NoOutput(1, "x".into()), Code::FailedPrecondition),
             (FarmError::JobOver(1), Code::FailedPrecondition),
-            (FarmError::Io("x".into()), Code::Internal),
+            (FarmError::io("x", "y"), Code::Internal),
+            (FarmError::Damaged("x".into()), Code::Internal),
             (FarmError::NotYourLease("x".into()), Code::PermissionDenied),
             (FarmError::Limit("x".into()), Code::ResourceExhausted),
         ];
@@ -93,6 +117,9 @@ mod tests {
             assert_eq!(status.code(), code);
             assert_eq!(status.message(), msg);
         }
+        let e = FarmError::io("reading f", std::io::Error::other("gone"));
+        assert_eq!(e.to_string(), "reading f: gone");
+        assert!(std::error::Error::source(&e).is_some(), "the cause is kept");
         let e: FarmError = SchedError::UnknownWorker(4).into();
         assert!(matches!(e, FarmError::UnknownWorker(4)));
     }

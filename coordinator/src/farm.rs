@@ -1,150 +1,52 @@
 //! The coordinator without the network: bundles, the [`Scheduler`], result
-//! validation and stitching into each job's output file.
+//! validation and stitching into each job's output.
 //!
 //! The gRPC services in [`crate::grpc`] are thin wrappers around [`Farm`];
-//! tests drive it directly with synthetic pixels.
+//! tests drive it directly with synthetic pixels. Beside this file, in
+//! `farm/`: `checks.rs` (what is refused before it is taken in),
+//! `restore.rs` (picking up after a restart), `previews.rs` (each job's
+//! live preview), `retention.rs` (how long ended jobs are kept) and
+//! `upkeep.rs` (the periodic lease reaper and bundle collector).
 //!
 //! Locking: `state` (scheduler, watchers) is held only for bookkeeping; each
 //! job's output has its own lock, taken after `state` is released, so
 //! encoding one job's rows never stalls leasing. The order is always
 //! output → state, never the reverse.
 
+mod checks;
+mod previews;
+mod restore;
+mod retention;
+mod upkeep;
+
+use checks::output_name;
+pub use checks::{output_name_as, validate_pixels};
+pub use previews::PreviewImage;
+pub use retention::{BadDuration, Retention};
+pub use upkeep::Upkeep;
+
 use crate::bundles::BundleStore;
 use crate::error::FarmError;
-use crate::metrics::Metrics;
-use crate::preview::{encode_png, Preview};
+use crate::limits::Limits;
+use crate::metrics::{FarmSnapshot, Metrics};
+use crate::preview::Preview;
 use crate::scheduler::{
-    Accepted, Counters, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth, Restored,
-    Scheduler, SchedulerConfig, WorkerId,
+    Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth, Scheduler, WorkerId,
 };
+use crate::sink::TileSink;
 use crate::store::{wall_ms, Store, StoredJob};
 use crate::workers::WorkerInfo;
 use std::collections::{HashMap, VecDeque};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::{watch, Notify};
 use trevi_core::{FrameWriter, Rect};
 
-/// Where a job's tiles go: normally a [`FrameWriter`]; tests and benchmarks
-/// may plug in their own.
-pub trait TileSink: Send {
-    fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), String>;
-    /// Completes the output (for a file: moves it into place).
-    fn finish(self: Box<Self>) -> Result<(), String>;
-    /// Rows buffered right now.
-    fn rows_held(&self) -> usize;
-}
-
-impl TileSink for FrameWriter {
-    fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), String> {
-        FrameWriter::write_tile(self, rect, pixels).map_err(|e| e.to_string())
-    }
-    fn finish(self: Box<Self>) -> Result<(), String> {
-        FrameWriter::finish(*self).map_err(|e| e.to_string())
-    }
-    fn rows_held(&self) -> usize {
-        FrameWriter::rows_held(self)
-    }
-}
-
-/// What the coordinator accepts at most. Exceeding a limit is a clear error
-/// (`RESOURCE_EXHAUSTED`), never a crash.
-#[derive(Debug, Clone, Copy)]
-pub struct Limits {
-    /// Size of an uploaded bundle (the scene and every file it references).
-    pub max_bundle_bytes: u64,
-    /// Files in a bundle.
-    pub max_bundle_files: usize,
-    /// Size of one gRPC message the coordinator decodes.
-    pub max_message_bytes: usize,
-    /// width × height × samples per pixel (supersample²) of a job's frame.
-    pub max_image_samples: u64,
-    /// Unfinished jobs one submitter (one client address) may have queued.
-    pub max_jobs_per_submitter: usize,
-    /// Bundle uploads in progress at once; one more is refused.
-    pub max_uploads: usize,
-    /// How long an upload may go without a chunk before it is dropped.
-    pub upload_idle: Duration,
-}
-
-impl Default for Limits {
-    fn default() -> Self {
-        Limits {
-            max_bundle_bytes: trevi_core::bundle::DEFAULT_MAX_BUNDLE_BYTES,
-            max_bundle_files: 10_000,
-            max_message_bytes: trevi_proto::MAX_MESSAGE_SIZE,
-            // A 16384×16384 frame at supersample 8.
-            max_image_samples: 16384 * 16384 * 64,
-            max_jobs_per_submitter: 1000,
-            max_uploads: 4,
-            upload_idle: Duration::from_secs(30),
-        }
-    }
-}
-
-/// How long ended jobs (done, failed, cancelled) are kept: their status,
-/// their output and their row in the database. A job is forgotten when
-/// either rule says so; an unfinished job is never forgotten.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Retention {
-    /// Ended jobs kept at most (the newest by the time they ended).
-    pub keep_ended: usize,
-    /// Ended jobs are forgotten this long after they ended; `None`: never.
-    pub keep_ended_for: Option<Duration>,
-}
-
-impl Default for Retention {
-    fn default() -> Self {
-        Retention {
-            keep_ended: 1000,
-            keep_ended_for: Some(Duration::from_secs(7 * 24 * 3600)),
-        }
-    }
-}
-
-impl Retention {
-    /// Reads `--keep-ended-for`: a whole number with `s`, `m`, `h` or `d`
-    /// (`90m`, `7d`), or `never`.
-    pub fn parse_duration(s: &str) -> Result<Option<Duration>, String> {
-        let s = s.trim();
-        if s == "never" {
-            return Ok(None);
-        }
-        let bad = || format!("\"{s}\" is not a duration like 90s, 30m, 12h, 7d or never");
-        let unit = match s.chars().last().ok_or_else(bad)? {
-            's' => 1,
-            'm' => 60,
-            'h' => 3600,
-            'd' => 86400,
-            _ => return Err(bad()),
-        };
-        let n: u64 = s[..s.len() - 1].parse().map_err(|_| bad())?;
-        Ok(Some(Duration::from_secs(
-            n.checked_mul(unit).ok_or_else(bad)?,
-        )))
-    }
-
-    /// The inverse of [`Retention::parse_duration`] (the flag's default).
-    pub fn format_duration(d: Option<Duration>) -> String {
-        let Some(d) = d else {
-            return "never".into();
-        };
-        let s = d.as_secs();
-        for (unit, n) in [("d", 86400), ("h", 3600), ("m", 60)] {
-            if s > 0 && s % n == 0 {
-                return format!("{}{unit}", s / n);
-            }
-        }
-        format!("{s}s")
-    }
-}
-
 /// Coordinator settings.
 #[derive(Debug, Clone)]
 pub struct FarmConfig {
     pub data_dir: PathBuf,
-    pub sched: SchedulerConfig,
     /// Tile edge used when a submission does not ask for one.
     pub default_tile: u32,
     /// Keep jobs and accepted tiles in `data_dir/state.db`, and pick up the
@@ -152,24 +54,26 @@ pub struct FarmConfig {
     pub durable: bool,
     pub limits: Limits,
     pub retention: Retention,
-    /// A bundle no job uses is removed once it was last uploaded or used
-    /// this long ago (see [`crate::bundles::BundleStore::collect`]).
-    pub bundle_grace: Duration,
 }
 
-/// [`FarmConfig::bundle_grace`] by default.
-pub const BUNDLE_GRACE: Duration = Duration::from_secs(3600);
-
-impl FarmConfig {
-    pub fn new(data_dir: impl Into<PathBuf>) -> Self {
+impl Default for FarmConfig {
+    fn default() -> Self {
         FarmConfig {
-            data_dir: data_dir.into(),
-            sched: SchedulerConfig::default(),
+            data_dir: PathBuf::from("trevi-data"),
             default_tile: 64,
             durable: true,
             limits: Limits::default(),
             retention: Retention::default(),
-            bundle_grace: BUNDLE_GRACE,
+        }
+    }
+}
+
+impl FarmConfig {
+    /// The defaults, keeping bundles, outputs and the database in `data_dir`.
+    pub fn new(data_dir: impl Into<PathBuf>) -> Self {
+        FarmConfig {
+            data_dir: data_dir.into(),
+            ..FarmConfig::default()
         }
     }
 }
@@ -180,6 +84,58 @@ pub enum TileOutcome {
     Accepted,
     /// Late or duplicate: another result won, or the job is over.
     Ignored,
+}
+
+/// Makes a job's [`TileSink`] once its id is known.
+pub type MakeSink<'a> = Box<dyn FnOnce(JobId) -> Result<Box<dyn TileSink>, FarmError> + 'a>;
+
+/// How [`Farm::submit`] queues a job.
+#[derive(Default)]
+pub struct SubmitOptions<'a> {
+    /// Who submits (a client's address), who may have at most
+    /// [`Limits::max_jobs_per_submitter`] unfinished jobs; empty for
+    /// in-process callers, who share one count.
+    pub who: &'a str,
+    /// Where the job's tiles go; `None`: a [`FrameWriter`] writing
+    /// [`Farm::output_path`].
+    pub sink: Option<MakeSink<'a>>,
+}
+
+/// How [`Farm::register_worker`] registers a worker.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct WorkerOptions<'a> {
+    /// The name the worker gave (kept short).
+    pub name: &'a str,
+    /// The render threads it said it has.
+    pub threads: u32,
+    /// Give it a session secret from the operating system's random source,
+    /// which its every later call must present (see [`Farm::check_session`]),
+    /// so one worker cannot act under another's id. Without one (an
+    /// in-process worker) no secret matches it.
+    pub session: bool,
+}
+
+/// A worker [`Farm::register_worker`] registered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Registration {
+    pub id: WorkerId,
+    /// Its session secret, when [`WorkerOptions::session`] asked for one.
+    pub session: Option<[u8; 32]>,
+}
+
+/// A result for one leased tile, for [`Farm::put_tile`].
+#[derive(Debug, Clone, Copy)]
+pub struct TileResult<'a> {
+    pub lease: LeaseId,
+    pub job: JobId,
+    pub rect: Rect,
+    /// Rays the worker traced for it.
+    pub rays: u64,
+    pub pixels: &'a [[f32; 3]],
+    /// When given, `lease` must be this worker's lease on that tile: a
+    /// result under someone else's lease, or a made-up one, is refused and
+    /// changes nothing.
+    pub worker: Option<WorkerId>,
 }
 
 struct Output {
@@ -202,29 +158,6 @@ impl Output {
     }
 }
 
-/// A job's preview as a PNG file, with what it shows.
-#[derive(Debug, Clone)]
-pub struct PreviewImage {
-    pub width: u32,
-    pub height: u32,
-    /// Tiles of the frame in the preview.
-    pub tiles: u64,
-    pub png: Arc<Vec<u8>>,
-}
-
-/// Final previews kept for jobs that have ended (the newest ones).
-const KEPT_PREVIEWS: usize = 32;
-
-/// What `/metrics` reports, read in one go.
-#[derive(Debug, Clone)]
-pub struct FarmSnapshot {
-    pub counters: Counters,
-    pub queue: QueueDepth,
-    pub jobs: Vec<JobInfo>,
-    pub workers: Vec<WorkerInfo>,
-    pub rays_per_second: f64,
-}
-
 struct State {
     sched: Scheduler,
     outputs: HashMap<JobId, Arc<Mutex<Output>>>,
@@ -239,17 +172,6 @@ struct State {
 }
 
 impl State {
-    /// Keeps an ended job's last preview, so the monitor still shows it.
-    fn keep_final_preview(&mut self, job: JobId, image: Option<PreviewImage>) {
-        let Some(image) = image else {
-            return;
-        };
-        self.final_previews.push_back((job, image));
-        if self.final_previews.len() > KEPT_PREVIEWS {
-            self.final_previews.pop_front();
-        }
-    }
-
     fn publish(&self, job: JobId) {
         if let (Some(tx), Some(info)) = (
             self.watchers.get(&job),
@@ -268,49 +190,12 @@ pub struct Farm {
     work: Notify,
     bundles: BundleStore,
     store: Option<Store>,
-    metrics: Metrics,
+    metrics: Arc<Metrics>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     // A panic while holding a lock is a bug; keep serving what we can.
     m.lock().unwrap_or_else(|p| p.into_inner())
-}
-
-/// Checks a result's pixels against its rectangle: right count, every
-/// component finite and not negative. The renderer only ever produces linear
-/// radiance ≥ 0; there is no upper bound short of `f32::MAX`, because a scene
-/// may legitimately have lights and colors that large (AISXML allows any
-/// finite value ≥ 0), so anything finite and ≥ 0 could be a true result.
-pub fn validate_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), FarmError> {
-    if pixels.len() != rect.pixel_count() {
-        return Err(FarmError::BadTile(format!(
-            "{}x{} tile at ({}, {}) needs {} pixels, got {}",
-            rect.w,
-            rect.h,
-            rect.x,
-            rect.y,
-            rect.pixel_count(),
-            pixels.len()
-        )));
-    }
-    if let Some(i) = pixels.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(FarmError::BadTile(format!(
-            "pixel ({}, {}) is not finite: {:?}",
-            rect.x + (i as u32 % rect.w),
-            rect.y + (i as u32 / rect.w),
-            pixels[i]
-        )));
-    }
-    // `-0.0 < 0.0` is false: a negative zero is a zero.
-    if let Some(i) = pixels.iter().position(|p| p.iter().any(|&c| c < 0.0)) {
-        return Err(FarmError::BadTile(format!(
-            "pixel ({}, {}) is negative: {:?} (radiance is never below 0)",
-            rect.x + (i as u32 % rect.w),
-            rect.y + (i as u32 / rect.w),
-            pixels[i]
-        )));
-    }
-    Ok(())
 }
 
 impl Farm {
@@ -328,7 +213,7 @@ impl Farm {
         };
         let farm = Farm {
             state: Mutex::new(State {
-                sched: Scheduler::new(cfg.sched, base),
+                sched: Scheduler::new(cfg.limits, base),
                 outputs: HashMap::new(),
                 watchers: HashMap::new(),
                 submitters: HashMap::new(),
@@ -338,191 +223,13 @@ impl Farm {
             work: Notify::new(),
             bundles,
             store,
-            metrics: Metrics::default(),
+            metrics: Arc::default(),
             cfg,
         };
         farm.restore()?;
         farm.skip_used_ids()?;
         farm.prune();
         Ok(farm)
-    }
-
-    /// Keeps new jobs out of every id given before: the largest the
-    /// database remembers, and every `jobs/<id>` directory on disk (a
-    /// database lost or replaced must not make two jobs share one).
-    fn skip_used_ids(&self) -> Result<(), FarmError> {
-        let mut max = match &self.store {
-            Some(store) => store.max_job_id()?,
-            None => 0,
-        };
-        let jobs = self.cfg.data_dir.join("jobs");
-        if let Ok(entries) = std::fs::read_dir(&jobs) {
-            for e in entries.flatten() {
-                if let Some(id) = e.file_name().to_str().and_then(|n| n.parse::<u64>().ok()) {
-                    max = max.max(id);
-                }
-            }
-        }
-        lock(&self.state).sched.skip_ids_through(max);
-        Ok(())
-    }
-
-    /// Forgets the ended jobs [`Retention`] no longer keeps: from the
-    /// database first, then from memory, then their output directories.
-    fn prune(&self) {
-        let r = self.cfg.retention;
-        let now = Instant::now();
-        let doomed: Vec<JobId> = lock(&self.state)
-            .sched
-            .ended()
-            .into_iter()
-            .enumerate()
-            .filter(|&(i, (_, ended))| {
-                i >= r.keep_ended
-                    || r.keep_ended_for
-                        .is_some_and(|d| now.saturating_duration_since(ended) > d)
-            })
-            .map(|(_, (id, _))| id)
-            .collect();
-        if doomed.is_empty() {
-            return;
-        }
-        if let Some(store) = &self.store {
-            if let Err(e) = store.delete_jobs(&doomed) {
-                tracing::warn!(error = %e, "cannot forget ended jobs; keeping them");
-                return;
-            }
-        }
-        {
-            let mut st = lock(&self.state);
-            for id in &doomed {
-                st.sched.remove(*id);
-                st.watchers.remove(id);
-            }
-            st.final_previews.retain(|(j, _)| !doomed.contains(j));
-        }
-        for id in &doomed {
-            let dir = self.cfg.data_dir.join("jobs").join(id.to_string());
-            if let Err(e) = std::fs::remove_dir_all(&dir) {
-                if e.kind() != std::io::ErrorKind::NotFound {
-                    tracing::warn!(job = id, error = %e, "cannot remove {}", dir.display());
-                }
-            }
-        }
-        tracing::info!(jobs = doomed.len(), "ended jobs forgotten (retention)");
-    }
-
-    /// Picks up the jobs in the database: finished ones for status and
-    /// download, unfinished ones by rebuilding their output from the stored
-    /// tiles and queueing the rest.
-    fn restore(&self) -> Result<(), FarmError> {
-        let Some(store) = &self.store else {
-            return Ok(());
-        };
-        let (now, wall) = (Instant::now(), wall_ms());
-        for j in store.jobs()? {
-            let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
-            let submitted = now.checked_sub(ago).unwrap_or(now);
-            let done_tiles = if j.state.is_final() {
-                Vec::new()
-            } else {
-                store.tile_list(j.id)?
-            };
-            let rays = if j.state.is_final() {
-                j.rays
-            } else {
-                done_tiles.iter().fold(0u64, |a, t| a.saturating_add(t.1))
-            };
-            let id = j.id;
-            let mut st = lock(&self.state);
-            st.sched.restore(
-                Restored {
-                    id,
-                    spec: j.spec.clone(),
-                    state: j.state,
-                    submitted,
-                    elapsed: j.elapsed,
-                    error: j.error.clone(),
-                    finish_order: j.finish_order,
-                    tiles_done: j.tiles_done,
-                    rays,
-                    done_tiles: done_tiles.iter().map(|t| t.0).collect(),
-                },
-                now,
-            );
-            let info = st.sched.info(id, now).expect("just restored");
-            st.watchers.insert(id, watch::channel(info.clone()).0);
-            if !j.state.is_final() {
-                st.submitters.insert(id, j.submitter.clone());
-            }
-            drop(st);
-            if j.state.is_final() {
-                continue;
-            }
-            tracing::info!(
-                job = id,
-                tiles_stored = done_tiles.len(),
-                tiles_total = info.tiles_total,
-                "resuming job"
-            );
-            match self.rebuild_output(store, &info) {
-                Ok(out) => {
-                    let complete = out.written == out.total;
-                    let out = Arc::new(Mutex::new(out));
-                    lock(&self.state).outputs.insert(id, out.clone());
-                    if complete {
-                        let sink = lock(&out).sink.take().expect("just made");
-                        let result = sink.finish();
-                        self.end_job(id, result.map_err(|e| format!("finishing the output: {e}")));
-                    }
-                }
-                Err(e) => self.end_job(id, Err(format!("resuming after a restart: {e}"))),
-            }
-        }
-        Ok(())
-    }
-
-    /// A fresh output for a resumed job with its stored tiles written into it
-    /// in band order.
-    fn rebuild_output(&self, store: &Store, info: &JobInfo) -> Result<Output, FarmError> {
-        let job = info.id;
-        let path = self.output_path(job, &info.spec.output_name);
-        // Temporary files of the writer that died with the last run.
-        if let Ok(entries) = std::fs::read_dir(path.parent().expect("jobs/<id>/name")) {
-            for e in entries.flatten() {
-                let name = e.file_name();
-                let name = name.to_string_lossy();
-                if name.starts_with('.') && name.contains(".trevi-tmp-") {
-                    let _ = std::fs::remove_file(e.path());
-                }
-            }
-        }
-        let mut writer = FrameWriter::create(&path, info.spec.width, info.spec.height)
-            .map_err(|e| FarmError::Io(format!("cannot create the output: {e}")))?;
-        let mut preview = Preview::new(info.spec.width, info.spec.height);
-        let mut written = 0;
-        store.replay_tiles(job, |idx, bytes| {
-            let rect = lock(&self.state)
-                .sched
-                .tile_rect(job, idx)
-                .ok_or_else(|| FarmError::Io(format!("stored tile {idx} is not in the frame")))?;
-            written += 1;
-            // The wire's format; a ragged length reads as no pixels, which
-            // the pixel count check then refuses.
-            let pixels = trevi_proto::pixels_from_bytes(bytes).unwrap_or_default();
-            validate_pixels(rect, &pixels)?;
-            preview.add_tile(rect, &pixels);
-            writer
-                .write_tile(rect, &pixels)
-                .map_err(|e| FarmError::Io(format!("writing the output: {e}")))
-        })?;
-        Ok(Output {
-            max_rows_held: writer.rows_held(),
-            sink: Some(Box::new(writer)),
-            written,
-            total: info.tiles_total,
-            preview,
-        })
     }
 
     pub fn config(&self) -> &FarmConfig {
@@ -549,14 +256,14 @@ impl Farm {
     }
 
     /// Removes the bundles no job uses that are older than
-    /// [`FarmConfig::bundle_grace`]; returns how many went.
+    /// [`Retention::bundle_grace`]; returns how many went.
     pub fn collect_bundles(&self) -> usize {
         let keep = self
             .list()
             .into_iter()
             .map(|j| j.spec.bundle_hash)
             .collect();
-        self.bundles.collect(&keep, self.cfg.bundle_grace)
+        self.bundles.collect(&keep, self.cfg.retention.bundle_grace)
     }
 
     /// Reads a stored bundle's scene and describes the job rendering
@@ -619,39 +326,22 @@ impl Farm {
             .join(name)
     }
 
-    /// Queues a job whose output goes to [`Farm::output_path`].
-    pub fn submit(&self, spec: JobSpec) -> Result<JobInfo, FarmError> {
-        self.submit_as(spec, "")
-    }
-
-    /// [`Farm::submit`] on behalf of `who`, who may have at most
-    /// [`Limits::max_jobs_per_submitter`] unfinished jobs.
-    pub fn submit_as(&self, spec: JobSpec, who: &str) -> Result<JobInfo, FarmError> {
-        let name = spec.output_name.clone();
-        let (w, h) = (spec.width, spec.height);
-        self.submit_inner(spec, who, |id| {
-            let path = self.output_path(id, &name);
-            let writer = FrameWriter::create(&path, w, h)
-                .map_err(|e| FarmError::Io(format!("cannot create the output: {e}")))?;
-            Ok(Box::new(writer))
-        })
-    }
-
-    /// Queues a job whose tiles go to the sink `make` returns.
-    pub fn submit_with_sink(
-        &self,
-        spec: JobSpec,
-        make: impl FnOnce(JobId) -> Result<Box<dyn TileSink>, FarmError>,
-    ) -> Result<JobInfo, FarmError> {
-        self.submit_inner(spec, "", make)
-    }
-
-    fn submit_inner(
-        &self,
-        spec: JobSpec,
-        who: &str,
-        make: impl FnOnce(JobId) -> Result<Box<dyn TileSink>, FarmError>,
-    ) -> Result<JobInfo, FarmError> {
+    /// Queues a job; its tiles go where `opts` says.
+    pub fn submit(&self, spec: JobSpec, opts: SubmitOptions) -> Result<JobInfo, FarmError> {
+        let SubmitOptions { who, sink } = opts;
+        let make: MakeSink<'_> = match sink {
+            Some(make) => make,
+            None => {
+                let name = spec.output_name.clone();
+                let (w, h) = (spec.width, spec.height);
+                Box::new(move |id| {
+                    let path = self.output_path(id, &name);
+                    let writer = FrameWriter::create(&path, w, h)
+                        .map_err(|e| FarmError::io("cannot create the output", e))?;
+                    Ok(Box::new(writer))
+                })
+            }
+        };
         if spec.width == 0 || spec.height == 0 {
             return Err(FarmError::BadScene("the frame is empty".into()));
         }
@@ -711,77 +401,20 @@ impl Farm {
         Ok(info)
     }
 
-    /// Refuses a frame whose one band of tiles, with its bookkeeping and the
-    /// encoder's rows, does not fit in the per-job window: everything the
-    /// coordinator holds for a job grows with the width, the band height
-    /// and the tile count in a band, and only the band count is bounded by
-    /// the window otherwise. Also refuses more tiles than a job can number.
-    fn check_memory(&self, spec: &JobSpec) -> Result<(), FarmError> {
-        let tile = if spec.tile_size == 0 {
-            self.cfg.default_tile
+    /// Registers a worker as `opts` says.
+    pub fn register_worker(&self, opts: WorkerOptions) -> Result<Registration, FarmError> {
+        let session = if opts.session {
+            let mut secret = [0u8; 32];
+            getrandom::getrandom(&mut secret)
+                .map_err(|e| FarmError::io("no random session secret", e))?;
+            Some(secret)
         } else {
-            spec.tile_size
-        }
-        .max(1);
-        let tiles =
-            (spec.width as u64).div_ceil(tile as u64) * (spec.height as u64).div_ceil(tile as u64);
-        if tiles > u32::MAX as u64 {
-            return Err(FarmError::Limit(format!(
-                "a {}x{} frame in {tile}-pixel tiles is {tiles} tiles, more than a job may \
-                 have ({}); use larger tiles",
-                spec.width,
-                spec.height,
-                u32::MAX
-            )));
-        }
-        let need = crate::scheduler::band_bytes(&JobSpec {
-            tile_size: tile,
-            ..spec.clone()
-        }) + crate::scheduler::encoder_bytes(spec);
-        let window = self.cfg.sched.window_bytes;
-        if need > window {
-            let mib = |b: u64| b.div_ceil(1 << 20);
-            return Err(FarmError::Limit(format!(
-                "a {}x{} frame in {tile}-pixel tiles needs {} MiB for one band of tiles, more \
-                 than the coordinator's per-job window of {} MiB (--window-mib); use a \
-                 narrower frame or smaller tiles, or raise --window-mib",
-                spec.width,
-                spec.height,
-                mib(need),
-                mib(window)
-            )));
-        }
-        Ok(())
-    }
-
-    pub fn register_worker(&self) -> WorkerId {
-        self.register_worker_as("", 0)
-    }
-
-    /// Registers a worker under the name and thread count it gave.
-    pub fn register_worker_as(&self, name: &str, threads: u32) -> WorkerId {
+            None
+        };
         let mut st = lock(&self.state);
-        let id = st.sched.register_worker(Instant::now());
-        st.sched.describe_worker(id, name, threads);
-        id
-    }
-
-    /// Registers a worker as [`Farm::register_worker_as`] does, with a
-    /// session secret from the operating system's random source that its
-    /// every later call must present (see [`Farm::check_session`]), so one
-    /// worker cannot act under another's id.
-    pub fn register_worker_session(
-        &self,
-        name: &str,
-        threads: u32,
-    ) -> Result<(WorkerId, [u8; 32]), FarmError> {
-        let mut secret = [0u8; 32];
-        getrandom::getrandom(&mut secret)
-            .map_err(|e| FarmError::Io(format!("no random session secret: {e}")))?;
-        let mut st = lock(&self.state);
-        let id = st.sched.register_worker_session(Instant::now(), secret);
-        st.sched.describe_worker(id, name, threads);
-        Ok((id, secret))
+        let id = st.sched.register_worker(Instant::now(), session);
+        st.sched.describe_worker(id, opts.name, opts.threads);
+        Ok(Registration { id, session })
     }
 
     /// Checks that `session` is the secret `worker` registered with: an
@@ -893,29 +526,15 @@ impl Farm {
 
     /// Takes a tile result: validates it, and writes it if it is the first
     /// valid one for its tile. An invalid result re-queues the tile.
-    pub fn put_tile(
-        &self,
-        lease: LeaseId,
-        job: JobId,
-        rect: Rect,
-        rays: u64,
-        pixels: &[[f32; 3]],
-    ) -> Result<TileOutcome, FarmError> {
-        self.put_tile_from(None, lease, job, rect, rays, pixels)
-    }
-
-    /// Like [`Farm::put_tile`], checking that `lease` is `worker`'s lease on
-    /// that tile (when `worker` is given): a result under someone else's
-    /// lease, or a made-up one, is refused and changes nothing.
-    pub fn put_tile_from(
-        &self,
-        worker: Option<WorkerId>,
-        lease: LeaseId,
-        job: JobId,
-        rect: Rect,
-        rays: u64,
-        pixels: &[[f32; 3]],
-    ) -> Result<TileOutcome, FarmError> {
+    pub fn put_tile(&self, r: TileResult) -> Result<TileOutcome, FarmError> {
+        let TileResult {
+            lease,
+            job,
+            rect,
+            rays,
+            pixels,
+            worker,
+        } = r;
         let valid = validate_pixels(rect, pixels);
         let mut st = lock(&self.state);
         st.sched.check_lease(job, rect, lease, worker)?;
@@ -962,8 +581,9 @@ impl Farm {
         if let Err(e) = sink.write_tile(rect, pixels) {
             o.sink = None;
             drop(guard); // end_job takes the output's lock for its preview.
-            self.end_job(job, Err(format!("writing the output: {e}")));
-            return Err(FarmError::Io(e));
+            let e = FarmError::io(format!("writing the output of job {job}"), e);
+            self.end_job(job, Err(e.to_string()));
+            return Err(e);
         }
         o.max_rows_held = o.max_rows_held.max(sink.rows_held());
         o.written += 1;
@@ -1008,18 +628,10 @@ impl Farm {
         st.sched.finish(job, result, now);
         st.outputs.remove(&job);
         st.submitters.remove(&job);
-        st.keep_final_preview(job, image);
+        st.keep_final_preview(job, image, self.cfg.limits.kept_previews);
         st.publish(job);
         drop(st);
         self.prune();
-    }
-
-    /// The job's preview as it stands, to keep once the job is over (made
-    /// before the job is marked over, so whoever sees it over finds it).
-    fn final_preview(&self, job: JobId) -> Option<PreviewImage> {
-        let out = lock(&self.state).outputs.get(&job).cloned()?;
-        let p = lock(&out).preview.clone();
-        preview_image(&p).ok()
     }
 
     /// Records a job's end in the database (and drops its tiles there).
@@ -1052,7 +664,7 @@ impl Farm {
         let now = Instant::now();
         if let Some(ending) = st.sched.cancel_info(job, now) {
             self.persist_end(&ending).map_err(|e| {
-                FarmError::Io(format!("cannot record the cancellation of job {job}: {e}"))
+                FarmError::io(format!("cannot record the cancellation of job {job}"), e)
             })?;
             st.unrecorded.remove(&job);
         }
@@ -1064,7 +676,7 @@ impl Farm {
             None
         };
         if out.is_some() {
-            st.keep_final_preview(job, image);
+            st.keep_final_preview(job, image, self.cfg.limits.kept_previews);
         }
         st.publish(job);
         drop(st);
@@ -1146,35 +758,6 @@ impl Farm {
         self.info(job)
     }
 
-    /// The job's preview: filling in while it runs, the last state once it
-    /// ended (for the newest few finished jobs).
-    pub fn preview(&self, job: JobId) -> Result<PreviewImage, FarmError> {
-        let st = lock(&self.state);
-        if let Some((_, image)) = st.final_previews.iter().find(|(j, _)| *j == job) {
-            return Ok(image.clone());
-        }
-        let info = st
-            .sched
-            .info(job, Instant::now())
-            .ok_or(FarmError::UnknownJob(job))?;
-        let out = st.outputs.get(&job).cloned();
-        drop(st);
-        match out {
-            Some(out) => {
-                let p = lock(&out).preview.clone();
-                preview_image(&p).map_err(FarmError::Io)
-            }
-            None if !info.state.is_final() => {
-                preview_image(&Preview::new(info.spec.width, info.spec.height))
-                    .map_err(FarmError::Io)
-            }
-            None => Err(FarmError::NoOutput(
-                job,
-                "its preview is no longer kept".to_string(),
-            )),
-        }
-    }
-
     /// Unfinished jobs and their tiles waiting for a worker.
     pub fn queue_depth(&self) -> QueueDepth {
         lock(&self.state).sched.queue_depth()
@@ -1199,7 +782,7 @@ impl Farm {
     }
 
     /// Request latencies and other figures only the servers see.
-    pub fn metrics(&self) -> &Metrics {
+    pub fn metrics(&self) -> &Arc<Metrics> {
         &self.metrics
     }
 
@@ -1208,50 +791,5 @@ impl Farm {
         let out = lock(&self.state).outputs.get(&job).cloned()?;
         let m = lock(&out).max_rows_held;
         Some(m)
-    }
-}
-
-fn preview_image(p: &Preview) -> Result<PreviewImage, String> {
-    Ok(PreviewImage {
-        width: p.width,
-        height: p.height,
-        tiles: p.tiles,
-        png: Arc::new(encode_png(p.width, p.height, &p.to_rgba8())?),
-    })
-}
-
-/// The file name of a camera's `output`, checked to be PNG or EXR.
-/// The output file name `name` (as [`Farm::job_spec`] made it) with the
-/// extension of `format` (`png` or `exr`, any case; empty keeps `name`): a
-/// submitter's `-o` decides the format, not the scene's `output`.
-pub fn output_name_as(name: &str, format: &str) -> Result<String, FarmError> {
-    if format.is_empty() {
-        return Ok(name.to_string());
-    }
-    let f = trevi_core::output::Format::from_extension(format).ok_or_else(|| {
-        FarmError::BadScene(format!(
-            "output format \"{format}\" is not supported (png or exr)"
-        ))
-    })?;
-    Ok(Path::new(name)
-        .with_extension(f.extension())
-        .to_string_lossy()
-        .into_owned())
-}
-
-fn output_name(output: &str) -> Result<String, FarmError> {
-    let name = Path::new(output)
-        .file_name()
-        .and_then(|n| n.to_str())
-        .ok_or_else(|| FarmError::BadScene(format!("output \"{output}\" names no file")))?;
-    let ext = Path::new(name)
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase());
-    match ext.as_deref() {
-        Some("png") | Some("exr") => Ok(name.to_string()),
-        _ => Err(FarmError::BadScene(format!(
-            "output \"{output}\" must end in .png or .exr"
-        ))),
     }
 }

@@ -3,7 +3,7 @@
 //! a channel wrapped in `ReceiverStream`.
 
 use crate::auth::{self, Auth, Need, Tokens};
-use crate::farm::{Farm, TileOutcome};
+use crate::farm::{Farm, SubmitOptions, TileOutcome, TileResult, WorkerOptions};
 use crate::scheduler::{JobInfo, JobState};
 use crate::FarmError;
 use std::future::Future;
@@ -15,21 +15,6 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 use trevi_proto::pb::{self, tile_upload::Part};
 use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
-
-/// How long a `LeaseTile` call waits for work before answering "none" (a
-/// worker may ask for less).
-const LEASE_WAIT: Duration = Duration::from_secs(2);
-
-/// Characters of a worker's render error kept (in the log and the job's
-/// error).
-const MAX_RETURN_ERROR_CHARS: usize = 500;
-/// Jobs in a `ListJobs` reply when the request does not say.
-pub const LIST_PAGE_DEFAULT: usize = 500;
-/// Most jobs in a `ListJobs` reply.
-pub const LIST_PAGE_MAX: usize = 1000;
-/// A `ListJobs` reply stops at about this many bytes (well under the 4 MiB
-/// message limit of the clients).
-pub const LIST_PAGE_BYTES: usize = 1 << 20;
 
 fn join_error(e: tokio::task::JoinError) -> Status {
     Status::internal(format!("task failed: {e}"))
@@ -79,8 +64,8 @@ pub fn job_status(info: &JobInfo) -> pb::JobStatus {
 /// after checking its hash; a damaged or missing copy fails the jobs that
 /// render it, with that reason.
 ///
-/// [`Limits::max_uploads`]: crate::farm::Limits::max_uploads
-/// [`Limits::upload_idle`]: crate::farm::Limits::upload_idle
+/// [`Limits::max_uploads`]: crate::limits::Limits::max_uploads
+/// [`Limits::upload_idle`]: crate::limits::Limits::upload_idle
 pub struct BundlesService {
     pub farm: Arc<Farm>,
     /// One permit per upload in progress.
@@ -254,7 +239,13 @@ impl pb::jobs_server::Jobs for JobsService {
         let info = blocking(move || {
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
-            farm.submit_as(spec, &who)
+            farm.submit(
+                spec,
+                SubmitOptions {
+                    who: &who,
+                    ..SubmitOptions::default()
+                },
+            )
         })
         .await?;
         Ok(Response::new(job_status(&info)))
@@ -306,12 +297,13 @@ impl pb::jobs_server::Jobs for JobsService {
                 ))
             })?
         };
+        let limits = self.farm.config().limits;
         let limit = match req.limit {
-            0 => LIST_PAGE_DEFAULT,
-            n => (n as usize).min(LIST_PAGE_MAX),
+            0 => limits.list_page_default,
+            n => (n as usize).min(limits.list_page_max),
         };
         let (page, mut next) = self.farm.list_from(from, limit);
-        // Errors make statuses long: stop a page at about LIST_PAGE_BYTES.
+        // Errors make statuses long: stop a page at about list_page_bytes.
         let mut jobs = Vec::with_capacity(page.len());
         let mut bytes = 0;
         for info in &page {
@@ -319,7 +311,7 @@ impl pb::jobs_server::Jobs for JobsService {
             // The numbers take at most ~100 bytes; the strings their length.
             bytes +=
                 100 + s.camera.len() + s.output_name.len() + s.error.len() + s.bundle_hash.len();
-            if bytes > LIST_PAGE_BYTES && !jobs.is_empty() {
+            if bytes > limits.list_page_bytes && !jobs.is_empty() {
                 next = Some(info.id);
                 break;
             }
@@ -379,12 +371,16 @@ impl pb::workers_server::Workers for WorkersService {
         req: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterResponse>, Status> {
         let r = req.into_inner();
-        let (id, session) = self.farm.register_worker_session(&r.name, r.threads)?;
-        tracing::info!(worker = id, name = %r.name, threads = r.threads, "worker registered");
+        let reg = self.farm.register_worker(WorkerOptions {
+            name: &r.name,
+            threads: r.threads,
+            session: true,
+        })?;
+        tracing::info!(worker = reg.id, name = %r.name, threads = r.threads, "worker registered");
         Ok(Response::new(pb::RegisterResponse {
-            worker_id: id,
-            lease_ttl_ms: self.farm.config().sched.lease_ttl.as_millis() as u64,
-            session: session.to_vec(),
+            worker_id: reg.id,
+            lease_ttl_ms: self.farm.config().limits.lease_ttl.as_millis() as u64,
+            session: reg.session.map(|s| s.to_vec()).unwrap_or_default(),
         }))
     }
 
@@ -394,9 +390,10 @@ impl pb::workers_server::Workers for WorkersService {
     ) -> Result<Response<pb::LeaseResponse>, Status> {
         let r = req.into_inner();
         self.farm.check_session(r.worker_id, &r.session)?;
+        let most = self.farm.config().limits.lease_wait;
         let wait = match r.max_wait_ms {
-            0 => LEASE_WAIT,
-            ms => Duration::from_millis(ms.into()).min(LEASE_WAIT),
+            0 => most,
+            ms => Duration::from_millis(ms.into()).min(most),
         };
         let lease = self.farm.lease_wait(r.worker_id, wait).await?;
         Ok(Response::new(pb::LeaseResponse {
@@ -465,9 +462,17 @@ impl pb::workers_server::Workers for WorkersService {
             header.job_id,
             header.rays,
         );
-        let outcome =
-            blocking(move || farm.put_tile_from(Some(worker), lease, job, rect, rays, &pixels))
-                .await?;
+        let outcome = blocking(move || {
+            farm.put_tile(TileResult {
+                lease,
+                job,
+                rect,
+                rays,
+                pixels: &pixels,
+                worker: Some(worker),
+            })
+        })
+        .await?;
         Ok(Response::new(pb::TileAck {
             accepted: outcome == TileOutcome::Accepted,
         }))
@@ -480,7 +485,8 @@ impl pb::workers_server::Workers for WorkersService {
         let r = req.into_inner();
         self.farm.check_session(r.worker_id, &r.session)?;
         // The error comes from the network: keep what is logged short.
-        let error: String = r.error.chars().take(MAX_RETURN_ERROR_CHARS).collect();
+        let keep = self.farm.config().limits.max_return_error_chars;
+        let error: String = r.error.chars().take(keep).collect();
         let error = (!error.is_empty()).then_some(error);
         self.farm
             .return_tile(r.worker_id, r.lease_id, error.as_deref())?;
@@ -499,9 +505,9 @@ pub struct ServeOptions {
 }
 
 /// Serves the coordinator on `listener` until `shutdown` resolves: the three
-/// `trevi.v1` services, `grpc.health.v1` and server reflection; plus a task
-/// that re-queues expired leases and one that removes bundles no job uses
-/// ([`Farm::collect_bundles`], first at start-up). Connections are accepted
+/// `trevi.v1` services, `grpc.health.v1` and server reflection, with the
+/// farm's periodic work ([`Farm::start_upkeep`]) running meanwhile.
+/// Connections are accepted
 /// through errors such as running out of file descriptors
 /// ([`crate::listen::accept`]). No tokens, no TLS.
 pub async fn serve(
@@ -538,33 +544,7 @@ pub async fn serve_with(
         .build_v1()
         .expect("the embedded descriptor sets are valid");
 
-    let reaper = {
-        let farm = farm.clone();
-        let period = (farm.config().sched.lease_ttl / 4).max(Duration::from_millis(20));
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            loop {
-                tick.tick().await;
-                farm.expire();
-            }
-        })
-    };
-
-    // Bundles no job uses, once past their grace period; the first pass
-    // runs at start-up.
-    let collector = {
-        let farm = farm.clone();
-        let period = (farm.config().bundle_grace / 4)
-            .clamp(Duration::from_millis(100), Duration::from_secs(600));
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            loop {
-                tick.tick().await;
-                let farm = farm.clone();
-                let _ = tokio::task::spawn_blocking(move || farm.collect_bundles()).await;
-            }
-        })
-    };
+    let upkeep = farm.start_upkeep();
 
     // Accepted by a task that rides out accept errors (see
     // `crate::listen`): tonic would retry at once, spinning while file
@@ -595,7 +575,9 @@ pub async fn serve_with(
         BundlesServer::new(BundlesService::new(farm.clone())).max_decoding_message_size(max_msg);
     let jobs =
         JobsServer::new(JobsService { farm: farm.clone() }).max_decoding_message_size(max_msg);
-    let latency = crate::metrics::LatencyLayer { farm: farm.clone() };
+    let latency = crate::metrics::LatencyLayer {
+        metrics: farm.metrics().clone(),
+    };
     let workers = WorkersServer::new(WorkersService { farm }).max_decoding_message_size(max_msg);
     let result = server
         .layer(latency)
@@ -615,8 +597,7 @@ pub async fn serve_with(
         ))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await;
-    reaper.abort();
-    collector.abort();
+    drop(upkeep);
     acceptor.abort();
     result
 }

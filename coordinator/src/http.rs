@@ -21,10 +21,10 @@
 //! this server never grants. So with no token configured, a page elsewhere
 //! still cannot cancel jobs through a visitor's browser.
 //!
-//! Connections ([`HttpLimits`]): a client has
-//! [`HttpLimits::header_timeout`] to send each request's headers (and to
+//! Connections ([`Limits`](crate::limits::Limits)): a client has
+//! `http_header_timeout` to send each request's headers (and to
 //! finish a TLS handshake), or the connection is closed, which also ends
-//! idle keep-alive connections; at most [`HttpLimits::max_connections`] are
+//! idle keep-alive connections; at most `http_max_connections` are
 //! open at once, and one more is closed as soon as it is accepted. The
 //! listener is separate from gRPC's, so a flood here leaves gRPC serving.
 //!
@@ -181,43 +181,24 @@ pub fn router(farm: Arc<Farm>, tokens: Tokens) -> Router {
         })
 }
 
-/// Bounds on the monitor's connections (see the module documentation).
-#[derive(Debug, Clone, Copy)]
-pub struct HttpLimits {
-    /// Time a client has to send a request's headers (counted from the
-    /// connection, or from the end of its previous request) and to finish
-    /// a TLS handshake.
-    pub header_timeout: Duration,
-    /// Connections open at once.
-    pub max_connections: usize,
-}
-
-impl Default for HttpLimits {
-    fn default() -> Self {
-        HttpLimits {
-            header_timeout: Duration::from_secs(10),
-            max_connections: 256,
-        }
-    }
-}
-
 /// How long connections may finish their requests after `shutdown`.
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
 /// Serves [`router`] on `listener` until `shutdown` resolves; over HTTPS
 /// when given a TLS acceptor (the coordinator's `--tls-cert`, so that the
 /// submit token typed into the page is not sent in the clear). Each
-/// connection is served in a task of its own, within `limits`.
+/// connection is served in a task of its own, within the farm's
+/// [`Limits`](crate::limits::Limits) for the monitor.
 pub async fn serve(
     farm: Arc<Farm>,
     tokens: Tokens,
     listener: tokio::net::TcpListener,
     tls: Option<tokio_rustls::TlsAcceptor>,
-    limits: HttpLimits,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
+    let limits = farm.config().limits;
     let app = router(farm, tokens);
-    let slots = Arc::new(Semaphore::new(limits.max_connections));
+    let slots = Arc::new(Semaphore::new(limits.http_max_connections));
     let (stop_tx, stop_rx) = watch::channel(false);
     let mut conns = JoinSet::new();
     let mut warned: Option<Instant> = None;
@@ -232,7 +213,7 @@ pub async fn serve(
             // Closed at once (dropped): a client waiting for a slot would
             // hold a file descriptor all the same.
             if warned.is_none_or(|t| t.elapsed() >= Duration::from_secs(5)) {
-                tracing::warn!(%peer, max = limits.max_connections,
+                tracing::warn!(%peer, max = limits.http_max_connections,
                     "monitor: too many connections (--http-max-connections); closing new ones");
                 warned = Some(Instant::now());
             }
@@ -242,10 +223,13 @@ pub async fn serve(
         conns.spawn(async move {
             let _slot = slot;
             match tls {
-                None => serve_connection(tcp, app, limits, stop).await,
+                None => serve_connection(tcp, app, limits.http_header_timeout, stop).await,
                 Some(acceptor) => {
-                    match tokio::time::timeout(limits.header_timeout, acceptor.accept(tcp)).await {
-                        Ok(Ok(tls)) => serve_connection(tls, app, limits, stop).await,
+                    let handshake = acceptor.accept(tcp);
+                    match tokio::time::timeout(limits.http_header_timeout, handshake).await {
+                        Ok(Ok(tls)) => {
+                            serve_connection(tls, app, limits.http_header_timeout, stop).await
+                        }
                         Ok(Err(e)) => {
                             tracing::debug!(%peer, error = %e, "monitor: TLS handshake failed")
                         }
@@ -266,14 +250,14 @@ pub async fn serve(
 async fn serve_connection<I>(
     io: I,
     app: Router,
-    limits: HttpLimits,
+    header_timeout: Duration,
     mut stop: watch::Receiver<bool>,
 ) where
     I: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
 {
     let conn = hyper::server::conn::http1::Builder::new()
         .timer(hyper_util::rt::TokioTimer::new())
-        .header_read_timeout(limits.header_timeout)
+        .header_read_timeout(header_timeout)
         .serve_connection(
             hyper_util::rt::TokioIo::new(io),
             hyper_util::service::TowerToHyperService::new(app),
@@ -313,7 +297,7 @@ async fn metrics(State(app): State<App>) -> impl IntoResponse {
             header::CONTENT_TYPE,
             "text/plain; version=0.0.4; charset=utf-8",
         )],
-        crate::metrics::render(&app.farm),
+        crate::metrics::render(&app.farm.snapshot(), app.farm.metrics()),
     )
 }
 

@@ -3,8 +3,12 @@
 //! - [`scheduler`]: pure bookkeeping of jobs, tiles and leases (time passed in).
 //! - [`farm`]: the coordinator without the network: bundles on disk, result
 //!   validation, and stitching each job's tiles into its output file through
-//!   `trevi_core::FrameWriter` (rows leave as soon as a band is complete, and
-//!   the file is moved into place when the last tile is in).
+//!   a [`sink::TileSink`], normally `trevi_core::FrameWriter` (rows leave as
+//!   soon as a band is complete, and the file is moved into place when the
+//!   last tile is in).
+//! - [`limits`]: every bound the coordinator works within, in one value.
+//! - [`store`]: the durable state (SQLite and the tile files);
+//!   [`bundles`]: the uploaded scene bundles on disk.
 //! - [`grpc`]: the `trevi.v1` services over [`farm::Farm`], plus
 //!   `grpc.health.v1` and server reflection.
 //! - [`http`]: the web monitor (`--http`), its JSON API, `/metrics`
@@ -17,7 +21,7 @@
 //!
 //! Memory: tiles are leased in band order and at most a window of bands ahead
 //! of the first incomplete band, so the rows held by a job's writer are
-//! bounded by the window (see [`scheduler::SchedulerConfig::window_bytes`]),
+//! bounded by the window (see [`limits::Limits::window_bytes`]),
 //! not by the image height.
 
 pub mod auth;
@@ -26,14 +30,20 @@ pub mod error;
 pub mod farm;
 pub mod grpc;
 pub mod http;
+pub mod limits;
 pub mod listen;
 pub mod metrics;
 pub mod preview;
 pub mod scheduler;
+pub mod sink;
 pub mod store;
 pub mod tls;
 pub mod workers;
 
 pub use error::FarmError;
-pub use farm::{Farm, FarmConfig, Limits, TileOutcome, TileSink};
-pub use scheduler::{JobId, JobInfo, JobSpec, JobState, SchedulerConfig};
+pub use farm::{
+    Farm, FarmConfig, Registration, SubmitOptions, TileOutcome, TileResult, WorkerOptions,
+};
+pub use limits::Limits;
+pub use scheduler::{JobId, JobInfo, JobSpec, JobState};
+pub use sink::{SinkError, TileSink};

@@ -7,10 +7,24 @@ use std::sync::Arc;
 use std::time::Duration;
 use trevi_coordinator::auth::{token_from, Tokens};
 use trevi_coordinator::farm::Retention;
-use trevi_coordinator::farm::BUNDLE_GRACE;
 use trevi_coordinator::grpc::ServeOptions;
-use trevi_coordinator::http::HttpLimits;
-use trevi_coordinator::{Farm, FarmConfig, Limits, SchedulerConfig};
+use trevi_coordinator::limits::MIN_MESSAGE_BYTES;
+use trevi_coordinator::{Farm, FarmConfig, Limits};
+
+/// The defaults of every flag below come from these.
+fn defaults() -> FarmConfig {
+    FarmConfig::default()
+}
+
+/// A whole number of at least `min` (a count, a size or a time that would
+/// make no sense as 0): anything less is refused, naming the flag.
+fn at_least<T>(min: u64) -> clap::builder::RangedU64ValueParser<T>
+where
+    T: TryFrom<u64> + Clone + Send + Sync + 'static,
+    <T as TryFrom<u64>>::Error: std::error::Error + Send + Sync + 'static,
+{
+    clap::builder::RangedU64ValueParser::<T>::new().range(min..)
+}
 
 #[derive(Parser, Debug)]
 #[command(
@@ -28,29 +42,35 @@ struct Args {
     #[arg(long, env = "TREVI_HTTP")]
     http: Option<String>,
     /// Where bundles and job outputs are kept.
-    #[arg(long, env = "TREVI_DATA_DIR", default_value = "trevi-data")]
+    #[arg(long, env = "TREVI_DATA_DIR", default_value_os_t = defaults().data_dir)]
     data_dir: PathBuf,
     /// How long a tile lease lives without a heartbeat, in milliseconds.
-    #[arg(long, env = "TREVI_LEASE_TTL_MS", default_value_t = 10_000)]
+    #[arg(long, env = "TREVI_LEASE_TTL_MS", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.lease_ttl.as_millis() as u64)]
     lease_ttl_ms: u64,
     /// Default tile edge in pixels.
-    #[arg(long, env = "TREVI_TILE_SIZE", default_value_t = 64)]
+    #[arg(long, env = "TREVI_TILE_SIZE", value_parser = at_least::<u32>(1),
+          default_value_t = defaults().default_tile)]
     tile_size: u32,
     /// Budget per job, in MiB, for the rows its writer holds and the
     /// bookkeeping of its tiles in flight; a frame whose one band of tiles
     /// does not fit is refused at submission.
-    #[arg(long, env = "TREVI_WINDOW_MIB", default_value_t = SchedulerConfig::default().window_bytes >> 20)]
+    #[arg(long, env = "TREVI_WINDOW_MIB", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.window_bytes >> 20)]
     window_mib: u64,
     /// A tile failing this many times (lease expired, invalid result) fails
     /// its job.
-    #[arg(long, env = "TREVI_MAX_TILE_FAILURES", default_value_t = 5)]
+    #[arg(long, env = "TREVI_MAX_TILE_FAILURES", value_parser = at_least::<u32>(1),
+          default_value_t = defaults().limits.max_tile_failures)]
     max_tile_failures: u32,
     /// A worker failing this many tiles of a job gets no more of its tiles.
-    #[arg(long, env = "TREVI_MAX_WORKER_FAILURES", default_value_t = 3)]
+    #[arg(long, env = "TREVI_MAX_WORKER_FAILURES", value_parser = at_least::<u32>(1),
+          default_value_t = defaults().limits.max_worker_failures)]
     max_worker_failures: u32,
     /// A tile whose lease runs out this many times (the worker holding it
     /// crashed, hung or was cut off) fails its job, naming the tile.
-    #[arg(long, env = "TREVI_MAX_TILE_LOSSES", default_value_t = SchedulerConfig::default().max_tile_losses)]
+    #[arg(long, env = "TREVI_MAX_TILE_LOSSES", value_parser = at_least::<u32>(1),
+          default_value_t = defaults().limits.max_tile_losses)]
     max_tile_losses: u32,
     /// Token submitters must present (`trevi-submit --token`); without it
     /// anyone who reaches the coordinator may submit and read jobs.
@@ -67,48 +87,57 @@ struct Args {
     #[arg(long, env = "TREVI_WORKER_TOKEN_FILE")]
     worker_token_file: Option<PathBuf>,
     /// Largest scene bundle accepted, in MiB.
-    #[arg(long, env = "TREVI_MAX_BUNDLE_MIB", default_value_t = Limits::default().max_bundle_bytes >> 20)]
+    #[arg(long, env = "TREVI_MAX_BUNDLE_MIB", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.max_bundle_bytes >> 20)]
     max_bundle_mib: u64,
     /// Most files in a bundle.
-    #[arg(long, env = "TREVI_MAX_BUNDLE_FILES", default_value_t = 10_000)]
+    #[arg(long, env = "TREVI_MAX_BUNDLE_FILES", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.max_bundle_files)]
     max_bundle_files: usize,
-    /// Largest gRPC message decoded, in KiB.
-    #[arg(long, env = "TREVI_MAX_MESSAGE_KIB", default_value_t = 4096)]
+    /// Largest gRPC message decoded, in KiB (at least a 1 MiB chunk and its
+    /// framing).
+    #[arg(long, env = "TREVI_MAX_MESSAGE_KIB",
+          value_parser = at_least::<usize>(MIN_MESSAGE_BYTES.div_ceil(1024) as u64),
+          default_value_t = defaults().limits.max_message_bytes >> 10)]
     max_message_kib: usize,
     /// Most samples in a frame: width × height × supersample².
-    #[arg(long, env = "TREVI_MAX_IMAGE_SAMPLES", default_value_t = Limits::default().max_image_samples)]
+    #[arg(long, env = "TREVI_MAX_IMAGE_SAMPLES", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.max_image_samples)]
     max_image_samples: u64,
     /// Most unfinished jobs per submitter (per client address).
-    #[arg(long, env = "TREVI_MAX_JOBS_PER_SUBMITTER", default_value_t = 1000)]
+    #[arg(long, env = "TREVI_MAX_JOBS_PER_SUBMITTER", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.max_jobs_per_submitter)]
     max_jobs_per_submitter: usize,
     /// Ended jobs (done, failed, cancelled) kept at most, with their outputs;
     /// older ones are forgotten and their outputs deleted.
-    #[arg(long, env = "TREVI_KEEP_ENDED", default_value_t = Retention::default().keep_ended)]
+    #[arg(long, env = "TREVI_KEEP_ENDED", default_value_t = defaults().retention.keep_ended)]
     keep_ended: usize,
     /// Forget ended jobs and delete their outputs this long after they
     /// ended: 90s, 30m, 12h, 7d, or never.
     #[arg(long, env = "TREVI_KEEP_ENDED_FOR",
-        default_value_t = Retention::format_duration(Retention::default().keep_ended_for))]
+        default_value_t = Retention::format_duration(defaults().retention.keep_ended_for))]
     keep_ended_for: String,
     /// Most bundle uploads in progress at once; one more is refused.
-    #[arg(long, env = "TREVI_MAX_UPLOADS", default_value_t = Limits::default().max_uploads)]
+    #[arg(long, env = "TREVI_MAX_UPLOADS", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.max_uploads)]
     max_uploads: usize,
     /// Drop a bundle upload that sends nothing for this long, in milliseconds.
-    #[arg(long, env = "TREVI_UPLOAD_IDLE_MS",
-          default_value_t = Limits::default().upload_idle.as_millis() as u64)]
+    #[arg(long, env = "TREVI_UPLOAD_IDLE_MS", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.upload_idle.as_millis() as u64)]
     upload_idle_ms: u64,
     /// Remove a bundle no job uses once it was last uploaded or used this
     /// long ago, in seconds.
-    #[arg(long, env = "TREVI_BUNDLE_GRACE_SECS", default_value_t = BUNDLE_GRACE.as_secs())]
+    #[arg(long, env = "TREVI_BUNDLE_GRACE_SECS",
+          default_value_t = defaults().retention.bundle_grace.as_secs())]
     bundle_grace_secs: u64,
     /// Close a monitor connection that takes longer than this to send a
     /// request's headers (or to finish its TLS handshake), in milliseconds.
-    #[arg(long, env = "TREVI_HTTP_HEADER_TIMEOUT_MS",
-          default_value_t = HttpLimits::default().header_timeout.as_millis() as u64)]
+    #[arg(long, env = "TREVI_HTTP_HEADER_TIMEOUT_MS", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.http_header_timeout.as_millis() as u64)]
     http_header_timeout_ms: u64,
     /// Most monitor connections open at once; more are closed at once.
-    #[arg(long, env = "TREVI_HTTP_MAX_CONNECTIONS",
-          default_value_t = HttpLimits::default().max_connections)]
+    #[arg(long, env = "TREVI_HTTP_MAX_CONNECTIONS", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.http_max_connections)]
     http_max_connections: usize,
     /// Serve gRPC over TLS with this PEM certificate chain (needs --tls-key).
     #[arg(long, env = "TREVI_TLS_CERT")]
@@ -116,6 +145,42 @@ struct Args {
     /// The PEM private key of --tls-cert.
     #[arg(long, env = "TREVI_TLS_KEY")]
     tls_key: Option<PathBuf>,
+}
+
+impl Args {
+    /// The farm's settings from the flags (each already checked to make
+    /// sense by its parser).
+    fn farm_config(&self) -> Result<FarmConfig> {
+        let d = defaults();
+        Ok(FarmConfig {
+            data_dir: self.data_dir.clone(),
+            default_tile: self.tile_size,
+            durable: true,
+            limits: Limits {
+                max_bundle_bytes: self.max_bundle_mib << 20,
+                max_bundle_files: self.max_bundle_files,
+                max_message_bytes: self.max_message_kib << 10,
+                max_image_samples: self.max_image_samples,
+                max_jobs_per_submitter: self.max_jobs_per_submitter,
+                max_uploads: self.max_uploads,
+                upload_idle: Duration::from_millis(self.upload_idle_ms),
+                lease_ttl: Duration::from_millis(self.lease_ttl_ms),
+                window_bytes: self.window_mib << 20,
+                max_tile_failures: self.max_tile_failures,
+                max_worker_failures: self.max_worker_failures,
+                max_tile_losses: self.max_tile_losses,
+                http_header_timeout: Duration::from_millis(self.http_header_timeout_ms),
+                http_max_connections: self.http_max_connections,
+                ..d.limits
+            },
+            retention: Retention {
+                keep_ended: self.keep_ended,
+                keep_ended_for: Retention::parse_duration(&self.keep_ended_for)
+                    .map_err(|e| anyhow::anyhow!("--keep-ended-for: {e}"))?,
+                bundle_grace: Duration::from_secs(self.bundle_grace_secs),
+            },
+        })
+    }
 }
 
 #[tokio::main]
@@ -133,41 +198,7 @@ async fn main() -> Result<()> {
         Ok(n) => tracing::debug!(open_files = n, "open-files limit"),
         Err(e) => tracing::warn!(error = %e, "cannot raise the open-files limit"),
     }
-    anyhow::ensure!(args.tile_size > 0, "--tile-size must be at least 1");
-    anyhow::ensure!(args.lease_ttl_ms > 0, "--lease-ttl-ms must be at least 1");
-    let retention = Retention {
-        keep_ended: args.keep_ended,
-        keep_ended_for: Retention::parse_duration(&args.keep_ended_for)
-            .map_err(|e| anyhow::anyhow!("--keep-ended-for: {e}"))?,
-    };
-    let cfg = FarmConfig {
-        data_dir: args.data_dir.clone(),
-        sched: SchedulerConfig {
-            lease_ttl: Duration::from_millis(args.lease_ttl_ms),
-            window_bytes: args.window_mib.max(1) << 20,
-            max_tile_failures: args.max_tile_failures.max(1),
-            max_worker_failures: args.max_worker_failures.max(1),
-            max_tile_losses: args.max_tile_losses.max(1),
-        },
-        default_tile: args.tile_size,
-        durable: true,
-        limits: Limits {
-            max_bundle_bytes: args.max_bundle_mib.max(1) << 20,
-            max_bundle_files: args.max_bundle_files.max(1),
-            // A pixel chunk (1 MiB) plus framing must fit.
-            max_message_bytes: (args.max_message_kib << 10).max(trevi_proto::CHUNK_SIZE + 4096),
-            max_image_samples: args.max_image_samples,
-            max_jobs_per_submitter: args.max_jobs_per_submitter,
-            max_uploads: args.max_uploads.max(1),
-            upload_idle: Duration::from_millis(args.upload_idle_ms.max(1)),
-        },
-        retention,
-        bundle_grace: Duration::from_secs(args.bundle_grace_secs),
-    };
-    let http_limits = HttpLimits {
-        header_timeout: Duration::from_millis(args.http_header_timeout_ms.max(1)),
-        max_connections: args.http_max_connections.max(1),
-    };
+    let cfg = args.farm_config()?;
     let submit_token = token_from(args.submit_token.clone(), args.submit_token_file.as_deref())
         .map_err(|e| anyhow::anyhow!("submit token: {e}"))?;
     let worker_token = token_from(args.worker_token.clone(), args.worker_token_file.as_deref())
@@ -175,8 +206,7 @@ async fn main() -> Result<()> {
     if submit_token.is_some() && submit_token == worker_token {
         anyhow::bail!("the submit and worker tokens must differ");
     }
-    let tokens = Tokens::new(submit_token.as_deref(), worker_token.as_deref())
-        .map_err(|e| anyhow::anyhow!(e))?;
+    let tokens = Tokens::new(submit_token.as_deref(), worker_token.as_deref())?;
     if tokens.is_open() {
         tracing::warn!("no tokens: anyone who can reach this coordinator may submit and take work");
     }
@@ -220,7 +250,6 @@ async fn main() -> Result<()> {
                 http_tokens,
                 l,
                 https,
-                http_limits,
                 stopped,
             )))
         }
@@ -254,4 +283,57 @@ async fn shutdown_signal() {
     }
     #[cfg(not(unix))]
     let _ = tokio::signal::ctrl_c().await;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(flags: &[&str]) -> Result<Args, clap::Error> {
+        Args::try_parse_from(std::iter::once("trevi-coordinator").chain(flags.iter().copied()))
+    }
+
+    #[test]
+    fn the_defaults_are_the_library_s() {
+        let args = parse(&[]).unwrap();
+        let cfg = args.farm_config().unwrap();
+        let d = FarmConfig::default();
+        assert_eq!(cfg.limits, d.limits);
+        assert_eq!(cfg.retention, d.retention);
+        assert_eq!(
+            (cfg.default_tile, cfg.durable, &cfg.data_dir),
+            (d.default_tile, d.durable, &d.data_dir)
+        );
+    }
+
+    #[test]
+    fn a_value_that_makes_no_sense_is_refused_naming_the_flag() {
+        for flag in [
+            "--window-mib",
+            "--tile-size",
+            "--lease-ttl-ms",
+            "--max-tile-failures",
+            "--max-worker-failures",
+            "--max-tile-losses",
+            "--max-bundle-mib",
+            "--max-bundle-files",
+            "--max-message-kib",
+            "--max-image-samples",
+            "--max-jobs-per-submitter",
+            "--max-uploads",
+            "--upload-idle-ms",
+            "--http-header-timeout-ms",
+            "--http-max-connections",
+        ] {
+            let e = parse(&[flag, "0"]).unwrap_err();
+            assert_eq!(e.kind(), clap::error::ErrorKind::ValueValidation, "{flag}");
+            assert!(e.to_string().contains(flag), "{flag}: {e}");
+        }
+        // Too small for a chunk and its framing.
+        let e = parse(&["--max-message-kib", "1000"]).unwrap_err();
+        assert!(e.to_string().contains("--max-message-kib"), "{e}");
+        parse(&["--max-message-kib", "1028", "--window-mib", "1"]).unwrap();
+        // 0 kept ended jobs is a choice (keep none), not nonsense.
+        parse(&["--keep-ended", "0"]).unwrap();
+    }
 }

@@ -2,7 +2,7 @@
 //! format (version 0.0.4).
 //!
 //! Everything but the request latencies is read from the scheduler at scrape
-//! time ([`Farm::snapshot`]), so the counters are the scheduler's own
+//! time (a [`FarmSnapshot`], from `Farm::snapshot`), so the counters are the scheduler's own
 //! bookkeeping, not a second count kept beside it that could drift. The text
 //! is written here rather than through a client library because the
 //! format is a few lines of `# HELP`/`# TYPE` and samples, and the Rust
@@ -12,9 +12,8 @@
 //! gRPC server that times every call from its arrival until its response
 //! headers are ready (for a streaming call, the stream's start).
 
-use crate::farm::{Farm, FarmSnapshot};
-use crate::scheduler::JobState;
-use crate::workers::WorkerState;
+use crate::scheduler::{Counters, JobInfo, JobState, QueueDepth};
+use crate::workers::{WorkerInfo, WorkerState};
 use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::future::Future;
@@ -52,7 +51,18 @@ impl Histogram {
     }
 }
 
-/// Figures the servers record as they go.
+/// What `/metrics` reports of the farm, read in one go.
+#[derive(Debug, Clone)]
+pub struct FarmSnapshot {
+    pub counters: Counters,
+    pub queue: QueueDepth,
+    pub jobs: Vec<JobInfo>,
+    pub workers: Vec<WorkerInfo>,
+    pub rays_per_second: f64,
+}
+
+/// Figures the servers record as they go; shared by the farm (which the
+/// monitor reads them through) and the [`LatencyLayer`] that records them.
 #[derive(Debug, Default)]
 pub struct Metrics {
     grpc: Mutex<BTreeMap<String, Histogram>>,
@@ -90,13 +100,9 @@ fn label(v: &str) -> String {
         .replace('\n', "\\n")
 }
 
-/// The whole `/metrics` page.
-pub fn render(farm: &Farm) -> String {
-    render_snapshot(&farm.snapshot(), farm.metrics())
-}
-
-/// `/metrics` from a snapshot (separate for tests).
-pub fn render_snapshot(s: &FarmSnapshot, m: &Metrics) -> String {
+/// The whole `/metrics` page: the farm's figures in `s`, the request
+/// latencies in `m`.
+pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
     let mut out = String::with_capacity(4096);
     let c = &s.counters;
     for (name, help, v) in [
@@ -210,7 +216,7 @@ pub fn render_snapshot(s: &FarmSnapshot, m: &Metrics) -> String {
 /// Times every request through the wrapped service into [`Metrics`].
 #[derive(Clone)]
 pub struct LatencyLayer {
-    pub farm: Arc<Farm>,
+    pub metrics: Arc<Metrics>,
 }
 
 impl<S> tower::Layer<S> for LatencyLayer {
@@ -218,7 +224,7 @@ impl<S> tower::Layer<S> for LatencyLayer {
     fn layer(&self, inner: S) -> Latency<S> {
         Latency {
             inner,
-            farm: self.farm.clone(),
+            metrics: self.metrics.clone(),
         }
     }
 }
@@ -227,7 +233,7 @@ impl<S> tower::Layer<S> for LatencyLayer {
 #[derive(Clone)]
 pub struct Latency<S> {
     inner: S,
-    farm: Arc<Farm>,
+    metrics: Arc<Metrics>,
 }
 
 impl<S, B> tower::Service<http::Request<B>> for Latency<S>
@@ -246,11 +252,11 @@ where
     fn call(&mut self, req: http::Request<B>) -> Self::Future {
         let path = req.uri().path().to_string();
         let start = Instant::now();
-        let farm = self.farm.clone();
+        let metrics = self.metrics.clone();
         let fut = self.inner.call(req);
         Box::pin(async move {
             let r = fut.await;
-            farm.metrics().observe_grpc(&path, start.elapsed());
+            metrics.observe_grpc(&path, start.elapsed());
             r
         })
     }

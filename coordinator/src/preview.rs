@@ -104,17 +104,14 @@ impl Preview {
 }
 
 /// RGBA pixels (`width × height × 4` bytes) as a PNG file's bytes.
-pub fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, String> {
+pub fn encode_png(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, png::EncodingError> {
     let mut bytes = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut bytes, width, height);
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc
-            .write_header()
-            .map_err(|e| format!("encoding the preview: {e}"))?;
-        w.write_image_data(rgba)
-            .map_err(|e| format!("encoding the preview: {e}"))?;
+        let mut w = enc.write_header()?;
+        w.write_image_data(rgba)?;
     }
     Ok(bytes)
 }

@@ -18,15 +18,21 @@
 //!   cannot keep its job running for ever. A lease the worker gives back
 //!   without an error (it is stopping) re-queues the tile and counts nothing.
 
-use crate::workers::{WorkerEntry, WorkerInfo};
+mod window;
+
+pub use window::{band_bytes, encoder_bytes, ENCODER_ROWS, TILE_BOOKKEEPING_BYTES};
+use window::{BandWindow, TileState};
+
+use crate::limits::Limits;
+use crate::workers::{WorkerInfo, Workers};
 use std::cmp::Reverse;
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
 use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
 
 pub type JobId = u64;
 pub type LeaseId = u64;
-pub type WorkerId = u64;
+pub use crate::workers::WorkerId;
 
 /// Where a job is in its life.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -174,92 +180,12 @@ pub struct QueueDepth {
     pub tiles: u64,
 }
 
-/// What the bookkeeping of one tile in a job's band window may cost, in
-/// bytes: its state in the window, a lease, a re-queue entry (counted
-/// generously; see [`band_bytes`]).
-pub const TILE_BOOKKEEPING_BYTES: u64 = 96;
-
-/// What one band of `spec`'s tiles costs the coordinator while it is in the
-/// window, in bytes: its rows in the writer (12 bytes a pixel, the most any
-/// format holds) and the bookkeeping of its tiles. The band window holds
-/// `window_bytes / band_bytes` bands, at least one.
-pub fn band_bytes(spec: &JobSpec) -> u64 {
-    let tile = spec.tile_size.max(1) as u64;
-    let rows = tile.min(spec.height.max(1) as u64);
-    let cols = (spec.width as u64).div_ceil(tile).max(1);
-    spec.width as u64 * rows * 12 + cols * TILE_BOOKKEEPING_BYTES
-}
-
-/// Rows a job's encoder holds beyond those in the band window: EXR
-/// compresses one 16-row block while the next one waits (PNG needs two).
-pub const ENCODER_ROWS: u64 = 32;
-
-/// What a job's encoder holds whatever the window: [`ENCODER_ROWS`] rows at
-/// 12 bytes a pixel. Taken from the window before it is divided into bands.
-pub fn encoder_bytes(spec: &JobSpec) -> u64 {
-    spec.width as u64 * ENCODER_ROWS * 12
-}
-
-/// Tunables.
-#[derive(Debug, Clone, Copy)]
-pub struct SchedulerConfig {
-    /// How long a lease lives without a heartbeat.
-    pub lease_ttl: Duration,
-    /// Budget per job, in bytes, for the rows held by the stitcher and its
-    /// encoder (counted at 12 bytes a pixel) and the bookkeeping of the
-    /// tiles in flight: after [`encoder_bytes`], it holds
-    /// `room / band_bytes` bands (at least one; a frame whose one band does
-    /// not fit is refused at submission). The job's preview (at most
-    /// 512×512, [`crate::preview`]) comes on top.
-    pub window_bytes: u64,
-    /// A tile that fails this many times (its lease runs out, or its result
-    /// is invalid) fails its job.
-    pub max_tile_failures: u32,
-    /// A worker that fails this many tiles of a job takes no more of them.
-    pub max_worker_failures: u32,
-    /// A tile whose lease runs out this many times (the worker holding it
-    /// was lost) fails its job; these count towards `max_tile_failures` too.
-    pub max_tile_losses: u32,
-}
-
-impl Default for SchedulerConfig {
-    fn default() -> Self {
-        SchedulerConfig {
-            lease_ttl: Duration::from_secs(10),
-            // A 16384-pixel-wide frame in 64-pixel tiles: two bands.
-            window_bytes: 32 << 20,
-            max_tile_failures: 5,
-            max_worker_failures: 3,
-            max_tile_losses: 3,
-        }
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum TileState {
-    Pending,
-    Leased(LeaseId),
-    Done,
-}
-
-/// A job's tiles, numbered in band order. Only the tiles between the first
-/// one not done and the first one never leased are stored; the window keeps
-/// that span to a few bands, so the bookkeeping does not grow with the
-/// image height either.
+/// A job: its spec, its tiles' [`BandWindow`], its progress and the
+/// failures of its tiles and workers.
 struct Job {
     spec: JobSpec,
     state: JobState,
-    cols: u32,
-    tiles_total: u32,
-    window_bands: u32,
-    /// Every tile before this one is done.
-    first_undone: u32,
-    /// Every tile from this one on is pending and was never leased.
-    next_fresh: u32,
-    /// States of tiles `first_undone..next_fresh`.
-    active: BTreeMap<u32, TileState>,
-    /// Pending tiles before `next_fresh` (re-queued), smallest first.
-    requeued: BTreeSet<u32>,
+    window: BandWindow,
     done: u64,
     rays: u64,
     submitted: Instant,
@@ -277,75 +203,16 @@ struct Job {
 }
 
 impl Job {
-    fn rect(&self, idx: u32) -> Rect {
-        let t = self.spec.tile_size;
-        let (x, y) = ((idx % self.cols) * t, (idx / self.cols) * t);
-        Rect::new(
-            x,
-            y,
-            t.min(self.spec.width - x),
-            t.min(self.spec.height - y),
-        )
-    }
-
-    fn tile_index(&self, rect: Rect) -> Option<u32> {
-        let t = self.spec.tile_size;
-        if rect.x % t != 0 || rect.y % t != 0 || rect.x >= self.spec.width {
-            return None;
-        }
-        let idx = (rect.y / t) as u64 * self.cols as u64 + (rect.x / t) as u64;
-        let idx = u32::try_from(idx).ok().filter(|&i| i < self.tiles_total)?;
-        (self.rect(idx) == rect).then_some(idx)
-    }
-
-    fn tile_state(&self, idx: u32) -> TileState {
-        if idx < self.first_undone {
-            TileState::Done
-        } else if idx >= self.next_fresh {
-            TileState::Pending
-        } else {
-            self.active[&idx]
-        }
-    }
-
-    /// The pending tile to hand out next, if the window allows one.
-    fn next_tile(&self) -> Option<u32> {
-        let idx = match self.requeued.first() {
-            Some(&i) => i,
-            None if self.next_fresh < self.tiles_total => self.next_fresh,
-            None => return None,
-        };
-        let limit = (self.first_undone / self.cols) as u64 + self.window_bands as u64;
-        (((idx / self.cols) as u64) < limit).then_some(idx)
-    }
-
-    fn set_leased(&mut self, idx: u32, lease: LeaseId) {
-        if idx == self.next_fresh {
-            self.next_fresh += 1;
-        } else {
-            self.requeued.remove(&idx);
-        }
-        self.active.insert(idx, TileState::Leased(lease));
-    }
-
-    /// Marks a tile done and moves `first_undone` past the done prefix.
+    /// Marks a tile done: it has no failures or past leases any more.
     fn set_done(&mut self, idx: u32) {
-        self.requeued.remove(&idx);
+        self.window.set_done(idx);
         self.failures.remove(&idx);
         self.past_leases.retain(|_, (t, _)| *t != idx);
-        self.active.insert(idx, TileState::Done);
-        while self.first_undone < self.next_fresh
-            && self.active.get(&self.first_undone) == Some(&TileState::Done)
-        {
-            self.active.remove(&self.first_undone);
-            self.first_undone += 1;
-        }
     }
 
     /// Drops the bookkeeping only a running job needs.
     fn retire(&mut self) {
-        self.active = BTreeMap::new();
-        self.requeued = BTreeSet::new();
+        self.window.retire();
         self.failures = HashMap::new();
         self.worker_failures = HashMap::new();
         self.past_leases = HashMap::new();
@@ -372,18 +239,15 @@ enum Release {
 
 /// The job queue and leases.
 pub struct Scheduler {
-    cfg: SchedulerConfig,
+    cfg: Limits,
     jobs: HashMap<JobId, Job>,
     /// Unfinished jobs in the order they get workers.
     queue: BTreeSet<(Reverse<i32>, JobId)>,
     leases: HashMap<LeaseId, LeaseEntry>,
-    workers: HashMap<WorkerId, WorkerEntry>,
-    /// Time zero of the workers' per-second rates.
-    epoch: Instant,
+    workers: Workers,
     counters: Counters,
     next_job: JobId,
     next_lease: LeaseId,
-    next_worker: WorkerId,
     finished: u64,
     /// Jobs failed by their tiles' failures, for the caller to wind up.
     failed: Vec<(JobId, String)>,
@@ -392,58 +256,38 @@ pub struct Scheduler {
 impl Scheduler {
     /// `worker_id_base` keeps worker ids of different coordinator runs apart,
     /// so a worker that outlived a restart is told to register again.
-    pub fn new(cfg: SchedulerConfig, worker_id_base: u64) -> Self {
+    pub fn new(cfg: Limits, worker_id_base: u64) -> Self {
         Scheduler {
             cfg,
             jobs: HashMap::new(),
             queue: BTreeSet::new(),
             leases: HashMap::new(),
-            workers: HashMap::new(),
-            epoch: Instant::now(),
+            workers: Workers::new(worker_id_base),
             counters: Counters::default(),
             next_job: 1,
             // Like worker ids: a result under a lease of an earlier run
             // never matches a lease of this one.
             next_lease: worker_id_base.max(1),
-            next_worker: worker_id_base.max(1),
             finished: 0,
             failed: Vec::new(),
         }
     }
 
-    pub fn config(&self) -> SchedulerConfig {
-        self.cfg
-    }
-
-    pub fn register_worker(&mut self, now: Instant) -> WorkerId {
-        let id = self.next_worker;
-        self.next_worker += 1;
-        self.workers.insert(id, WorkerEntry::new(now));
-        id
-    }
-
-    /// Registers a worker whose every later call must present `session`.
-    pub fn register_worker_session(&mut self, now: Instant, session: [u8; 32]) -> WorkerId {
-        let id = self.register_worker(now);
-        if let Some(w) = self.workers.get_mut(&id) {
-            w.session = Some(session);
-        }
-        id
+    /// Registers a worker; with a `session`, its every later call must
+    /// present that secret.
+    pub fn register_worker(&mut self, now: Instant, session: Option<[u8; 32]>) -> WorkerId {
+        self.workers.register(now, session)
     }
 
     /// Whether `presented` is `worker`'s session secret (`None`: no such
     /// worker).
     pub fn session_is(&self, worker: WorkerId, presented: &[u8]) -> Option<bool> {
-        self.workers.get(&worker).map(|w| w.session_is(presented))
+        self.workers.session_is(worker, presented)
     }
 
     /// Records what a worker said about itself when it registered.
     pub fn describe_worker(&mut self, worker: WorkerId, name: &str, threads: u32) {
-        if let Some(w) = self.workers.get_mut(&worker) {
-            // Names come from the network: keep them short.
-            w.name = name.chars().take(64).collect();
-            w.threads = threads;
-        }
+        self.workers.describe(worker, name, threads);
     }
 
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
@@ -476,27 +320,12 @@ impl Scheduler {
         let mut done: Vec<u32> = r
             .done_tiles
             .into_iter()
-            .filter(|&i| i < job.tiles_total)
+            .filter(|&i| i < job.window.tiles_total())
             .collect();
         done.sort_unstable();
         done.dedup();
-        if let Some(&last) = done.last() {
-            // The done prefix needs no entries; only the span after it does
-            // (a window's worth, as when the tiles were leased).
-            let prefix = done
-                .iter()
-                .enumerate()
-                .take_while(|&(i, &t)| i as u32 == t)
-                .count() as u32;
-            job.first_undone = prefix;
-            job.next_fresh = last + 1;
-            for i in prefix..job.next_fresh {
-                job.active.insert(i, TileState::Pending);
-                job.requeued.insert(i);
-            }
-            for &i in &done[prefix as usize..] {
-                job.set_done(i);
-            }
+        if !done.is_empty() {
+            job.window.restore(&done);
             job.state = JobState::Running;
         }
         job.done = done.len() as u64;
@@ -511,19 +340,9 @@ impl Scheduler {
             tile_size: tile,
             ..spec
         };
-        let cols = spec.width.div_ceil(tile).max(1);
-        let rows = spec.height.div_ceil(tile);
-        let room = self.cfg.window_bytes.saturating_sub(encoder_bytes(&spec));
-        let window_bands = (room / band_bytes(&spec).max(1)).clamp(1, u32::MAX as u64);
         Job {
             state: JobState::Queued,
-            cols,
-            tiles_total: u32::try_from(cols as u64 * rows as u64).unwrap_or(u32::MAX),
-            window_bands: window_bands as u32,
-            first_undone: 0,
-            next_fresh: 0,
-            active: BTreeMap::new(),
-            requeued: BTreeSet::new(),
+            window: BandWindow::new(&spec, self.cfg.window_bytes),
             done: 0,
             rays: 0,
             submitted: now,
@@ -539,13 +358,13 @@ impl Scheduler {
 
     /// The index of `rect` among `job`'s tiles (band order), if it is one.
     pub fn tile_index(&self, job: JobId, rect: Rect) -> Option<u32> {
-        self.jobs.get(&job)?.tile_index(rect)
+        self.jobs.get(&job)?.window.tile_index(rect)
     }
 
     /// The rectangle of tile `idx` of `job`.
     pub fn tile_rect(&self, job: JobId, idx: u32) -> Option<Rect> {
         let j = self.jobs.get(&job)?;
-        (idx < j.tiles_total).then(|| j.rect(idx))
+        (idx < j.window.tiles_total()).then(|| j.window.rect(idx))
     }
 
     /// The next tile for `worker`, if any job has one it may hand out now.
@@ -562,13 +381,13 @@ impl Scheduler {
             {
                 continue;
             }
-            let Some(idx) = job.next_tile() else {
+            let Some(idx) = job.window.next_tile() else {
                 continue;
             };
             let lease_id = self.next_lease;
             self.next_lease += 1;
             self.counters.leases_granted += 1;
-            job.set_leased(idx, lease_id);
+            job.window.set_leased(idx, lease_id);
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
             }
@@ -586,7 +405,7 @@ impl Scheduler {
                 job: id,
                 bundle_hash: job.spec.bundle_hash.clone(),
                 camera: job.spec.camera.clone(),
-                rect: job.rect(idx),
+                rect: job.window.rect(idx),
             }));
         }
         Ok(None)
@@ -628,8 +447,7 @@ impl Scheduler {
         // Workers silent for ten lease lifetimes are forgotten; one that
         // comes back is told to register again.
         let forget = (self.cfg.lease_ttl * 10).max(Duration::from_secs(60));
-        self.workers
-            .retain(|_, w| now.saturating_duration_since(w.last_seen) <= forget);
+        self.workers.forget_silent(forget, now);
         self.fail_stranded_jobs(now);
         expired.len()
     }
@@ -640,12 +458,7 @@ impl Scheduler {
     /// a job whose workers all crashed waits for new ones.
     fn fail_stranded_jobs(&mut self, now: Instant) {
         let ttl = self.cfg.lease_ttl;
-        let live: Vec<WorkerId> = self
-            .workers
-            .iter()
-            .filter(|(_, w)| now.saturating_duration_since(w.last_seen) <= ttl)
-            .map(|(&id, _)| id)
-            .collect();
+        let live = self.workers.live(ttl, now);
         if live.is_empty() {
             return;
         }
@@ -687,18 +500,17 @@ impl Scheduler {
         let Some(job) = self.jobs.get_mut(&e.job) else {
             return;
         };
-        if job.state.is_final() || job.tile_state(e.tile) != TileState::Leased(lease) {
+        if job.state.is_final() || job.window.tile_state(e.tile) != TileState::Leased(lease) {
             return;
         }
-        job.active.insert(e.tile, TileState::Pending);
-        job.requeued.insert(e.tile);
+        job.window.requeue(e.tile);
         self.counters.tiles_requeued += 1;
         job.past_leases.insert(lease, (e.tile, e.worker));
         if why == Release::Returned {
             return;
         }
         *job.worker_failures.entry(e.worker).or_default() += 1;
-        let r = job.rect(e.tile);
+        let r = job.window.rect(e.tile);
         let f = job.failures.entry(e.tile).or_insert((0, 0, String::new()));
         f.0 += 1;
         if why == Release::Lost {
@@ -743,7 +555,7 @@ impl Scheduler {
         self.touch(worker, now)?;
         match self.leases.get(&lease) {
             Some(e) if e.worker != worker => {
-                let (job, rect) = (e.job, self.jobs[&e.job].rect(e.tile));
+                let (job, rect) = (e.job, self.jobs[&e.job].window.rect(e.tile));
                 Err(SchedError::NotYourLease(lease, worker, rect, job))
             }
             Some(_) => {
@@ -781,8 +593,11 @@ impl Scheduler {
         if j.state.is_final() {
             return Ok(());
         }
-        let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
-        if j.tile_state(idx) == TileState::Done {
+        let idx = j
+            .window
+            .tile_index(rect)
+            .ok_or(SchedError::NotATile(rect, job))?;
+        if j.window.tile_state(idx) == TileState::Done {
             return Ok(());
         }
         let holder = match self.leases.get(&lease) {
@@ -811,7 +626,8 @@ impl Scheduler {
         if j.state.is_final() {
             return Ok(()); // Retired: the result will be ignored anyway.
         }
-        j.tile_index(rect)
+        j.window
+            .tile_index(rect)
             .map(|_| ())
             .ok_or(SchedError::NotATile(rect, job))
     }
@@ -829,11 +645,14 @@ impl Scheduler {
             self.counters.tiles_ignored += 1;
             return Ok(Accepted::Ignored);
         }
-        let idx = j.tile_index(rect).ok_or(SchedError::NotATile(rect, job))?;
-        let worker = match j.tile_state(idx) {
+        let idx = j
+            .window
+            .tile_index(rect)
+            .ok_or(SchedError::NotATile(rect, job))?;
+        let worker = match j.window.tile_state(idx) {
             TileState::Done => None,
             // Never handed out: not a result of this coordinator's leases.
-            TileState::Pending if idx >= j.next_fresh => None,
+            TileState::Pending if j.window.is_fresh(idx) => None,
             TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| e.worker)),
             // A late result under a lease that ran out.
             TileState::Pending => Some(
@@ -851,14 +670,11 @@ impl Scheduler {
         j.done += 1;
         // Ray counts come from workers: a huge one saturates, never wraps.
         j.rays = j.rays.saturating_add(rays);
-        let last = j.done == j.tiles_total as u64;
+        let last = j.done == j.window.tiles_total() as u64;
         self.counters.tiles_accepted += 1;
         self.counters.rays = self.counters.rays.saturating_add(rays);
-        let sec = now_sec(self.epoch, now);
-        if let Some(w) = worker.and_then(|w| self.workers.get_mut(&w)) {
-            w.tiles_done += 1;
-            w.rays = w.rays.saturating_add(rays);
-            w.rate.add(sec, 1, rays);
+        if let Some(w) = worker {
+            self.workers.credit(w, rays, now);
         }
         Ok(Accepted::New { last })
     }
@@ -994,7 +810,7 @@ impl Scheduler {
             id: job,
             spec: j.spec.clone(),
             state: j.state,
-            tiles_total: j.tiles_total as u64,
+            tiles_total: j.window.tiles_total() as u64,
             tiles_done: j.done,
             rays: j.rays,
             elapsed: j
@@ -1030,8 +846,9 @@ impl Scheduler {
         (page, next)
     }
 
-    /// Number of live leases (for tests and metrics).
-    pub fn lease_count(&self) -> usize {
+    /// Number of live leases.
+    #[cfg(test)]
+    fn lease_count(&self) -> usize {
         self.leases.len()
     }
 
@@ -1049,7 +866,7 @@ impl Scheduler {
         for &(_, id) in &self.queue {
             let j = &self.jobs[&id];
             d.jobs += 1;
-            d.tiles += (j.tiles_total as u64)
+            d.tiles += (j.window.tiles_total() as u64)
                 .saturating_sub(j.done)
                 .saturating_sub(leased.get(&id).copied().unwrap_or(0));
         }
@@ -1061,58 +878,24 @@ impl Scheduler {
     pub fn workers(&self, now: Instant) -> Vec<WorkerInfo> {
         let mut held: HashMap<WorkerId, Vec<(JobId, Rect)>> = HashMap::new();
         for e in self.leases.values() {
-            let rect = self.jobs[&e.job].rect(e.tile);
+            let rect = self.jobs[&e.job].window.rect(e.tile);
             held.entry(e.worker).or_default().push((e.job, rect));
         }
-        let sec = now_sec(self.epoch, now);
-        let mut out: Vec<WorkerInfo> = self
-            .workers
-            .iter()
-            .map(|(&id, w)| {
-                let mut leases = held.remove(&id).unwrap_or_default();
-                leases.sort_unstable_by_key(|&(j, r)| (j, r.y, r.x));
-                let (tiles_per_s, rays_per_s) = w.rate.per_second(sec);
-                WorkerInfo {
-                    id,
-                    name: w.name.clone(),
-                    threads: w.threads,
-                    state: w.state(leases.len(), self.cfg.lease_ttl, now),
-                    silent_for: now.saturating_duration_since(w.last_seen),
-                    leases,
-                    tiles_done: w.tiles_done,
-                    rays: w.rays,
-                    tiles_per_s,
-                    rays_per_s,
-                }
-            })
-            .collect();
-        out.sort_unstable_by_key(|w| w.id);
-        out
+        self.workers.list(held, self.cfg.lease_ttl, now)
     }
 
     /// Rays per second of the whole farm over the last few seconds.
     pub fn rays_per_second(&self, now: Instant) -> f64 {
-        let sec = now_sec(self.epoch, now);
-        self.workers
-            .values()
-            .map(|w| w.rate.per_second(sec).1)
-            .sum()
+        self.workers.rays_per_second(now)
     }
 
     fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<(), SchedError> {
-        match self.workers.get_mut(&worker) {
-            Some(w) => {
-                w.last_seen = now;
-                Ok(())
-            }
-            None => Err(SchedError::UnknownWorker(worker)),
+        if self.workers.touch(worker, now) {
+            Ok(())
+        } else {
+            Err(SchedError::UnknownWorker(worker))
         }
     }
-}
-
-/// Whole seconds from `epoch` to `now` (0 before it).
-fn now_sec(epoch: Instant, now: Instant) -> u64 {
-    now.saturating_duration_since(epoch).as_secs()
 }
 
 #[cfg(test)]
@@ -1135,14 +918,14 @@ mod tests {
     fn sched() -> (Scheduler, Instant, WorkerId) {
         let now = Instant::now();
         let mut s = Scheduler::new(
-            SchedulerConfig {
+            Limits {
                 lease_ttl: Duration::from_secs(5),
                 window_bytes: 1 << 30,
-                ..SchedulerConfig::default()
+                ..Limits::default()
             },
             100,
         );
-        let w = s.register_worker(now);
+        let w = s.register_worker(now, None);
         (s, now, w)
     }
 
@@ -1177,35 +960,6 @@ mod tests {
     }
 
     #[test]
-    fn leasing_stays_within_the_band_window() {
-        let now = Instant::now();
-        // One band of a 16-wide frame with 4-pixel tiles is 16*4*12 bytes.
-        let mut s = Scheduler::new(
-            SchedulerConfig {
-                lease_ttl: Duration::from_secs(5),
-                window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
-                    + 16 * 12 * ENCODER_ROWS,
-                ..SchedulerConfig::default()
-            },
-            1,
-        );
-        let w = s.register_worker(now);
-        let j = s.submit(spec(0, 16, 64, 4), now);
-        let mut leased = Vec::new();
-        while let Some(l) = s.lease(w, now).unwrap() {
-            leased.push(l);
-        }
-        assert_eq!(leased.len(), 8, "two bands of four tiles");
-        // Completing the first band opens the third.
-        for l in &leased[..4] {
-            s.accept_tile(j, l.rect, 1, now).unwrap();
-        }
-        let more: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
-        assert_eq!(more.len(), 4);
-        assert!(more.iter().all(|l| l.rect.y == 8));
-    }
-
-    #[test]
     fn heartbeats_renew_and_missed_deadlines_requeue_first() {
         let (mut s, t0, w) = sched();
         let j = s.submit(spec(0, 8, 4, 4), t0);
@@ -1227,7 +981,7 @@ mod tests {
     #[test]
     fn first_valid_result_wins_late_and_duplicate_ignored() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         let j = s.submit(spec(0, 4, 4, 4), t0);
         let l1 = s.lease(w, t0).unwrap().unwrap();
         let t1 = t0 + Duration::from_secs(6);
@@ -1252,7 +1006,7 @@ mod tests {
     #[test]
     fn rejected_result_requeues_only_its_own_lease() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         s.submit(spec(0, 4, 4, 4), t0);
         let l1 = s.lease(w, t0).unwrap().unwrap();
         s.reject_tile(l1.id, "bad");
@@ -1290,35 +1044,6 @@ mod tests {
     }
 
     #[test]
-    fn bookkeeping_stays_within_the_window_whatever_the_height() {
-        let now = Instant::now();
-        let mut s = Scheduler::new(
-            SchedulerConfig {
-                lease_ttl: Duration::from_secs(5),
-                window_bytes: 2 * (16 * 4 * 12 + 4 * TILE_BOOKKEEPING_BYTES)
-                    + 16 * 12 * ENCODER_ROWS,
-                ..SchedulerConfig::default()
-            },
-            1,
-        );
-        let w = s.register_worker(now);
-        let j = s.submit(spec(0, 16, 4000, 4), now);
-        let mut peak = 0;
-        loop {
-            let leased: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
-            if leased.is_empty() {
-                break;
-            }
-            for l in leased.iter().rev() {
-                s.accept_tile(j, l.rect, 1, now).unwrap();
-                peak = peak.max(s.jobs[&j].active.len());
-            }
-        }
-        assert_eq!(s.info(j, now).unwrap().tiles_done, 4000);
-        assert!(peak <= 8, "tracked {peak} tiles at once");
-    }
-
-    #[test]
     fn results_for_tiles_never_leased_are_ignored() {
         let (mut s, now, w) = sched();
         let j = s.submit(spec(0, 8, 8, 4), now);
@@ -1338,7 +1063,7 @@ mod tests {
     #[test]
     fn counters_follow_every_tile_event() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         // 2×2 tiles of 4 pixels.
         let j = s.submit(spec(0, 8, 8, 4), t0);
         let a = s.lease(w, t0).unwrap().unwrap();
@@ -1374,7 +1099,7 @@ mod tests {
     #[test]
     fn workers_show_their_tiles_state_and_rate() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         s.describe_worker(w, "render-01", 8);
         let j = s.submit(spec(0, 8, 8, 4), t0);
         let a = s.lease(w, t0).unwrap().unwrap();
@@ -1395,7 +1120,8 @@ mod tests {
         assert_eq!((ws[0].tiles_done, ws[0].rays), (1, 400));
         assert_eq!(ws[1].state, WorkerState::Lost);
         // Averaged over the 10 s window once the second is over.
-        let later = s.epoch + Duration::from_secs(t1.duration_since(s.epoch).as_secs() + 1);
+        let epoch = s.workers.epoch();
+        let later = epoch + Duration::from_secs(t1.duration_since(epoch).as_secs() + 1);
         let ws = s.workers(later.max(t2));
         assert!(
             (ws[0].rays_per_s - 40.0).abs() < 1e-9,
@@ -1429,7 +1155,7 @@ mod tests {
         // max_worker_failures 3, max_tile_failures 5: w fails three
         // different tiles once each, so no tile reaches its limit.
         // While a second worker may still take tiles, nothing fails.
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         let j = s.submit(spec(0, 16, 4, 4), t0);
         for _ in 0..3 {
             let l = s.lease(w, t0).unwrap().unwrap();
@@ -1465,7 +1191,7 @@ mod tests {
         let first = s.lease(w, now).unwrap().unwrap();
         s.accept_tile(j, first.rect, 1, now).unwrap();
         for n in 1..=3 {
-            let w = s.register_worker(now);
+            let w = s.register_worker(now, None);
             let l = s.lease(w, now).unwrap().unwrap();
             assert_eq!(l.rect, Rect::new(4, 0, 4, 4));
             now += Duration::from_secs(6);
@@ -1487,14 +1213,14 @@ mod tests {
     fn tiles_lost_together_are_all_named() {
         let now = Instant::now();
         let mut s = Scheduler::new(
-            SchedulerConfig {
+            Limits {
                 lease_ttl: Duration::from_secs(5),
                 max_tile_losses: 1,
-                ..SchedulerConfig::default()
+                ..Limits::default()
             },
             1,
         );
-        let w = s.register_worker(now);
+        let w = s.register_worker(now, None);
         let j = s.submit(spec(0, 8, 4, 4), now);
         s.lease(w, now).unwrap().unwrap();
         s.lease(w, now).unwrap().unwrap();
@@ -1509,7 +1235,7 @@ mod tests {
     #[test]
     fn a_returned_lease_requeues_for_free_and_a_failed_render_counts() {
         let (mut s, t0, w) = sched();
-        let w2 = s.register_worker(t0);
+        let w2 = s.register_worker(t0, None);
         let j = s.submit(spec(0, 4, 4, 4), t0);
         // Given back unrendered (the worker is stopping), many times over:
         // the tile is re-queued at once and nothing is counted.

@@ -25,9 +25,7 @@
 //! The journal is a write-ahead log with `synchronous=NORMAL`: a committed
 //! tile survives the coordinator being killed at any moment (its pixels were
 //! handed to the kernel before the commit); on a power cut the last few
-//! commits may be lost, and those tiles are rendered again. Databases of
-//! earlier versions, with the pixels in a `tiles` table, are moved to the
-//! files when opened.
+//! commits may be lost, and those tiles are rendered again.
 //!
 //! A database SQLite would open by quietly dropping what it holds is refused
 //! instead ([`check_files`]): an empty or missing `state.db` beside a
@@ -87,17 +85,23 @@ struct Inner {
 }
 
 fn db_err(e: rusqlite::Error) -> FarmError {
-    FarmError::Io(format!("state database: {e}"))
+    FarmError::io("state database", e)
 }
 
-fn state_from(s: &str) -> JobState {
-    match s {
-        "done" => JobState::Done,
-        "failed" => JobState::Failed,
-        "cancelled" => JobState::Cancelled,
-        "running" => JobState::Running,
-        _ => JobState::Queued,
-    }
+/// A job's stored state: one of [`JobState::name`]'s words. Any other is a
+/// database this coordinator did not write, refused naming the job.
+fn state_from(job: JobId, s: &str) -> Result<JobState, FarmError> {
+    JobState::ALL
+        .into_iter()
+        .find(|st| st.name() == s)
+        .ok_or_else(|| {
+            FarmError::Damaged(format!(
+                "the state database says job {job} is \"{}\", not a state this coordinator \
+                 knows ({})",
+                s.chars().take(40).collect::<String>(),
+                JobState::ALL.map(JobState::name).join(", ")
+            ))
+        })
 }
 
 /// Milliseconds since the Unix epoch.
@@ -112,7 +116,7 @@ impl Store {
     /// Opens (creating if needed) `dir/state.db`.
     pub fn open(dir: &Path) -> Result<Store, FarmError> {
         std::fs::create_dir_all(dir)
-            .map_err(|e| FarmError::Io(format!("cannot create {}: {e}", dir.display())))?;
+            .map_err(|e| FarmError::io(format!("cannot create {}", dir.display()), e))?;
         check_files(dir)?;
         let conn = Connection::open(dir.join("state.db")).map_err(db_err)?;
         conn.busy_timeout(Duration::from_secs(5)).map_err(db_err)?;
@@ -160,7 +164,7 @@ impl Store {
         .map_err(db_err)?;
         let tiles_dir = dir.join("tiles");
         std::fs::create_dir_all(&tiles_dir)
-            .map_err(|e| FarmError::Io(format!("cannot create {}: {e}", tiles_dir.display())))?;
+            .map_err(|e| FarmError::io(format!("cannot create {}", tiles_dir.display()), e))?;
         let store = Store {
             inner: Mutex::new(Inner {
                 conn,
@@ -168,56 +172,12 @@ impl Store {
                 files: HashMap::new(),
             }),
         };
-        store.migrate_blob_tiles()?;
         store.remove_stray_files()?;
         Ok(store)
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
         self.inner.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    /// Moves the tiles of a database written by an earlier version (pixels
-    /// in a `tiles` table) to the tile files.
-    fn migrate_blob_tiles(&self) -> Result<(), FarmError> {
-        let legacy: bool = self
-            .lock()
-            .conn
-            .query_row(
-                "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table' AND name = 'tiles'",
-                [],
-                |r| r.get::<_, i64>(0),
-            )
-            .map_err(db_err)?
-            > 0;
-        if !legacy {
-            return Ok(());
-        }
-        let rows: Vec<(u64, u32, u64, Vec<u8>)> = {
-            let inner = self.lock();
-            let mut q = inner
-                .conn
-                .prepare("SELECT job, tile, rays, pixels FROM tiles ORDER BY job, tile")
-                .map_err(db_err)?;
-            let rows = q
-                .query_map([], |r| {
-                    Ok((
-                        r.get::<_, i64>(0)? as u64,
-                        r.get(1)?,
-                        r.get::<_, i64>(2)? as u64,
-                        r.get(3)?,
-                    ))
-                })
-                .map_err(db_err)?;
-            rows.collect::<Result<_, _>>().map_err(db_err)?
-        };
-        for (job, tile, rays, pixels) in rows {
-            self.put_tile(job, tile, rays, &pixels)?;
-        }
-        self.lock()
-            .conn
-            .execute_batch("DROP TABLE tiles")
-            .map_err(db_err)
     }
 
     /// Deletes tile files no stored tile points into (their job ended, and
@@ -295,7 +255,7 @@ impl Store {
             return Ok(());
         }
         let path = inner.dir.join(format!("{job}.f32"));
-        let io = |e: std::io::Error| FarmError::Io(format!("tile file {}: {e}", path.display()));
+        let io = |e: std::io::Error| FarmError::io(format!("tile file {}", path.display()), e);
         let (file, len) = match inner.files.entry(job) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => {
@@ -413,7 +373,9 @@ impl Store {
             .map_err(db_err)?;
         let rows = q
             .query_map([], |r| {
-                Ok(StoredJob {
+                // The state is read below, where a bad one can name its job.
+                let state: String = r.get(9)?;
+                let job = StoredJob {
                     id: r.get::<_, i64>(0)? as u64,
                     spec: JobSpec {
                         bundle_hash: r.get(1)?,
@@ -425,7 +387,7 @@ impl Store {
                         output_name: r.get(7)?,
                     },
                     submitter: r.get(8)?,
-                    state: state_from(&r.get::<_, String>(9)?),
+                    state: JobState::Queued,
                     submitted_ms: r.get::<_, i64>(10)? as u64,
                     elapsed: r
                         .get::<_, Option<i64>>(11)?
@@ -434,10 +396,17 @@ impl Store {
                     finish_order: r.get::<_, i64>(13)? as u64,
                     tiles_done: r.get::<_, i64>(14)? as u64,
                     rays: r.get::<_, i64>(15)? as u64,
-                })
+                };
+                Ok((job, state))
             })
             .map_err(db_err)?;
-        rows.collect::<Result<Vec<_>, _>>().map_err(db_err)
+        let rows: Vec<(StoredJob, String)> = rows.collect::<Result<Vec<_>, _>>().map_err(db_err)?;
+        rows.into_iter()
+            .map(|(mut j, state)| {
+                j.state = state_from(j.id, &state)?;
+                Ok(j)
+            })
+            .collect()
     }
 
     /// The stored tiles of a job: (tile index, rays), in tile order. A tile
@@ -473,7 +442,7 @@ impl Store {
         let inner = self.lock();
         for (tile, _, offset, len, crc) in Self::refs(&inner.conn, job)? {
             let bytes = Self::read_tile(&inner.dir, job, offset, len, crc).ok_or_else(|| {
-                FarmError::Io(format!(
+                FarmError::Damaged(format!(
                     "tile {tile} of job {job}: its stored pixels are damaged"
                 ))
             })?;
@@ -526,7 +495,7 @@ impl Store {
 }
 
 fn damaged(dir: &Path, why: &str) -> FarmError {
-    FarmError::Io(format!(
+    FarmError::Damaged(format!(
         "the state database {} is damaged ({why}); refusing to start, since going on would \
          lose or mix up jobs. Restore it from a backup, or move state.db, state.db-wal and \
          state.db-shm away to start with no jobs",
@@ -561,10 +530,10 @@ pub fn check_files(dir: &Path) -> Result<(), FarmError> {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
         Err(e) => {
-            return Err(FarmError::Io(format!(
-                "cannot read {}: {e}",
-                wal_path.display()
-            )))
+            return Err(FarmError::io(
+                format!("cannot read {}", wal_path.display()),
+                e,
+            ))
         }
     };
     if wal.is_empty() {
@@ -716,34 +685,6 @@ mod tests {
         assert!(!path.exists());
     }
 
-    #[test]
-    fn a_database_with_pixels_in_a_tiles_table_is_moved_to_the_files() {
-        let dir = tempfile::tempdir().unwrap();
-        {
-            let c = Connection::open(dir.path().join("state.db")).unwrap();
-            c.execute_batch(
-                "CREATE TABLE tiles (job INTEGER NOT NULL, tile INTEGER NOT NULL,
-                     rays INTEGER NOT NULL, pixels BLOB NOT NULL, PRIMARY KEY (job, tile));",
-            )
-            .unwrap();
-            for t in 0..3u32 {
-                c.execute(
-                    "INSERT INTO tiles VALUES (5, ?1, ?2, ?3)",
-                    params![t, t as i64 * 7, vec![t as u8; 24]],
-                )
-                .unwrap();
-            }
-        }
-        let s = Store::open(dir.path()).unwrap();
-        assert_eq!(s.tile_list(5).unwrap(), vec![(0, 0), (1, 7), (2, 14)]);
-        let r = replayed(&s, 5);
-        assert_eq!(r[2], (2, vec![2u8; 24]));
-        drop(s);
-        // The old table is gone; opening again changes nothing.
-        let s = Store::open(dir.path()).unwrap();
-        assert_eq!(replayed(&s, 5).len(), 3);
-    }
-
     /// A data directory as a killed coordinator leaves it: the database and
     /// its write-ahead log with `n` jobs committed in it, copied while the
     /// store is still open (so the log is not checkpointed away).
@@ -825,6 +766,22 @@ mod tests {
         torn[last + 24 + 7] ^= 0x55;
         std::fs::write(&wal, &torn).unwrap();
         Store::open(copy.path()).unwrap();
+    }
+
+    #[test]
+    fn an_unknown_job_state_is_refused_naming_the_job_and_the_value() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Store::open(dir.path()).unwrap();
+        s.insert_job(&job(1)).unwrap();
+        s.insert_job(&job(2)).unwrap();
+        s.lock()
+            .conn
+            .execute("UPDATE jobs SET state = 'paused' WHERE id = 2", [])
+            .unwrap();
+        let e = s.jobs().unwrap_err();
+        assert!(matches!(e, FarmError::Damaged(_)), "{e:?}");
+        let msg = e.to_string();
+        assert!(msg.contains("job 2") && msg.contains("\"paused\""), "{msg}");
     }
 
     #[test]

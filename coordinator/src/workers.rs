@@ -1,9 +1,13 @@
-//! What the coordinator knows about its workers, for the monitor and the
-//! metrics: when each was last heard from, what it is rendering, and how
-//! fast it has been going. Pure bookkeeping kept by the
+//! The worker list: who registered (with what session secret), when each
+//! was last heard from, and how fast it has been going, for the scheduler's
+//! rules, the monitor and the metrics. Pure bookkeeping kept by the
 //! [`Scheduler`](crate::scheduler::Scheduler); time is passed in.
 
+use std::collections::HashMap;
 use std::time::{Duration, Instant};
+use trevi_core::Rect;
+
+pub type WorkerId = u64;
 
 /// Seconds kept by a [`Rate`]: the window plus the second in progress.
 const RATE_SLOTS: usize = 11;
@@ -137,11 +141,149 @@ pub struct WorkerInfo {
     /// Time since it was last heard from.
     pub silent_for: Duration,
     /// The tiles it holds leases on: (job, tile rectangle).
-    pub leases: Vec<(u64, trevi_core::Rect)>,
+    pub leases: Vec<(u64, Rect)>,
     pub tiles_done: u64,
     pub rays: u64,
     pub tiles_per_s: f64,
     pub rays_per_s: f64,
+}
+
+/// Every registered worker, by id.
+#[derive(Debug)]
+pub struct Workers {
+    entries: HashMap<WorkerId, WorkerEntry>,
+    next: WorkerId,
+    /// Time zero of the per-second rates.
+    epoch: Instant,
+}
+
+impl Workers {
+    /// Ids are given from `id_base` on (at least 1), so those of different
+    /// coordinator runs stay apart.
+    pub fn new(id_base: u64) -> Self {
+        Workers {
+            entries: HashMap::new(),
+            next: id_base.max(1),
+            epoch: Instant::now(),
+        }
+    }
+
+    /// Adds a worker; with a `session`, its every later call must present
+    /// that secret.
+    pub fn register(&mut self, now: Instant, session: Option<[u8; 32]>) -> WorkerId {
+        let id = self.next;
+        self.next += 1;
+        let mut w = WorkerEntry::new(now);
+        w.session = session;
+        self.entries.insert(id, w);
+        id
+    }
+
+    /// Whether `presented` is `worker`'s session secret (`None`: no such
+    /// worker).
+    pub fn session_is(&self, worker: WorkerId, presented: &[u8]) -> Option<bool> {
+        self.entries.get(&worker).map(|w| w.session_is(presented))
+    }
+
+    /// Records what a worker said about itself when it registered.
+    pub fn describe(&mut self, worker: WorkerId, name: &str, threads: u32) {
+        if let Some(w) = self.entries.get_mut(&worker) {
+            // Names come from the network: keep them short.
+            w.name = name.chars().take(64).collect();
+            w.threads = threads;
+        }
+    }
+
+    /// Notes that `worker` was heard from; `false`: no such worker.
+    pub fn touch(&mut self, worker: WorkerId, now: Instant) -> bool {
+        match self.entries.get_mut(&worker) {
+            Some(w) => {
+                w.last_seen = now;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Counts a tile `worker` finished with `rays` rays.
+    pub fn credit(&mut self, worker: WorkerId, rays: u64, now: Instant) {
+        let sec = self.sec(now);
+        if let Some(w) = self.entries.get_mut(&worker) {
+            w.tiles_done += 1;
+            // Ray counts come from workers: a huge one saturates, never wraps.
+            w.rays = w.rays.saturating_add(rays);
+            w.rate.add(sec, 1, rays);
+        }
+    }
+
+    /// The workers heard from within `ttl`.
+    pub fn live(&self, ttl: Duration, now: Instant) -> Vec<WorkerId> {
+        self.entries
+            .iter()
+            .filter(|(_, w)| now.saturating_duration_since(w.last_seen) <= ttl)
+            .map(|(&id, _)| id)
+            .collect()
+    }
+
+    /// Forgets the workers silent for longer than `after`; one that comes
+    /// back is told to register again.
+    pub fn forget_silent(&mut self, after: Duration, now: Instant) {
+        self.entries
+            .retain(|_, w| now.saturating_duration_since(w.last_seen) <= after);
+    }
+
+    /// Every worker by id, with the tiles it holds (`held`: job and
+    /// rectangle by worker) and its rates.
+    pub fn list(
+        &self,
+        mut held: HashMap<WorkerId, Vec<(u64, Rect)>>,
+        lease_ttl: Duration,
+        now: Instant,
+    ) -> Vec<WorkerInfo> {
+        let sec = self.sec(now);
+        let mut out: Vec<WorkerInfo> = self
+            .entries
+            .iter()
+            .map(|(&id, w)| {
+                let mut leases = held.remove(&id).unwrap_or_default();
+                leases.sort_unstable_by_key(|&(j, r)| (j, r.y, r.x));
+                let (tiles_per_s, rays_per_s) = w.rate.per_second(sec);
+                WorkerInfo {
+                    id,
+                    name: w.name.clone(),
+                    threads: w.threads,
+                    state: w.state(leases.len(), lease_ttl, now),
+                    silent_for: now.saturating_duration_since(w.last_seen),
+                    leases,
+                    tiles_done: w.tiles_done,
+                    rays: w.rays,
+                    tiles_per_s,
+                    rays_per_s,
+                }
+            })
+            .collect();
+        out.sort_unstable_by_key(|w| w.id);
+        out
+    }
+
+    /// Rays per second of all workers over the last few seconds.
+    pub fn rays_per_second(&self, now: Instant) -> f64 {
+        let sec = self.sec(now);
+        self.entries
+            .values()
+            .map(|w| w.rate.per_second(sec).1)
+            .sum()
+    }
+
+    /// Time zero of the rates.
+    pub fn epoch(&self) -> Instant {
+        self.epoch
+    }
+
+    /// Whole seconds from the epoch to `now` (0 before it).
+    fn sec(&self, now: Instant) -> u64 {
+        now.saturating_duration_since(self.epoch).as_secs()
+    }
 }
 
 #[cfg(test)]
@@ -211,5 +353,27 @@ mod tests {
             w.state(1, ttl, t0 + Duration::from_secs(11)),
             WorkerState::Lost
         );
+    }
+
+    #[test]
+    fn sessions_names_and_forgetting() {
+        let t0 = Instant::now();
+        let mut ws = Workers::new(0);
+        let a = ws.register(t0, Some([1; 32]));
+        let b = ws.register(t0, None);
+        assert_eq!((a, b), (1, 2), "ids start at 1");
+        assert_eq!(ws.session_is(a, &[1; 32]), Some(true));
+        assert_eq!(ws.session_is(b, &[0; 32]), Some(false));
+        assert_eq!(ws.session_is(9, &[1; 32]), None);
+        ws.describe(a, &"x".repeat(100), 8);
+        let later = t0 + Duration::from_secs(30);
+        assert!(ws.touch(a, later));
+        assert!(!ws.touch(9, later));
+        assert_eq!(ws.live(Duration::from_secs(10), later), vec![a]);
+        let list = ws.list(HashMap::new(), Duration::from_secs(10), later);
+        assert_eq!((list[0].name.len(), list[0].threads), (64, 8));
+        assert_eq!(list[1].state, WorkerState::Lost);
+        ws.forget_silent(Duration::from_secs(20), later);
+        assert_eq!(ws.session_is(b, &[]), None, "b was forgotten");
     }
 }

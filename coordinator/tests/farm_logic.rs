@@ -5,7 +5,8 @@ use std::path::Path;
 use std::time::Duration;
 use trevi_coordinator::scheduler::Lease;
 use trevi_coordinator::{
-    Farm, FarmConfig, FarmError, JobSpec, JobState, SchedulerConfig, TileOutcome,
+    Farm, FarmConfig, FarmError, JobSpec, JobState, Limits, SubmitOptions, TileOutcome, TileResult,
+    WorkerOptions,
 };
 use trevi_core::{FrameWriter, Rect};
 
@@ -26,10 +27,10 @@ fn pixels(r: Rect) -> Vec<[f32; 3]> {
 fn farm(dir: &Path, ttl: Duration, window_bytes: u64) -> Farm {
     Farm::new(FarmConfig {
         data_dir: dir.to_path_buf(),
-        sched: SchedulerConfig {
+        limits: Limits {
             lease_ttl: ttl,
             window_bytes,
-            ..SchedulerConfig::default()
+            ..Limits::default()
         },
         default_tile: 16,
         ..FarmConfig::new(dir)
@@ -69,9 +70,12 @@ fn tiles_in_any_order_stitch_to_the_same_file_moved_into_place_at_the_end() {
     for name in ["out.png", "out.exr"] {
         let dir = tempfile::tempdir().unwrap();
         let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-        let job = f.submit(spec(50, 37, 16, name, 0)).unwrap().id;
+        let job = f
+            .submit(spec(50, 37, 16, name, 0), SubmitOptions::default())
+            .unwrap()
+            .id;
         let out = f.output_path(job, name);
-        let w = f.register_worker();
+        let w = f.register_worker(WorkerOptions::default()).unwrap().id;
         let mut leases = lease_all(&f, w);
         assert_eq!(leases.len(), 4 * 3);
         leases.reverse(); // Results arrive in the worst order.
@@ -79,7 +83,15 @@ fn tiles_in_any_order_stitch_to_the_same_file_moved_into_place_at_the_end() {
             assert!(!out.exists(), "the output appears only when complete");
             assert_eq!(f.info(job).unwrap().tiles_done, i as u64);
             assert_eq!(
-                f.put_tile(l.id, job, l.rect, 10, &pixels(l.rect)).unwrap(),
+                f.put_tile(TileResult {
+                    lease: l.id,
+                    job,
+                    rect: l.rect,
+                    rays: 10,
+                    pixels: &pixels(l.rect),
+                    worker: None
+                })
+                .unwrap(),
                 TileOutcome::Accepted
             );
         }
@@ -102,12 +114,27 @@ fn tiles_in_any_order_stitch_to_the_same_file_moved_into_place_at_the_end() {
 fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-    let job = f.submit(spec(32, 16, 16, "o.png", 0)).unwrap().id;
-    let (bad, good) = (f.register_worker(), f.register_worker());
+    let job = f
+        .submit(spec(32, 16, 16, "o.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let (bad, good) = (
+        f.register_worker(WorkerOptions::default()).unwrap().id,
+        f.register_worker(WorkerOptions::default()).unwrap().id,
+    );
     let l = f.lease(bad).unwrap().unwrap();
     let mut short = pixels(l.rect);
     short.pop();
-    let e = f.put_tile(l.id, job, l.rect, 1, &short).unwrap_err();
+    let e = f
+        .put_tile(TileResult {
+            lease: l.id,
+            job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &short,
+            worker: None,
+        })
+        .unwrap_err();
     assert!(matches!(e, FarmError::BadTile(_)), "{e}");
     // Re-queued at once, ahead of the rest of the frame.
     let l2 = f.lease(bad).unwrap().unwrap();
@@ -115,18 +142,51 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
     let mut nan = pixels(l.rect);
     nan[5][1] = f32::NAN;
     assert!(matches!(
-        f.put_tile(l2.id, job, l2.rect, 1, &nan),
+        f.put_tile(TileResult {
+            lease: l2.id,
+            job,
+            rect: l2.rect,
+            rays: 1,
+            pixels: &nan,
+            worker: None
+        }),
         Err(FarmError::BadTile(_))
     ));
     let mut inf = pixels(l.rect);
     inf[0][0] = f32::INFINITY;
-    assert!(f.put_tile(l2.id, job, l2.rect, 1, &inf).is_err());
+    assert!(f
+        .put_tile(TileResult {
+            lease: l2.id,
+            job,
+            rect: l2.rect,
+            rays: 1,
+            pixels: &inf,
+            worker: None
+        })
+        .is_err());
     // A rectangle that is not a tile of the job.
     let odd = Rect::new(1, 0, 16, 16);
-    assert!(f.put_tile(l2.id, job, odd, 1, &pixels(odd)).is_err());
+    assert!(f
+        .put_tile(TileResult {
+            lease: l2.id,
+            job,
+            rect: odd,
+            rays: 1,
+            pixels: &pixels(odd),
+            worker: None
+        })
+        .is_err());
     assert_eq!(f.info(job).unwrap().tiles_done, 0);
     for l in lease_all(&f, good) {
-        f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap();
+        f.put_tile(TileResult {
+            lease: l.id,
+            job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &pixels(l.rect),
+            worker: None,
+        })
+        .unwrap();
     }
     assert_eq!(f.info(job).unwrap().state, JobState::Done);
     assert_eq!(
@@ -139,8 +199,14 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
 fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_millis(30), 1 << 30);
-    let job = f.submit(spec(16, 16, 16, "o.png", 0)).unwrap().id;
-    let (slow, fast) = (f.register_worker(), f.register_worker());
+    let job = f
+        .submit(spec(16, 16, 16, "o.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let (slow, fast) = (
+        f.register_worker(WorkerOptions::default()).unwrap().id,
+        f.register_worker(WorkerOptions::default()).unwrap().id,
+    );
     let l = f.lease(slow).unwrap().unwrap();
     assert_eq!(f.lease(fast).unwrap(), None);
     std::thread::sleep(Duration::from_millis(60));
@@ -148,10 +214,25 @@ fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
     let l2 = f.lease(fast).unwrap().unwrap();
     assert_eq!(l2.rect, l.rect);
     assert_eq!(f.heartbeat(slow, &[l.id]).unwrap(), vec![l.id]);
-    f.put_tile(l2.id, job, l2.rect, 1, &pixels(l2.rect))
-        .unwrap();
+    f.put_tile(TileResult {
+        lease: l2.id,
+        job,
+        rect: l2.rect,
+        rays: 1,
+        pixels: &pixels(l2.rect),
+        worker: None,
+    })
+    .unwrap();
     assert_eq!(
-        f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap(),
+        f.put_tile(TileResult {
+            lease: l.id,
+            job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &pixels(l.rect),
+            worker: None
+        })
+        .unwrap(),
         TileOutcome::Ignored
     );
     assert_eq!(f.info(job).unwrap().state, JobState::Done);
@@ -161,8 +242,9 @@ fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
 fn heartbeats_keep_a_lease_alive_past_its_first_deadline() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_millis(400), 1 << 30);
-    f.submit(spec(16, 16, 16, "o.png", 0)).unwrap();
-    let w = f.register_worker();
+    f.submit(spec(16, 16, 16, "o.png", 0), SubmitOptions::default())
+        .unwrap();
+    let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     let l = f.lease(w).unwrap().unwrap();
     for _ in 0..5 {
         std::thread::sleep(Duration::from_millis(100));
@@ -175,11 +257,25 @@ fn heartbeats_keep_a_lease_alive_past_its_first_deadline() {
 fn jobs_finish_in_priority_order() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-    let low = f.submit(spec(32, 32, 16, "low.png", 0)).unwrap().id;
-    let high = f.submit(spec(32, 32, 16, "high.png", 9)).unwrap().id;
-    let w = f.register_worker();
+    let low = f
+        .submit(spec(32, 32, 16, "low.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let high = f
+        .submit(spec(32, 32, 16, "high.png", 9), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     while let Some(l) = f.lease(w).unwrap() {
-        f.put_tile(l.id, l.job, l.rect, 1, &pixels(l.rect)).unwrap();
+        f.put_tile(TileResult {
+            lease: l.id,
+            job: l.job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &pixels(l.rect),
+            worker: None,
+        })
+        .unwrap();
     }
     assert_eq!(f.info(high).unwrap().finish_order, 1);
     assert_eq!(f.info(low).unwrap().finish_order, 2);
@@ -189,18 +285,37 @@ fn jobs_finish_in_priority_order() {
 fn a_cancelled_job_takes_no_more_work_and_leaves_no_output() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-    let job = f.submit(spec(64, 64, 16, "c.png", 0)).unwrap().id;
-    let w = f.register_worker();
+    let job = f
+        .submit(spec(64, 64, 16, "c.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     let leases = lease_all(&f, w);
     for l in &leases[..6] {
-        f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap();
+        f.put_tile(TileResult {
+            lease: l.id,
+            job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &pixels(l.rect),
+            worker: None,
+        })
+        .unwrap();
     }
     assert_eq!(f.cancel(job).unwrap().state, JobState::Cancelled);
     assert_eq!(f.lease(w).unwrap(), None);
     assert_eq!(f.heartbeat(w, &[leases[7].id]).unwrap(), vec![leases[7].id]);
     let l = &leases[7];
     assert_eq!(
-        f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap(),
+        f.put_tile(TileResult {
+            lease: l.id,
+            job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &pixels(l.rect),
+            worker: None
+        })
+        .unwrap(),
         TileOutcome::Ignored
     );
     assert!(matches!(f.output_file(job), Err(FarmError::NoOutput(..))));
@@ -241,10 +356,15 @@ fn rows_held_do_not_grow_with_the_image_height() {
             4 * (width * tile * 12) as u64,
         );
         let job = f
-            .submit(spec(width, height, tile, "tall.png", 0))
+            .submit(
+                spec(width, height, tile, "tall.png", 0),
+                SubmitOptions::default(),
+            )
             .unwrap()
             .id;
-        let workers: Vec<u64> = (0..4).map(|_| f.register_worker()).collect();
+        let workers: Vec<u64> = (0..4)
+            .map(|_| f.register_worker(WorkerOptions::default()).unwrap().id)
+            .collect();
         let mut in_flight: Vec<Lease> = Vec::new();
         let mut peak = 0;
         loop {
@@ -261,7 +381,15 @@ fn rows_held_do_not_grow_with_the_image_height() {
             }
             // Return the newest first: the worst case for the writer.
             let l = in_flight.pop().unwrap();
-            f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap();
+            f.put_tile(TileResult {
+                lease: l.id,
+                job,
+                rect: l.rect,
+                rays: 1,
+                pixels: &pixels(l.rect),
+                worker: None,
+            })
+            .unwrap();
             peak = peak.max(f.max_rows_held(job).unwrap_or(peak));
         }
         assert_eq!(f.info(job).unwrap().state, JobState::Done);
@@ -282,13 +410,24 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
         let first_half;
         {
             let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-            job = f.submit(spec(50, 37, 16, name, 0)).unwrap().id;
-            let w = f.register_worker();
+            job = f
+                .submit(spec(50, 37, 16, name, 0), SubmitOptions::default())
+                .unwrap()
+                .id;
+            let w = f.register_worker(WorkerOptions::default()).unwrap().id;
             let leases = lease_all(&f, w);
             first_half = leases.len() / 2;
             // Out of order, so rows are pending in the writer at the "crash".
             for l in leases[..first_half].iter().rev() {
-                f.put_tile(l.id, job, l.rect, 10, &pixels(l.rect)).unwrap();
+                f.put_tile(TileResult {
+                    lease: l.id,
+                    job,
+                    rect: l.rect,
+                    rays: 10,
+                    pixels: &pixels(l.rect),
+                    worker: None,
+                })
+                .unwrap();
             }
             // Dropped with leases out and the output half written.
         }
@@ -298,7 +437,7 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
         assert_eq!(info.rays, 10 * first_half as u64);
         // The preview is rebuilt from the stored tiles too.
         assert_eq!(f.preview(job).unwrap().tiles, first_half as u64);
-        let w = f.register_worker();
+        let w = f.register_worker(WorkerOptions::default()).unwrap().id;
         let rest = lease_all(&f, w);
         assert_eq!(
             rest.len(),
@@ -306,7 +445,15 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
             "stored tiles are not leased again"
         );
         for l in &rest {
-            f.put_tile(l.id, job, l.rect, 10, &pixels(l.rect)).unwrap();
+            f.put_tile(TileResult {
+                lease: l.id,
+                job,
+                rect: l.rect,
+                rays: 10,
+                pixels: &pixels(l.rect),
+                worker: None,
+            })
+            .unwrap();
         }
         assert_eq!(f.info(job).unwrap().state, JobState::Done);
         assert_eq!(
@@ -318,7 +465,12 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
         let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
         assert_eq!(f.info(job).unwrap().state, JobState::Done);
         assert!(f.output_file(job).unwrap().exists());
-        assert_eq!(f.submit(spec(16, 16, 16, "n.png", 0)).unwrap().id, job + 1);
+        assert_eq!(
+            f.submit(spec(16, 16, 16, "n.png", 0), SubmitOptions::default())
+                .unwrap()
+                .id,
+            job + 1
+        );
     }
 }
 
@@ -326,29 +478,53 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
 fn a_tile_failing_too_often_fails_its_job_and_a_failing_worker_is_benched() {
     let dir = tempfile::tempdir().unwrap();
     let f = Farm::new(FarmConfig {
-        sched: SchedulerConfig {
+        limits: Limits {
             lease_ttl: Duration::from_secs(60),
             window_bytes: 1 << 30,
             max_tile_failures: 3,
             max_worker_failures: 2,
             max_tile_losses: 3,
+            ..Limits::default()
         },
         ..FarmConfig::new(dir.path())
     })
     .unwrap();
-    let job = f.submit(spec(32, 16, 16, "o.png", 0)).unwrap().id;
-    let bad: Vec<u64> = (0..3).map(|_| f.register_worker()).collect();
+    let job = f
+        .submit(spec(32, 16, 16, "o.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let bad: Vec<u64> = (0..3)
+        .map(|_| f.register_worker(WorkerOptions::default()).unwrap().id)
+        .collect();
     let mut nan = pixels(Rect::new(0, 0, 16, 16));
     nan[0][0] = f32::NAN;
     // bad[0] fails the first tile twice and is then kept off the job.
     for _ in 0..2 {
         let l = f.lease(bad[0]).unwrap().unwrap();
         assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
-        assert!(f.put_tile(l.id, job, l.rect, 1, &nan).is_err());
+        assert!(f
+            .put_tile(TileResult {
+                lease: l.id,
+                job,
+                rect: l.rect,
+                rays: 1,
+                pixels: &nan,
+                worker: None
+            })
+            .is_err());
     }
     assert_eq!(f.lease(bad[0]).unwrap(), None, "benched");
     let l = f.lease(bad[1]).unwrap().unwrap();
-    assert!(f.put_tile(l.id, job, l.rect, 1, &nan).is_err());
+    assert!(f
+        .put_tile(TileResult {
+            lease: l.id,
+            job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &nan,
+            worker: None
+        })
+        .is_err());
     let info = f.info(job).unwrap();
     assert_eq!(info.state, JobState::Failed);
     let e = info.error.unwrap();
@@ -364,29 +540,70 @@ fn a_tile_failing_too_often_fails_its_job_and_a_failing_worker_is_benched() {
 fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-    let job = f.submit(spec(32, 16, 16, "o.png", 0)).unwrap().id;
-    let (a, b) = (f.register_worker(), f.register_worker());
+    let job = f
+        .submit(spec(32, 16, 16, "o.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let (a, b) = (
+        f.register_worker(WorkerOptions::default()).unwrap().id,
+        f.register_worker(WorkerOptions::default()).unwrap().id,
+    );
     let la = f.lease(a).unwrap().unwrap();
     let lb = f.lease(b).unwrap().unwrap();
     // b sends a tile under a's lease, then under a lease that never was.
     let e = f
-        .put_tile_from(Some(b), la.id, job, la.rect, 1, &pixels(la.rect))
+        .put_tile(TileResult {
+            lease: la.id,
+            job,
+            rect: la.rect,
+            rays: 1,
+            pixels: &pixels(la.rect),
+            worker: Some(b),
+        })
         .unwrap_err();
     assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
     let e = f
-        .put_tile_from(Some(b), 987_654, job, lb.rect, 1, &pixels(lb.rect))
+        .put_tile(TileResult {
+            lease: 987_654,
+            job,
+            rect: lb.rect,
+            rays: 1,
+            pixels: &pixels(lb.rect),
+            worker: Some(b),
+        })
         .unwrap_err();
     assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
     // a bad result under a's lease from b does not re-queue a's tile.
     assert!(f
-        .put_tile_from(Some(b), la.id, job, la.rect, 1, &[])
+        .put_tile(TileResult {
+            lease: la.id,
+            job,
+            rect: la.rect,
+            rays: 1,
+            pixels: &[],
+            worker: Some(b)
+        })
         .is_err());
     assert!(f.heartbeat(a, &[la.id]).unwrap().is_empty());
     assert_eq!(f.info(job).unwrap().tiles_done, 0);
-    f.put_tile_from(Some(a), la.id, job, la.rect, 1, &pixels(la.rect))
-        .unwrap();
-    f.put_tile_from(Some(b), lb.id, job, lb.rect, 1, &pixels(lb.rect))
-        .unwrap();
+    f.put_tile(TileResult {
+        lease: la.id,
+        job,
+        rect: la.rect,
+        rays: 1,
+        pixels: &pixels(la.rect),
+        worker: Some(a),
+    })
+    .unwrap();
+    f.put_tile(TileResult {
+        lease: lb.id,
+        job,
+        rect: lb.rect,
+        rays: 1,
+        pixels: &pixels(lb.rect),
+        worker: Some(b),
+    })
+    .unwrap();
     assert_eq!(f.info(job).unwrap().state, JobState::Done);
 }
 
@@ -411,17 +628,28 @@ fn the_preview_fills_in_tile_by_tile_and_outlives_the_job() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
     // 1100×40: the preview is shrunk by 3 to 367×14.
-    let job = f.submit(spec(1100, 40, 64, "wide.png", 0)).unwrap().id;
+    let job = f
+        .submit(spec(1100, 40, 64, "wide.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
     let opaque = |png: &[u8]| decode_png(png).2.chunks(4).filter(|p| p[3] == 255).count();
     let p = f.preview(job).unwrap();
     assert_eq!((p.width, p.height, p.tiles), (367, 14, 0));
     assert_eq!(opaque(&p.png), 0, "a queued job's preview is empty");
-    let w = f.register_worker();
+    let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     let leases = lease_all(&f, w);
     assert_eq!(leases.len(), 18);
     let mut seen = 0;
     for (i, l) in leases.iter().enumerate() {
-        f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap();
+        f.put_tile(TileResult {
+            lease: l.id,
+            job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &pixels(l.rect),
+            worker: None,
+        })
+        .unwrap();
         let p = f.preview(job).unwrap();
         assert_eq!(p.tiles, i as u64 + 1);
         let now = opaque(&p.png);
@@ -453,19 +681,39 @@ fn the_preview_fills_in_tile_by_tile_and_outlives_the_job() {
 fn metrics_count_the_job_s_tiles_and_priority_changes_reorder_jobs() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-    let a = f.submit(spec(32, 32, 16, "a.png", 0)).unwrap().id;
-    let b = f.submit(spec(32, 16, 16, "b.png", 0)).unwrap().id;
+    let a = f
+        .submit(spec(32, 32, 16, "a.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let b = f
+        .submit(spec(32, 16, 16, "b.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
     assert_eq!(f.set_priority(b, 3).unwrap().spec.priority, 3);
-    let w = f.register_worker_as("w1", 4);
+    let w = f
+        .register_worker(WorkerOptions {
+            name: "w1",
+            threads: 4,
+            ..WorkerOptions::default()
+        })
+        .unwrap()
+        .id;
     // b now goes first: its two tiles, then a's four.
     let leases = lease_all(&f, w);
     let jobs: Vec<u64> = leases.iter().map(|l| l.job).collect();
     assert_eq!(jobs, [b, b, a, a, a, a]);
     for l in &leases {
-        f.put_tile(l.id, l.job, l.rect, 100, &pixels(l.rect))
-            .unwrap();
+        f.put_tile(TileResult {
+            lease: l.id,
+            job: l.job,
+            rect: l.rect,
+            rays: 100,
+            pixels: &pixels(l.rect),
+            worker: None,
+        })
+        .unwrap();
     }
-    let text = trevi_coordinator::metrics::render(&f);
+    let text = trevi_coordinator::metrics::render(&f.snapshot(), f.metrics());
     let value = |name: &str| -> f64 {
         text.lines()
             .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
@@ -484,13 +732,25 @@ fn metrics_count_the_job_s_tiles_and_priority_changes_reorder_jobs() {
 fn huge_ray_counts_saturate_and_negative_or_infinite_pixels_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-    let job = f.submit(spec(32, 16, 16, "o.png", 0)).unwrap().id;
-    let w = f.register_worker();
+    let job = f
+        .submit(spec(32, 16, 16, "o.png", 0), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     let l = f.lease(w).unwrap().unwrap();
     for (bad, what) in [(-1e30f32, "negative"), (f32::INFINITY, "not finite")] {
         let mut px = pixels(l.rect);
         px[5][1] = bad;
-        let e = f.put_tile(l.id, job, l.rect, 1, &px).unwrap_err();
+        let e = f
+            .put_tile(TileResult {
+                lease: l.id,
+                job,
+                rect: l.rect,
+                rays: 1,
+                pixels: &px,
+                worker: None,
+            })
+            .unwrap_err();
         assert!(
             matches!(&e, FarmError::BadTile(m) if m.contains(what) && m.contains("(5, 0)")),
             "{e}"
@@ -501,11 +761,25 @@ fn huge_ray_counts_saturate_and_negative_or_infinite_pixels_are_refused() {
     assert_eq!(again.rect, l.rect, "the refused tile comes back first");
     let mut px = pixels(again.rect);
     px[0] = [-0.0, 0.0, 0.0];
-    f.put_tile(again.id, job, again.rect, u64::MAX, &px)
-        .unwrap();
+    f.put_tile(TileResult {
+        lease: again.id,
+        job,
+        rect: again.rect,
+        rays: u64::MAX,
+        pixels: &px,
+        worker: None,
+    })
+    .unwrap();
     let last = f.lease(w).unwrap().unwrap();
-    f.put_tile(last.id, job, last.rect, u64::MAX, &pixels(last.rect))
-        .unwrap();
+    f.put_tile(TileResult {
+        lease: last.id,
+        job,
+        rect: last.rect,
+        rays: u64::MAX,
+        pixels: &pixels(last.rect),
+        worker: None,
+    })
+    .unwrap();
     let info = f.info(job).unwrap();
     assert_eq!((info.state, info.rays), (JobState::Done, u64::MAX));
     let snap = f.snapshot();
@@ -517,8 +791,18 @@ fn huge_ray_counts_saturate_and_negative_or_infinite_pixels_are_refused() {
 fn a_worker_acts_only_with_its_own_session_secret() {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path(), Duration::from_secs(60), 1 << 30);
-    let (a, sa) = f.register_worker_session("a", 1).unwrap();
-    let (b, sb) = f.register_worker_session("b", 1).unwrap();
+    let with_session = |name| {
+        let r = f
+            .register_worker(WorkerOptions {
+                name,
+                threads: 1,
+                session: true,
+            })
+            .unwrap();
+        (r.id, r.session.expect("asked for"))
+    };
+    let (a, sa) = with_session("a");
+    let (b, sb) = with_session("b");
     assert_ne!(sa, sb, "secrets are random");
     assert_ne!(sa, [0u8; 32]);
     f.check_session(a, &sa).unwrap();
@@ -534,6 +818,6 @@ fn a_worker_acts_only_with_its_own_session_secret() {
         "unknown: register again"
     );
     // A worker registered in-process has no secret: nothing matches it.
-    let c = f.register_worker();
+    let c = f.register_worker(WorkerOptions::default()).unwrap().id;
     assert!(f.check_session(c, &[0u8; 32]).is_err());
 }

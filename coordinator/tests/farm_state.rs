@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 use trevi_coordinator::farm::Retention;
 use trevi_coordinator::scheduler::{band_bytes, encoder_bytes};
 use trevi_coordinator::{
-    Farm, FarmConfig, FarmError, JobSpec, JobState, SchedulerConfig, TileOutcome, TileSink,
+    Farm, FarmConfig, FarmError, JobSpec, JobState, Limits, SinkError, SubmitOptions, TileOutcome,
+    TileResult, TileSink, WorkerOptions,
 };
 use trevi_core::Rect;
 
@@ -42,7 +43,9 @@ fn a_frame_whose_one_band_does_not_fit_the_window_is_refused_at_submission() {
     let dir = tempfile::tempdir().unwrap();
     let f = Farm::new(config(dir.path(), false, Retention::default())).unwrap();
     // The frame: one band of 64-pixel tiles is 77 GB.
-    let e = f.submit(spec(100_000_000, 64, 64)).unwrap_err();
+    let e = f
+        .submit(spec(100_000_000, 64, 64), SubmitOptions::default())
+        .unwrap_err();
     assert!(matches!(e, FarmError::Limit(_)), "{e:?}");
     let msg = e.to_string();
     assert!(
@@ -53,19 +56,25 @@ fn a_frame_whose_one_band_does_not_fit_the_window_is_refused_at_submission() {
     assert!(f.list().is_empty());
     assert!(!dir.path().join("jobs").join("1").exists());
     // Smaller tiles make the band fit; so does a bigger window.
-    f.submit(spec(16384, 64, 16)).unwrap();
+    f.submit(spec(16384, 64, 16), SubmitOptions::default())
+        .unwrap();
     let big = FarmConfig {
-        sched: SchedulerConfig {
+        limits: Limits {
             window_bytes: 64 << 20,
-            ..SchedulerConfig::default()
+            ..Limits::default()
         },
         ..config(&dir.path().join("big"), false, Retention::default())
     };
     let g = Farm::new(big).unwrap();
-    g.submit(spec(32768, 100, 64)).unwrap();
-    assert!(f.submit(spec(32768, 100, 64)).is_err());
+    g.submit(spec(32768, 100, 64), SubmitOptions::default())
+        .unwrap();
+    assert!(f
+        .submit(spec(32768, 100, 64), SubmitOptions::default())
+        .is_err());
     // More tiles than a job can number.
-    let e = g.submit(spec(100_000, 100_000, 1)).unwrap_err();
+    let e = g
+        .submit(spec(100_000, 100_000, 1), SubmitOptions::default())
+        .unwrap_err();
     assert!(e.to_string().contains("more than a job may have"), "{e}");
 }
 
@@ -79,15 +88,15 @@ fn the_window_bounds_the_rows_of_a_wide_frame_to_one_band() {
     // Room for one band and a half.
     let window = band_bytes(&s) * 3 / 2 + encoder_bytes(&s);
     let f = Farm::new(FarmConfig {
-        sched: SchedulerConfig {
+        limits: Limits {
             window_bytes: window,
-            ..SchedulerConfig::default()
+            ..Limits::default()
         },
         ..config(dir.path(), false, Retention::default())
     })
     .unwrap();
-    let job = f.submit(s).unwrap().id;
-    let worker = f.register_worker();
+    let job = f.submit(s, SubmitOptions::default()).unwrap().id;
+    let worker = f.register_worker(WorkerOptions::default()).unwrap().id;
     loop {
         let leases: Vec<_> = std::iter::from_fn(|| f.lease(worker).unwrap()).collect();
         if leases.is_empty() {
@@ -98,7 +107,15 @@ fn the_window_bounds_the_rows_of_a_wide_frame_to_one_band() {
             "more than one band in flight"
         );
         for l in leases.iter().rev() {
-            f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap();
+            f.put_tile(TileResult {
+                lease: l.id,
+                job,
+                rect: l.rect,
+                rays: 1,
+                pixels: &pixels(l.rect),
+                worker: None,
+            })
+            .unwrap();
             if let Some(rows) = f.max_rows_held(job) {
                 assert!(rows as u32 <= tile, "{rows} rows held");
             }
@@ -113,13 +130,20 @@ fn five_thousand_cancelled_jobs_keep_only_the_newest_and_list_in_pages() {
     let retention = Retention {
         keep_ended: 300,
         keep_ended_for: None,
+        ..Retention::default()
     };
     let f = Farm::new(config(dir.path(), false, retention)).unwrap();
     for _ in 0..5_000 {
-        let id = f.submit(spec(16, 16, 16)).unwrap().id;
+        let id = f
+            .submit(spec(16, 16, 16), SubmitOptions::default())
+            .unwrap()
+            .id;
         f.cancel(id).unwrap();
     }
-    let active = f.submit(spec(16, 16, 16)).unwrap().id;
+    let active = f
+        .submit(spec(16, 16, 16), SubmitOptions::default())
+        .unwrap()
+        .id;
     let jobs = f.list();
     assert_eq!(jobs.len(), 301);
     // The newest ended ones, and the unfinished one.
@@ -150,12 +174,19 @@ fn ended_jobs_are_forgotten_after_their_time_in_the_store_too() {
     let retention = Retention {
         keep_ended: 1000,
         keep_ended_for: Some(Duration::from_millis(300)),
+        ..Retention::default()
     };
     let f = Farm::new(config(dir.path(), true, retention)).unwrap();
-    let old = f.submit(spec(16, 16, 16)).unwrap().id;
+    let old = f
+        .submit(spec(16, 16, 16), SubmitOptions::default())
+        .unwrap()
+        .id;
     f.cancel(old).unwrap();
     std::thread::sleep(Duration::from_millis(400));
-    let new = f.submit(spec(16, 16, 16)).unwrap().id;
+    let new = f
+        .submit(spec(16, 16, 16), SubmitOptions::default())
+        .unwrap()
+        .id;
     f.cancel(new).unwrap();
     f.expire();
     let ids: Vec<u64> = f.list().iter().map(|j| j.id).collect();
@@ -166,7 +197,10 @@ fn ended_jobs_are_forgotten_after_their_time_in_the_store_too() {
     let f = Farm::new(config(dir.path(), true, retention)).unwrap();
     assert!(matches!(f.info(old), Err(FarmError::UnknownJob(_))));
     assert_eq!(f.info(new).unwrap().state, JobState::Cancelled);
-    let next = f.submit(spec(16, 16, 16)).unwrap().id;
+    let next = f
+        .submit(spec(16, 16, 16), SubmitOptions::default())
+        .unwrap()
+        .id;
     assert!(next > new, "id {next} given again");
 }
 
@@ -176,11 +210,13 @@ fn new_jobs_never_take_an_existing_job_directory() {
     let keep_none = Retention {
         keep_ended: 0,
         keep_ended_for: None,
+        ..Retention::default()
     };
     {
         let f = Farm::new(config(dir.path(), true, Retention::default())).unwrap();
         for _ in 0..3 {
-            f.submit(spec(16, 16, 16)).unwrap();
+            f.submit(spec(16, 16, 16), SubmitOptions::default())
+                .unwrap();
         }
     }
     // The database is lost; the job directories 1..=3 are still there.
@@ -189,7 +225,10 @@ fn new_jobs_never_take_an_existing_job_directory() {
     }
     assert!(dir.path().join("jobs/3").is_dir());
     let f = Farm::new(config(dir.path(), true, keep_none)).unwrap();
-    let id = f.submit(spec(16, 16, 16)).unwrap().id;
+    let id = f
+        .submit(spec(16, 16, 16), SubmitOptions::default())
+        .unwrap()
+        .id;
     assert_eq!(id, 4);
     // Every ended job pruned, directories and rows: the ids stay used.
     f.cancel(id).unwrap();
@@ -200,7 +239,12 @@ fn new_jobs_never_take_an_existing_job_directory() {
         std::fs::remove_dir_all(dir.path().join(format!("jobs/{d}"))).unwrap();
     }
     let f = Farm::new(config(dir.path(), true, keep_none)).unwrap();
-    assert_eq!(f.submit(spec(16, 16, 16)).unwrap().id, 5);
+    assert_eq!(
+        f.submit(spec(16, 16, 16), SubmitOptions::default())
+            .unwrap()
+            .id,
+        5
+    );
 }
 
 /// A sink whose disk fills up at the end: `finish` fails, and from then on
@@ -212,14 +256,15 @@ struct DiskFullAtTheEnd {
 }
 
 impl TileSink for DiskFullAtTheEnd {
-    fn write_tile(&mut self, _: Rect, _: &[[f32; 3]]) -> Result<(), String> {
+    fn write_tile(&mut self, _: Rect, _: &[[f32; 3]]) -> Result<(), SinkError> {
         Ok(())
     }
-    fn finish(self: Box<Self>) -> Result<(), String> {
+    fn finish(self: Box<Self>) -> Result<(), SinkError> {
         let c = rusqlite::Connection::open(&self.db).unwrap();
         c.execute_batch("BEGIN EXCLUSIVE").unwrap();
         *self.lock.lock().unwrap() = Some(c);
-        Err("No space left on device (os error 28)".into())
+        // ENOSPC: "No space left on device (os error 28)".
+        Err(std::io::Error::from_raw_os_error(28).into())
     }
     fn rows_held(&self) -> usize {
         0
@@ -234,16 +279,31 @@ fn job_ending_on_a_full_disk(dir: &Path) -> (Farm, u64, Arc<Mutex<Option<rusqlit
     let db = dir.join("state.db");
     let l2 = lock.clone();
     let job = f
-        .submit_with_sink(spec(32, 16, 16), move |_| {
-            Ok(Box::new(DiskFullAtTheEnd { db, lock: l2 }))
-        })
+        .submit(
+            spec(32, 16, 16),
+            SubmitOptions {
+                sink: Some(Box::new(move |_| {
+                    Ok(Box::new(DiskFullAtTheEnd { db, lock: l2 }))
+                })),
+                ..SubmitOptions::default()
+            },
+        )
         .unwrap()
         .id;
-    let w = f.register_worker();
+    let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     let a = f.lease(w).unwrap().unwrap();
     let b = f.lease(w).unwrap().unwrap();
     for l in [a, b] {
-        let out = f.put_tile(l.id, job, l.rect, 1, &pixels(l.rect)).unwrap();
+        let out = f
+            .put_tile(TileResult {
+                lease: l.id,
+                job,
+                rect: l.rect,
+                rays: 1,
+                pixels: &pixels(l.rect),
+                worker: None,
+            })
+            .unwrap();
         assert_eq!(out, TileOutcome::Accepted);
     }
     (f, job, lock)
@@ -257,7 +317,10 @@ fn a_job_end_the_database_does_not_take_is_not_told_and_a_restart_agrees() {
     let info = f.info(job).unwrap();
     assert!(!info.state.is_final(), "told {:?} unrecorded", info.state);
     assert!(!f.watch(job).unwrap().borrow().state.is_final());
-    assert!(f.lease(f.register_worker()).unwrap().is_none());
+    assert!(f
+        .lease(f.register_worker(WorkerOptions::default()).unwrap().id)
+        .unwrap()
+        .is_none());
     // Space again: the next tick records the end, and then it is shown.
     *lock.lock().unwrap() = None;
     let t = Instant::now();
@@ -293,7 +356,10 @@ fn a_restart_before_the_end_is_recorded_resumes_the_job_the_client_saw_running()
 fn a_cancellation_the_database_does_not_take_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let f = Farm::new(config(dir.path(), true, Retention::default())).unwrap();
-    let job = f.submit(spec(16, 16, 16)).unwrap().id;
+    let job = f
+        .submit(spec(16, 16, 16), SubmitOptions::default())
+        .unwrap()
+        .id;
     let c = rusqlite::Connection::open(dir.path().join("state.db")).unwrap();
     c.execute_batch("BEGIN EXCLUSIVE").unwrap();
     let e = f.cancel(job).unwrap_err();

@@ -1,0 +1,148 @@
+//! Picking up after a restart: the jobs the database holds come back
+//! (ended ones for status and download, unfinished ones with their output
+//! rebuilt from the stored tiles), and new jobs never reuse an id given
+//! before.
+
+use super::{lock, validate_pixels, Farm, Output};
+use crate::error::FarmError;
+use crate::preview::Preview;
+use crate::scheduler::{JobInfo, Restored};
+use crate::store::{wall_ms, Store};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+use trevi_core::FrameWriter;
+
+impl Farm {
+    /// Keeps new jobs out of every id given before: the largest the
+    /// database remembers, and every `jobs/<id>` directory on disk (a
+    /// database lost or replaced must not make two jobs share one).
+    pub(super) fn skip_used_ids(&self) -> Result<(), FarmError> {
+        let mut max = match &self.store {
+            Some(store) => store.max_job_id()?,
+            None => 0,
+        };
+        let jobs = self.cfg.data_dir.join("jobs");
+        if let Ok(entries) = std::fs::read_dir(&jobs) {
+            for e in entries.flatten() {
+                if let Some(id) = e.file_name().to_str().and_then(|n| n.parse::<u64>().ok()) {
+                    max = max.max(id);
+                }
+            }
+        }
+        lock(&self.state).sched.skip_ids_through(max);
+        Ok(())
+    }
+
+    /// Picks up the jobs in the database: finished ones for status and
+    /// download, unfinished ones by rebuilding their output from the stored
+    /// tiles and queueing the rest.
+    pub(super) fn restore(&self) -> Result<(), FarmError> {
+        let Some(store) = &self.store else {
+            return Ok(());
+        };
+        let (now, wall) = (Instant::now(), wall_ms());
+        for j in store.jobs()? {
+            let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
+            let submitted = now.checked_sub(ago).unwrap_or(now);
+            let done_tiles = if j.state.is_final() {
+                Vec::new()
+            } else {
+                store.tile_list(j.id)?
+            };
+            let rays = if j.state.is_final() {
+                j.rays
+            } else {
+                done_tiles.iter().fold(0u64, |a, t| a.saturating_add(t.1))
+            };
+            let id = j.id;
+            let mut st = lock(&self.state);
+            st.sched.restore(
+                Restored {
+                    id,
+                    spec: j.spec.clone(),
+                    state: j.state,
+                    submitted,
+                    elapsed: j.elapsed,
+                    error: j.error.clone(),
+                    finish_order: j.finish_order,
+                    tiles_done: j.tiles_done,
+                    rays,
+                    done_tiles: done_tiles.iter().map(|t| t.0).collect(),
+                },
+                now,
+            );
+            let info = st.sched.info(id, now).expect("just restored");
+            st.watchers.insert(id, watch::channel(info.clone()).0);
+            if !j.state.is_final() {
+                st.submitters.insert(id, j.submitter.clone());
+            }
+            drop(st);
+            if j.state.is_final() {
+                continue;
+            }
+            tracing::info!(
+                job = id,
+                tiles_stored = done_tiles.len(),
+                tiles_total = info.tiles_total,
+                "resuming job"
+            );
+            match self.rebuild_output(store, &info) {
+                Ok(out) => {
+                    let complete = out.written == out.total;
+                    let out = Arc::new(Mutex::new(out));
+                    lock(&self.state).outputs.insert(id, out.clone());
+                    if complete {
+                        let sink = lock(&out).sink.take().expect("just made");
+                        let result = sink.finish();
+                        self.end_job(id, result.map_err(|e| format!("finishing the output: {e}")));
+                    }
+                }
+                Err(e) => self.end_job(id, Err(format!("resuming after a restart: {e}"))),
+            }
+        }
+        Ok(())
+    }
+
+    /// A fresh output for a resumed job with its stored tiles written into it
+    /// in band order.
+    fn rebuild_output(&self, store: &Store, info: &JobInfo) -> Result<Output, FarmError> {
+        let job = info.id;
+        let path = self.output_path(job, &info.spec.output_name);
+        // Temporary files of the writer that died with the last run.
+        if let Ok(entries) = std::fs::read_dir(path.parent().expect("jobs/<id>/name")) {
+            for e in entries.flatten() {
+                let name = e.file_name();
+                let name = name.to_string_lossy();
+                if name.starts_with('.') && name.contains(".trevi-tmp-") {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+        let mut writer = FrameWriter::create(&path, info.spec.width, info.spec.height)
+            .map_err(|e| FarmError::io("cannot create the output", e))?;
+        let mut preview = Preview::new(info.spec.width, info.spec.height);
+        let mut written = 0;
+        store.replay_tiles(job, |idx, bytes| {
+            let rect = lock(&self.state).sched.tile_rect(job, idx).ok_or_else(|| {
+                FarmError::Damaged(format!("stored tile {idx} is not in the frame"))
+            })?;
+            written += 1;
+            // The wire's format; a ragged length reads as no pixels, which
+            // the pixel count check then refuses.
+            let pixels = trevi_proto::pixels_from_bytes(bytes).unwrap_or_default();
+            validate_pixels(rect, &pixels)?;
+            preview.add_tile(rect, &pixels);
+            writer
+                .write_tile(rect, &pixels)
+                .map_err(|e| FarmError::io("writing the output", e))
+        })?;
+        Ok(Output {
+            max_rows_held: writer.rows_held(),
+            sink: Some(Box::new(writer)),
+            written,
+            total: info.tiles_total,
+            preview,
+        })
+    }
+}

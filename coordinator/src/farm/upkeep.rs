@@ -1,0 +1,56 @@
+//! The farm's own periodic work while it serves: re-queueing the tiles whose
+//! leases ran out ([`Farm::expire`], a few times per lease lifetime) and
+//! removing bundles no job uses once past their grace period
+//! ([`Farm::collect_bundles`], first at start-up).
+
+use super::Farm;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::task::JoinHandle;
+
+/// The farm's periodic tasks; they stop when this is dropped.
+pub struct Upkeep {
+    tasks: Vec<JoinHandle<()>>,
+}
+
+impl Drop for Upkeep {
+    fn drop(&mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+}
+
+impl Farm {
+    /// Starts the lease reaper and the bundle collector on the current
+    /// tokio runtime.
+    pub fn start_upkeep(self: &Arc<Self>) -> Upkeep {
+        let reaper = {
+            let farm = self.clone();
+            let period = (farm.cfg.limits.lease_ttl / 4).max(Duration::from_millis(20));
+            tokio::spawn(async move {
+                let mut tick = tokio::time::interval(period);
+                loop {
+                    tick.tick().await;
+                    farm.expire();
+                }
+            })
+        };
+        let collector = {
+            let farm = self.clone();
+            let period = (farm.cfg.retention.bundle_grace / 4)
+                .clamp(Duration::from_millis(100), Duration::from_secs(600));
+            tokio::spawn(async move {
+                let mut tick = tokio::time::interval(period);
+                loop {
+                    tick.tick().await;
+                    let farm = farm.clone();
+                    let _ = tokio::task::spawn_blocking(move || farm.collect_bundles()).await;
+                }
+            })
+        };
+        Upkeep {
+            tasks: vec![reaper, collector],
+        }
+    }
+}

@@ -1,0 +1,106 @@
+//! Every bound the coordinator works within, in one value: what it accepts
+//! at most (bundles, messages, frames, jobs per submitter, uploads and
+//! monitor connections), how long it waits, and the per-job memory window
+//! and failure counts the scheduler enforces.
+//!
+//! The defaults are [`Limits::default`]; `trevi-coordinator`'s flags take
+//! theirs from it. Exceeding a limit is a clear error (`RESOURCE_EXHAUSTED`
+//! over gRPC), never a crash.
+
+use std::time::Duration;
+
+/// What the coordinator accepts at most, and how long it waits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Size of an uploaded bundle (the scene and every file it references).
+    pub max_bundle_bytes: u64,
+    /// Files in a bundle.
+    pub max_bundle_files: usize,
+    /// Size of one gRPC message the coordinator decodes.
+    pub max_message_bytes: usize,
+    /// width × height × samples per pixel (supersample²) of a job's frame.
+    pub max_image_samples: u64,
+    /// Unfinished jobs one submitter (one client address) may have queued.
+    pub max_jobs_per_submitter: usize,
+    /// Bundle uploads in progress at once; one more is refused.
+    pub max_uploads: usize,
+    /// How long an upload may go without a chunk before it is dropped.
+    pub upload_idle: Duration,
+
+    /// How long a lease lives without a heartbeat.
+    pub lease_ttl: Duration,
+    /// Budget per job, in bytes, for the rows held by the stitcher and its
+    /// encoder (counted at 12 bytes a pixel) and the bookkeeping of the
+    /// tiles in flight: after [`crate::scheduler::encoder_bytes`], it holds
+    /// `room / band_bytes` bands (at least one; a frame whose one band does
+    /// not fit is refused at submission). The job's preview (at most
+    /// 512×512, [`crate::preview`]) comes on top.
+    pub window_bytes: u64,
+    /// A tile that fails this many times (its lease runs out, or its result
+    /// is invalid) fails its job.
+    pub max_tile_failures: u32,
+    /// A worker that fails this many tiles of a job takes no more of them.
+    pub max_worker_failures: u32,
+    /// A tile whose lease runs out this many times (the worker holding it
+    /// was lost) fails its job; these count towards `max_tile_failures` too.
+    pub max_tile_losses: u32,
+
+    /// Time a monitor client has to send a request's headers (counted from
+    /// the connection, or from the end of its previous request) and to
+    /// finish a TLS handshake.
+    pub http_header_timeout: Duration,
+    /// Monitor connections open at once; one more is closed at once.
+    pub http_max_connections: usize,
+
+    /// How long a `LeaseTile` call waits for work before answering "none"
+    /// (a worker may ask for less).
+    pub lease_wait: Duration,
+    /// Jobs in a `ListJobs` reply when the request does not say.
+    pub list_page_default: usize,
+    /// Most jobs in a `ListJobs` reply.
+    pub list_page_max: usize,
+    /// A `ListJobs` reply stops at about this many bytes (well under the
+    /// 4 MiB message limit of the clients).
+    pub list_page_bytes: usize,
+    /// Characters of a worker's render error kept (in the log and the job's
+    /// error).
+    pub max_return_error_chars: usize,
+    /// Final previews kept for jobs that have ended (the newest ones).
+    pub kept_previews: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_bundle_bytes: trevi_core::bundle::DEFAULT_MAX_BUNDLE_BYTES,
+            max_bundle_files: 10_000,
+            max_message_bytes: trevi_proto::MAX_MESSAGE_SIZE,
+            // A 16384×16384 frame at supersample 8.
+            max_image_samples: 16384 * 16384 * 64,
+            max_jobs_per_submitter: 1000,
+            max_uploads: 4,
+            upload_idle: Duration::from_secs(30),
+
+            lease_ttl: Duration::from_secs(10),
+            // A 16384-pixel-wide frame in 64-pixel tiles: two bands.
+            window_bytes: 32 << 20,
+            max_tile_failures: 5,
+            max_worker_failures: 3,
+            max_tile_losses: 3,
+
+            http_header_timeout: Duration::from_secs(10),
+            http_max_connections: 256,
+
+            lease_wait: Duration::from_secs(2),
+            list_page_default: 500,
+            list_page_max: 1000,
+            list_page_bytes: 1 << 20,
+            max_return_error_chars: 500,
+            kept_previews: 32,
+        }
+    }
+}
+
+/// The smallest `max_message_bytes` that works: a pixel or bundle chunk
+/// plus its framing must fit in one message.
+pub const MIN_MESSAGE_BYTES: usize = trevi_proto::CHUNK_SIZE + 4096;

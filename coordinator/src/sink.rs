@@ -1,0 +1,37 @@
+//! Where a job's accepted tiles go: [`TileSink`], normally the job's
+//! [`FrameWriter`] stitching its output file; tests and benchmarks plug in
+//! their own.
+
+use trevi_core::{FrameWriter, OutputError, Rect};
+
+/// Why a [`TileSink`] could not take a tile or complete its output.
+#[derive(Debug, thiserror::Error)]
+pub enum SinkError {
+    /// The output file's writer failed (encoding, or the file system).
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// Another sink's I/O failed.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+}
+
+/// Takes a job's tiles as they are accepted.
+pub trait TileSink: Send {
+    fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), SinkError>;
+    /// Completes the output (for a file: moves it into place).
+    fn finish(self: Box<Self>) -> Result<(), SinkError>;
+    /// Rows buffered right now.
+    fn rows_held(&self) -> usize;
+}
+
+impl TileSink for FrameWriter {
+    fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), SinkError> {
+        Ok(FrameWriter::write_tile(self, rect, pixels)?)
+    }
+    fn finish(self: Box<Self>) -> Result<(), SinkError> {
+        Ok(FrameWriter::finish(*self)?)
+    }
+    fn rows_held(&self) -> usize {
+        FrameWriter::rows_held(self)
+    }
+}
