@@ -599,7 +599,7 @@ impl Session {
             if got != want {
                 return Err(format!("bundle {want} arrived with hash {got}"));
             }
-            let bundle = Bundle::decode(&bytes)?;
+            let bundle = Bundle::decode(&bytes).map_err(|e| e.to_string())?;
             Scene::from_bundle(&bundle).map_err(|e| e.to_string())
         })
         .await

@@ -1,11 +1,14 @@
 //! The scene description: what an AISXML file says, resolved and validated.
 //!
-//! Data flows `scene file → parse (aisxml.rs) → SceneDesc → build (build.rs) → Scene`.
-//! A [`SceneDesc`] is plain data with every reference resolved (meshes loaded,
-//! surfaces assigned to triangles, defaults filled in); [`crate::Scene`] adds
-//! the acceleration structure and precomputed camera frames.
+//! Data flows `scene file → parse (aisxml) → SceneDesc → build
+//! ([`crate::Scene::build`], world.rs) → Scene`, with every file read through
+//! a [`source::FileSource`]. A [`SceneDesc`] is plain data with every
+//! reference resolved (meshes loaded, surfaces assigned to triangles,
+//! defaults filled in); [`crate::Scene`] adds the acceleration structures
+//! and precomputed camera frames.
 
 pub mod aisxml;
+pub mod source;
 
 use crate::mesh::Mesh;
 use glam::{DMat4, DVec3, Vec3};
