@@ -10,6 +10,7 @@
 //! - [`http`]: the web monitor (`--http`), its JSON API, `/metrics`
 //!   ([`metrics`]) and `/healthz`; [`preview`] keeps each running frame's
 //!   small live preview, [`workers`] what is known of each worker.
+//! - [`summaries`]: the cameras of each stored bundle's scene, parsed once.
 //! - [`listen`]: accepting connections through errors (out of file
 //!   descriptors) and raising the open-files limit at start-up.
 //! - [`tls`]: loading and checking the certificate and key of `--tls-cert`
@@ -31,6 +32,7 @@ pub mod metrics;
 pub mod preview;
 pub mod scheduler;
 pub mod store;
+pub mod summaries;
 pub mod tls;
 pub mod workers;
 
