@@ -1,7 +1,9 @@
 //! Typed errors of the core library.
 //!
 //! Scene errors always carry a [`Location`] so that a user sees
-//! `scene.xml:12:5: expected three numbers in "position"` and can fix the file.
+//! `scene.xml:12:5: expected three numbers in "position"` and can fix the file,
+//! and a [`SceneErrorKind`] so that a program can tell kinds of problem apart
+//! without reading the message.
 
 use std::fmt;
 

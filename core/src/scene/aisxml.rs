@@ -1,21 +1,26 @@
 //! AISXML parsing: scene file → resolved, validated [`SceneDesc`].
 //!
-//! The contract is `shared/spec/aisxml.md`. Parsing is strict: every problem
-//! is a [`SceneError`] located at `file:line:column` (the attribute's name for
-//! attribute errors, the element's `<` for element errors, the offending
-//! number inside element text) whose message says what was expected.
+//! The contract is docs/aisxml.md (the format as `shared/spec/aisxml.md`
+//! fixes it) with Trevi's extensions in docs/aisxml-extensions.md. Parsing
+//! is strict: every problem is a [`SceneError`] located at
+//! `file:line:column` (the attribute's name for attribute errors, the
+//! element's `<` for element errors, the offending number inside element
+//! text) whose message says what was expected, and whose kind says what
+//! sort of problem it is.
 //!
-//! Two phases: [`xml`] turns the text into a small element tree (checking XML
+//! Two phases: `xml.rs` turns the text into a small element tree (checking XML
 //! well-formedness, rejecting DTDs and entities, and checking which element
 //! may appear where); this module then reads that tree, loads meshes and
 //! fills in every default.
 //!
 //! One file per element reads it, beside its attribute table (name, type,
-//! default, meaning; see [`table`]): [`settings`], [`mesh`], [`model`] with
-//! [`transform`] and [`surface`], [`sphere`], [`plane`], [`light`],
-//! [`camera`] and its [`render`]. The root `<scene>` is read here. The
-//! tables are what an element accepts (an attribute not in its table is an
-//! error) and what docs/aisxml.md is checked against (see [`ATTRIBUTE_TABLES`]).
+//! default, meaning; see [`table`]): `settings.rs`, `mesh.rs`, `model.rs`
+//! with `transform.rs` and `surface.rs`, `sphere.rs`, `plane.rs`,
+//! `light.rs`, `camera.rs` and its `render.rs`; `values.rs` reads typed
+//! values. The root `<scene>` is read here. The tables are what an element
+//! accepts (an attribute not in its table is an error) and what
+//! docs/aisxml.md is checked against (see [`ATTRIBUTE_TABLES`] and
+//! `doc_tests.rs`).
 //!
 //! Paths: `file=` and `output=` are relative to the scene file's directory
 //! and must stay inside it; they are stored bundle-relative (prefixed with

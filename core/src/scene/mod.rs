@@ -78,7 +78,7 @@ pub struct Model {
     pub mesh: usize,
     /// Object to world, composed in document order (first child applied first).
     /// When the parser recentred a mesh that lies far from its origin (see
-    /// `aisxml`), the recentring translation is folded in on the right.
+    /// `aisxml/mesh.rs`), the recentring translation is folded in on the right.
     pub transform: DMat4,
     /// The surfaces of this model; `surfaces[0]` is the default one.
     pub surfaces: Vec<Surface>,
