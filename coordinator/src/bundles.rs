@@ -161,7 +161,8 @@ impl BundleStore {
         let io = |e: std::io::Error| FarmError::io("storing an uploaded bundle", e);
         up.file.sync_all().map_err(io)?;
         let read = std::fs::File::open(&up.path).map_err(io)?;
-        let files = trevi_core::bundle::check_encoding(read).map_err(FarmError::BadBundle)?;
+        let files = trevi_core::bundle::check_encoding(read)
+            .map_err(|e| FarmError::BadBundle(e.to_string()))?;
         if files > max_files as u64 {
             return Err(FarmError::Limit(format!(
                 "the bundle holds {files} files, more than the coordinator's limit of \
@@ -186,6 +187,12 @@ impl BundleStore {
         // Only the collector reads this time; failing to set it is harmless.
         let _ = file.set_modified(SystemTime::now());
         Ok(file)
+    }
+
+    /// Marks the stored bundle `hash` as used (see [`BundleStore::collect`]);
+    /// a bundle not stored is [`FarmError::UnknownBundle`].
+    pub fn mark_used(&self, hash: &str) -> Result<(), FarmError> {
+        self.open_used(hash).map(drop)
     }
 
     /// The stored bundle file with this hash, open at its start, after
@@ -225,7 +232,7 @@ impl BundleStore {
     /// The decoded bundle (held in memory whole: at most the coordinator's
     /// bundle size limit, once per call).
     pub fn get(&self, hash: &str) -> Result<Bundle, FarmError> {
-        Bundle::decode(&self.get_bytes(hash)?).map_err(FarmError::BadBundle)
+        Bundle::decode(&self.get_bytes(hash)?).map_err(|e| FarmError::BadBundle(e.to_string()))
     }
 
     /// Removes the bundles whose hash is not in `keep` and that were last

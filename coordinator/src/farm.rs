@@ -35,6 +35,7 @@ use crate::scheduler::{
 };
 use crate::sink::TileSink;
 use crate::store::{wall_ms, Store, StoredJob};
+use crate::summaries::{SceneSummary, Summaries};
 use crate::workers::WorkerInfo;
 use std::collections::{HashMap, VecDeque};
 use std::path::PathBuf;
@@ -189,6 +190,8 @@ pub struct Farm {
     /// Woken when there may be new tiles to lease.
     work: Notify,
     bundles: BundleStore,
+    /// The cameras of each bundle's scene, parsed once per bundle.
+    summaries: Summaries,
     store: Option<Store>,
     metrics: Arc<Metrics>,
 }
@@ -222,6 +225,7 @@ impl Farm {
             }),
             work: Notify::new(),
             bundles,
+            summaries: Summaries::default(),
             store,
             metrics: Arc::default(),
             cfg,
@@ -266,9 +270,15 @@ impl Farm {
         self.bundles.collect(&keep, self.cfg.retention.bundle_grace)
     }
 
-    /// Reads a stored bundle's scene and describes the job rendering
-    /// `camera` (empty: the first camera). Parses meshes: call off the async
-    /// threads.
+    /// The scene summaries of stored bundles (see [`Summaries::prime`]).
+    pub fn summaries(&self) -> &Summaries {
+        &self.summaries
+    }
+
+    /// Describes the job rendering `camera` (empty: the first camera) of a
+    /// stored bundle's scene. The scene is parsed the first time a bundle
+    /// is asked about (which parses meshes: call off the async threads),
+    /// then its summary is kept (see [`Summaries`]).
     pub fn job_spec(
         &self,
         bundle_hash: &str,
@@ -276,13 +286,19 @@ impl Farm {
         priority: i32,
         tile_size: u32,
     ) -> Result<JobSpec, FarmError> {
-        let bundle = self.bundles.get(bundle_hash)?;
-        let desc = trevi_core::scene::aisxml::parse_scene(&bundle.scene, &bundle)
-            .map_err(|e| FarmError::BadScene(e.to_string()))?;
+        // The bundle must be stored (and is marked as used) even when its
+        // summary is cached.
+        self.bundles.mark_used(bundle_hash)?;
+        let summary = self.summaries.get_or_parse(bundle_hash, || {
+            let bundle = self.bundles.get(bundle_hash)?;
+            let desc = trevi_core::scene::aisxml::parse_scene(&bundle.scene, &bundle)
+                .map_err(|e| FarmError::BadScene(e.to_string()))?;
+            Ok::<_, FarmError>(SceneSummary::of(&desc))
+        })?;
         let cam = if camera.is_empty() {
-            desc.cameras.first()
+            summary.cameras.first()
         } else {
-            desc.cameras.iter().find(|c| c.id == camera)
+            summary.cameras.iter().find(|c| c.id == camera)
         }
         .ok_or_else(|| {
             FarmError::BadScene(if camera.is_empty() {
@@ -291,23 +307,22 @@ impl Farm {
                 format!("the scene has no camera \"{camera}\"")
             })
         })?;
-        let output_name = output_name(&cam.render.output)?;
-        let r = &cam.render;
-        let samples = r.width as u64 * r.height as u64 * (r.supersample.max(1) as u64).pow(2);
+        let output_name = output_name(&cam.output)?;
+        let samples = cam.width as u64 * cam.height as u64 * (cam.supersample.max(1) as u64).pow(2);
         let max = self.cfg.limits.max_image_samples;
         if samples > max {
             return Err(FarmError::Limit(format!(
                 "camera \"{}\": {}x{} at supersample {} is {samples} samples, more than the \
                  coordinator's limit of {max} (--max-image-samples)",
-                cam.id, r.width, r.height, r.supersample
+                cam.id, cam.width, cam.height, cam.supersample
             )));
         }
         Ok(JobSpec {
             bundle_hash: bundle_hash.to_string(),
             camera: cam.id.clone(),
             priority,
-            width: cam.render.width,
-            height: cam.render.height,
+            width: cam.width,
+            height: cam.height,
             tile_size: if tile_size == 0 {
                 self.cfg.default_tile
             } else {

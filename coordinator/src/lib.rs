@@ -14,6 +14,7 @@
 //! - [`http`]: the web monitor (`--http`), its JSON API, `/metrics`
 //!   ([`metrics`]) and `/healthz`; [`preview`] keeps each running frame's
 //!   small live preview, [`workers`] what is known of each worker.
+//! - [`summaries`]: the cameras of each stored bundle's scene, parsed once.
 //! - [`listen`]: accepting connections through errors (out of file
 //!   descriptors) and raising the open-files limit at start-up.
 //! - [`tls`]: loading and checking the certificate and key of `--tls-cert`
@@ -37,6 +38,7 @@ pub mod preview;
 pub mod scheduler;
 pub mod sink;
 pub mod store;
+pub mod summaries;
 pub mod tls;
 pub mod workers;
 

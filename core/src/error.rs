@@ -1,7 +1,9 @@
 //! Typed errors of the core library.
 //!
 //! Scene errors always carry a [`Location`] so that a user sees
-//! `scene.xml:12:5: expected three numbers in "position"` and can fix the file.
+//! `scene.xml:12:5: expected three numbers in "position"` and can fix the file,
+//! and a [`SceneErrorKind`] so that a program can tell kinds of problem apart
+//! without reading the message.
 
 use std::fmt;
 
@@ -46,20 +48,80 @@ impl fmt::Display for Location {
     }
 }
 
-/// An error in a scene bundle: the scene file itself or a file it references.
+/// What kind of problem a [`SceneError`] is, for a caller that reacts to
+/// the kind (the message says the rest).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SceneErrorKind {
+    /// Not well-formed: malformed XML, text that is not UTF-8, a DTD or an
+    /// entity.
+    Syntax,
+    /// An element AISXML does not allow there, or one too many of it.
+    UnknownElement,
+    /// An attribute the element does not have.
+    UnknownAttribute,
+    /// A required attribute or child element is missing.
+    Missing,
+    /// A value of the wrong form or out of its range.
+    BadValue,
+    /// An id that is used twice or names nothing, or a file reference that
+    /// leaves the scene's directory.
+    Reference,
+    /// A referenced file (or the scene file) is not there.
+    MissingFile,
+    /// More than a limit allows (objects, mesh elements, bundle bytes).
+    Limit,
+    /// A file could not be read for another reason.
+    Io,
+    /// Any other inconsistency in what the file says, such as a mesh file's
+    /// content (the mesh loaders report this kind).
+    Invalid,
+}
+
+/// An error in a scene bundle: the scene file itself or a file it
+/// references. Displayed as `file:line:column: message`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{location}: {message}")]
 pub struct SceneError {
     pub location: Location,
+    pub kind: SceneErrorKind,
     pub message: String,
 }
 
 impl SceneError {
+    /// An error of kind [`SceneErrorKind::Invalid`].
     pub fn new(location: Location, message: impl Into<String>) -> Self {
+        SceneError::of_kind(SceneErrorKind::Invalid, location, message)
+    }
+
+    pub fn of_kind(kind: SceneErrorKind, location: Location, message: impl Into<String>) -> Self {
         SceneError {
             location,
+            kind,
             message: message.into(),
         }
+    }
+
+    /// The same error, of kind `kind`.
+    pub fn with_kind(mut self, kind: SceneErrorKind) -> Self {
+        self.kind = kind;
+        self
+    }
+}
+
+/// The kind of a failed file read: [`SceneErrorKind::MissingFile`] when the
+/// file is not there, [`SceneErrorKind::Limit`] when reading it would pass a
+/// size limit (see [`crate::scene::source::ReadLimits`]), else
+/// [`SceneErrorKind::Io`].
+pub fn read_error_kind(e: &std::io::Error) -> SceneErrorKind {
+    if e.kind() == std::io::ErrorKind::NotFound {
+        SceneErrorKind::MissingFile
+    } else if e
+        .get_ref()
+        .is_some_and(|inner| inner.is::<crate::scene::source::OverLimit>())
+    {
+        SceneErrorKind::Limit
+    } else {
+        SceneErrorKind::Io
     }
 }
 

@@ -8,7 +8,8 @@
 //!
 //! ```text
 //! scene file ─► scene::aisxml (parse, resolve, validate) ─► scene::SceneDesc
-//!   (meshes from mesh::obj / mesh::ply)
+//!   (files through scene::source, meshes from mesh::obj / mesh::ply;
+//!   bundle::ParsedBundle keeps the bytes read and the description)
 //! SceneDesc ─► world::Scene (build: bvh over meshes, bvh over instances)
 //! camera::Camera (primary rays) ─► integrator (Whitted + Monte-Carlo effects,
 //!   lights, sampling) ─► tile::render_tile (linear RGB of a rectangle)
@@ -39,9 +40,10 @@ mod testing;
 pub mod tile;
 pub mod world;
 
-pub use bundle::{Bundle, DirSource, FileSource};
-pub use error::{Location, OutputError, SceneError};
+pub use bundle::{Bundle, BundleError, ParsedBundle};
+pub use error::{Location, OutputError, SceneError, SceneErrorKind};
 pub use output::FrameWriter;
+pub use scene::source::{DirSource, FileSource};
 pub use scene::SceneDesc;
 pub use tile::{render_tile, Rect, TileResult};
 pub use world::Scene;

@@ -1,7 +1,10 @@
 //! Rendering on this machine: an embedded coordinator on 127.0.0.1 (an
 //! ephemeral port, data in a temporary directory) and an in-process worker
 //! with every core, driven by the same client code as a farm (`remote.rs`),
-//! so the output is byte-identical to the farm's.
+//! so the output is byte-identical to the farm's. The scene the submitter
+//! parsed is built here once and handed to both: the coordinator keeps its
+//! cameras and the worker starts with it in its scene cache, so neither
+//! parses the bundle again.
 
 use anyhow::{Context, Result};
 use std::path::Path;
@@ -9,7 +12,29 @@ use std::sync::Arc;
 use tokio::sync::{oneshot, watch};
 use tokio::task::JoinHandle;
 use trevi_coordinator::{Farm, FarmConfig};
-use trevi_worker::WorkerConfig;
+use trevi_core::{Bundle, Scene, SceneDesc};
+use trevi_worker::{Preloaded, WorkerConfig};
+
+/// The scene of a local render, built (BVHs included) from the description
+/// the submitter parsed, with its bundle's hash.
+pub struct Built {
+    hash: String,
+    scene: Arc<Scene>,
+}
+
+impl Built {
+    /// Builds `desc`, the parsed scene of `bundle`, off the async threads.
+    pub async fn new(bundle: &Bundle, desc: SceneDesc) -> Result<Built> {
+        let hash = bundle.hash();
+        let scene = tokio::task::spawn_blocking(move || Scene::build(desc))
+            .await
+            .context("building the scene")?;
+        Ok(Built {
+            hash,
+            scene: Arc::new(scene),
+        })
+    }
+}
 
 /// A coordinator and a worker running inside this process.
 pub struct Embedded {
@@ -100,13 +125,15 @@ impl Signals {
 
 impl Embedded {
     /// `threads` render threads (0: every core); `tile` the default tile
-    /// edge; `data` its data directory (see [`data_dir`]).
-    pub async fn start(threads: usize, tile: u32, data: &Path) -> Result<Embedded> {
+    /// edge; `data` its data directory (see [`data_dir`]); `scene` the
+    /// scene about to be submitted, which neither side parses again.
+    pub async fn start(threads: usize, tile: u32, data: &Path, scene: Built) -> Result<Embedded> {
         let mut cfg = FarmConfig::new(data);
         cfg.default_tile = tile;
         // The data directory dies with this process: nothing to resume.
         cfg.durable = false;
         let farm = Arc::new(Farm::new(cfg).context("cannot start the embedded coordinator")?);
+        farm.summaries().prime(&scene.hash, &scene.scene.desc);
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .context("cannot listen on 127.0.0.1")?;
@@ -124,6 +151,10 @@ impl Embedded {
         let mut wcfg = WorkerConfig::new(url.clone());
         wcfg.threads = threads;
         wcfg.name = "embedded".into();
+        wcfg.preloaded = vec![Preloaded {
+            hash: scene.hash,
+            scene: scene.scene,
+        }];
         let worker = tokio::spawn(async move {
             if let Err(e) = trevi_worker::run(wcfg, stop).await {
                 eprintln!("trevi-submit: embedded worker failed: {e}");

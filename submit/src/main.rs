@@ -187,19 +187,25 @@ fn run(args: Args) -> Result<()> {
     if args.detach && args.coordinator.is_none() {
         bail!("--detach needs --coordinator URL: the embedded farm ends with this process");
     }
-    let bundle = trevi_core::Bundle::from_scene_file(&scene_path)
-        .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
-    let scene = trevi_core::Scene::from_bundle(&bundle)
-        .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
+    // The scene is parsed here, once: the cameras are listed from its
+    // description, and a local render hands the description on (see
+    // local::Embedded::start) instead of parsing the bundle again.
+    let trevi_core::ParsedBundle { bundle, desc } =
+        trevi_core::ParsedBundle::from_scene_file(&scene_path)
+            .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
     let cameras: Vec<usize> = match &args.camera {
-        Some(id) => vec![scene.camera_index(id).with_context(|| {
-            let ids: Vec<_> = scene.desc.cameras.iter().map(|c| c.id.as_str()).collect();
-            format!(
-                "no camera \"{id}\" in the scene (cameras: {})",
-                ids.join(", ")
-            )
-        })?],
-        None => (0..scene.desc.cameras.len()).collect(),
+        Some(id) => vec![desc
+            .cameras
+            .iter()
+            .position(|c| c.id == *id)
+            .with_context(|| {
+                let ids: Vec<_> = desc.cameras.iter().map(|c| c.id.as_str()).collect();
+                format!(
+                    "no camera \"{id}\" in the scene (cameras: {})",
+                    ids.join(", ")
+                )
+            })?],
+        None => (0..desc.cameras.len()).collect(),
     };
     if args.output.is_some() && cameras.len() > 1 {
         bail!(
@@ -223,19 +229,18 @@ fn run(args: Args) -> Result<()> {
     let targets: Vec<remote::Target> = cameras
         .iter()
         .map(|&cam| {
-            let desc = &scene.desc.cameras[cam];
+            let c = &desc.cameras[cam];
             let out = match &args.output {
                 Some(o) => o.clone(),
-                None => scene_dir.join(&desc.render.output),
+                None => scene_dir.join(&c.render.output),
             };
-            remote::Target::new(desc.id.clone(), out)
-                .with_context(|| format!("camera \"{}\"", desc.id))
+            remote::Target::new(c.id.clone(), out).with_context(|| format!("camera \"{}\"", c.id))
         })
         .collect::<Result<_>>()?;
-    drop(scene);
     runtime.block_on(async {
         match &args.coordinator {
             Some(url) => {
+                drop(desc);
                 let mut client =
                     remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
                 client.preview = args.preview.clone();
@@ -253,9 +258,14 @@ fn run(args: Args) -> Result<()> {
             None => {
                 let data = data.as_ref().expect("made for a local render");
                 let signals = signals.as_mut().expect("caught for a local render");
-                let farm =
-                    local::Embedded::start(args.threads.unwrap_or(0), args.tile, data.path())
-                        .await?;
+                let scene = local::Built::new(&bundle, desc).await?;
+                let farm = local::Embedded::start(
+                    args.threads.unwrap_or(0),
+                    args.tile,
+                    data.path(),
+                    scene,
+                )
+                .await?;
                 let render = async {
                     let mut client = remote::Client::connect(&farm.url, None).await?;
                     client.announce = false;

@@ -48,9 +48,29 @@ pub struct WorkerConfig {
     /// third of the lease's lifetime), and the longest one `LeaseTile` call
     /// waits: how soon a cancelled job or a stop ends a render.
     pub poll: Duration,
+    /// Scenes already built, with their bundle's hash: they start in the
+    /// scene cache, so their bundles are never downloaded or parsed (a
+    /// local render hands over the scene it parsed for itself).
+    pub preloaded: Vec<Preloaded>,
     /// Tests only: make the render of one tile fail (see [`TestFault`]).
     #[doc(hidden)]
     pub test_fault: Option<TestFault>,
+}
+
+/// A scene built before the worker starts, and the hash of its bundle (see
+/// [`WorkerConfig::preloaded`]).
+#[derive(Clone)]
+pub struct Preloaded {
+    pub hash: String,
+    pub scene: Arc<Scene>,
+}
+
+impl std::fmt::Debug for Preloaded {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Preloaded")
+            .field("hash", &self.hash)
+            .finish_non_exhaustive()
+    }
 }
 
 /// The default [`WorkerConfig::poll`].
@@ -106,6 +126,7 @@ impl WorkerConfig {
             token: None,
             tls: trevi_proto::ClientTls::default(),
             poll: POLL,
+            preloaded: Vec::new(),
             test_fault: None,
         }
     }
@@ -185,10 +206,14 @@ pub async fn run(
             .build()
             .map_err(|e| WorkerError::Pool(threads, e.to_string()))?,
     );
-    let cache = Arc::new(tokio::sync::Mutex::new(SceneCache {
+    let mut scenes = SceneCache {
         cap: cfg.cache_size,
         scenes: Vec::new(),
-    }));
+    };
+    for p in &cfg.preloaded {
+        scenes.put(p.hash.clone(), p.scene.clone());
+    }
+    let cache = Arc::new(tokio::sync::Mutex::new(scenes));
     let mut backoff = Duration::from_millis(100);
     loop {
         if *shutdown.borrow() {
@@ -599,7 +624,7 @@ impl Session {
             if got != want {
                 return Err(format!("bundle {want} arrived with hash {got}"));
             }
-            let bundle = Bundle::decode(&bytes)?;
+            let bundle = Bundle::decode(&bytes).map_err(|e| e.to_string())?;
             Scene::from_bundle(&bundle).map_err(|e| e.to_string())
         })
         .await

@@ -1,11 +1,14 @@
 //! The scene description: what an AISXML file says, resolved and validated.
 //!
-//! Data flows `scene file → parse (aisxml.rs) → SceneDesc → build (build.rs) → Scene`.
-//! A [`SceneDesc`] is plain data with every reference resolved (meshes loaded,
-//! surfaces assigned to triangles, defaults filled in); [`crate::Scene`] adds
-//! the acceleration structure and precomputed camera frames.
+//! Data flows `scene file → parse (aisxml) → SceneDesc → build
+//! ([`crate::Scene::build`], world.rs) → Scene`, with every file read through
+//! a [`source::FileSource`]. A [`SceneDesc`] is plain data with every
+//! reference resolved (meshes loaded, surfaces assigned to triangles,
+//! defaults filled in); [`crate::Scene`] adds the acceleration structures
+//! and precomputed camera frames.
 
 pub mod aisxml;
+pub mod source;
 
 use crate::mesh::Mesh;
 use glam::{DMat4, DVec3, Vec3};
@@ -75,7 +78,7 @@ pub struct Model {
     pub mesh: usize,
     /// Object to world, composed in document order (first child applied first).
     /// When the parser recentred a mesh that lies far from its origin (see
-    /// `aisxml`), the recentring translation is folded in on the right.
+    /// `aisxml/mesh.rs`), the recentring translation is folded in on the right.
     pub transform: DMat4,
     /// The surfaces of this model; `surfaces[0]` is the default one.
     pub surfaces: Vec<Surface>,

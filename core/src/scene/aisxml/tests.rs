@@ -3,8 +3,9 @@
 //! message says what was expected.
 
 use super::*;
+use crate::scene::*;
 use crate::Bundle;
-use glam::DVec4;
+use glam::{DMat4, DVec4, Vec3};
 use std::collections::BTreeMap;
 
 const CAM: &str = r#"<camera id="c" position="0 0 5" lookat="0 0 0" fov="50"><render width="4" height="3"/></camera>"#;
@@ -1489,4 +1490,31 @@ mod fuzz {
             }
         }
     }
+}
+
+#[test]
+fn errors_say_their_kind() {
+    use crate::SceneErrorKind as K;
+    let kind = |text: &str| parse(text).unwrap_err().kind;
+    assert_eq!(kind("<scene version=\"1\">"), K::Syntax);
+    assert_eq!(kind(&doc("<cube/>")), K::UnknownElement);
+    assert_eq!(
+        kind(&doc(r#"<settings colour="1 1 1"/>"#)),
+        K::UnknownAttribute
+    );
+    assert_eq!(kind(&doc(r#"<sphere id="s" center="0 0 0"/>"#)), K::Missing);
+    assert_eq!(
+        kind(&doc(r#"<sphere id="s" center="0 0 0" radius="-1"/>"#)),
+        K::BadValue
+    );
+    assert_eq!(
+        kind(&doc(r#"<model id="m" mesh="nothing"/>"#)),
+        K::Reference
+    );
+    assert_eq!(
+        kind(&doc(r#"<mesh id="m" file="../m.obj"/>"#)),
+        K::Reference
+    );
+    assert_eq!(kind(&doc(r#"<mesh id="m" file="m.obj"/>"#)), K::MissingFile);
+    assert_eq!(kind("<scene version=\"1\"></scene>"), K::Missing);
 }

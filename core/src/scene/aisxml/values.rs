@@ -2,8 +2,9 @@
 //! colors, integers, booleans and enumerations, each failing with a located
 //! error that says what was expected.
 
+use super::table::Attribute;
 use super::xml::{excerpt, is_xml_ws, Attr, Elem, Src, Text};
-use crate::error::SceneError;
+use crate::error::{SceneError, SceneErrorKind};
 use glam::{DVec3, Vec3};
 
 pub(super) type Result<T> = std::result::Result<T, SceneError>;
@@ -78,26 +79,31 @@ impl<'a> El<'a> {
             a,
             format!("expected {expected}, found \"{}\"", excerpt(&a.value)),
         )
+        .with_kind(SceneErrorKind::BadValue)
     }
 
-    /// Fails on the first attribute not in `allowed`.
-    pub fn check_attrs(&self, allowed: &[&str]) -> Result<()> {
+    /// Fails on the first attribute not in the element's table `allowed`.
+    pub fn check_attrs(&self, allowed: &[Attribute]) -> Result<()> {
         for a in &self.e.attrs {
-            if !allowed.contains(&a.name.as_str()) {
+            if !allowed.iter().any(|t| t.name == a.name) {
                 let expected = if allowed.is_empty() {
                     "no attributes".to_string()
                 } else {
-                    let l: Vec<String> = allowed.iter().map(|n| format!("\"{n}\"")).collect();
+                    let l: Vec<String> =
+                        allowed.iter().map(|t| format!("\"{}\"", t.name)).collect();
                     format!("one of {}", l.join(", "))
                 };
-                return Err(self.src.err(
-                    a.pos,
-                    format!(
-                        "unknown attribute \"{}\" of <{}> (expected {expected})",
-                        excerpt(&a.name),
-                        self.e.name
-                    ),
-                ));
+                return Err(self
+                    .src
+                    .err(
+                        a.pos,
+                        format!(
+                            "unknown attribute \"{}\" of <{}> (expected {expected})",
+                            excerpt(&a.name),
+                            self.e.name
+                        ),
+                    )
+                    .with_kind(SceneErrorKind::UnknownAttribute));
             }
         }
         Ok(())
@@ -114,6 +120,7 @@ impl<'a> El<'a> {
                 "<{}> is missing its required attribute \"{name}\"",
                 self.e.name
             ))
+            .with_kind(SceneErrorKind::Missing)
         })
     }
 
@@ -134,24 +141,28 @@ impl<'a> El<'a> {
             match parse_real(tok) {
                 Ok(v) => out.push(v),
                 Err(NumError::Malformed) => {
-                    return Err(self.attr_err(
-                        a,
-                        format!(
-                            "expected {what}, found \"{}\" (\"{}\" is not a number)",
-                            excerpt(&a.value),
-                            excerpt(tok)
-                        ),
-                    ))
+                    return Err(self
+                        .attr_err(
+                            a,
+                            format!(
+                                "expected {what}, found \"{}\" (\"{}\" is not a number)",
+                                excerpt(&a.value),
+                                excerpt(tok)
+                            ),
+                        )
+                        .with_kind(SceneErrorKind::BadValue))
                 }
                 Err(NumError::NonFinite) => {
-                    return Err(self.attr_err(
-                        a,
-                        format!(
+                    return Err(self
+                        .attr_err(
+                            a,
+                            format!(
                         "expected {what} (finite), found \"{}\" (\"{}\" is not a finite number)",
                         excerpt(&a.value),
                         excerpt(tok)
                     ),
-                    ))
+                        )
+                        .with_kind(SceneErrorKind::BadValue))
                 }
             }
             if out.len() > counts.iter().copied().max().unwrap_or(0) {
@@ -160,14 +171,16 @@ impl<'a> El<'a> {
         }
         if !counts.contains(&out.len()) {
             let n = tokens(&a.value).count();
-            return Err(self.attr_err(
-                a,
-                format!(
-                    "expected {what}, found {n} number{} in \"{}\"",
-                    if n == 1 { "" } else { "s" },
-                    excerpt(&a.value)
-                ),
-            ));
+            return Err(self
+                .attr_err(
+                    a,
+                    format!(
+                        "expected {what}, found {n} number{} in \"{}\"",
+                        if n == 1 { "" } else { "s" },
+                        excerpt(&a.value)
+                    ),
+                )
+                .with_kind(SceneErrorKind::BadValue));
         }
         Ok(out)
     }
@@ -299,24 +312,30 @@ impl<'a> El<'a> {
             match parse_real(tok) {
                 Ok(v) => out.push(v),
                 Err(NumError::Malformed) => {
-                    return Err(self.src.err(
-                        pos,
-                        format!(
-                            "<{}>: expected a number, found \"{}\"",
-                            self.e.name,
-                            excerpt(tok)
-                        ),
-                    ))
+                    return Err(self
+                        .src
+                        .err(
+                            pos,
+                            format!(
+                                "<{}>: expected a number, found \"{}\"",
+                                self.e.name,
+                                excerpt(tok)
+                            ),
+                        )
+                        .with_kind(SceneErrorKind::BadValue))
                 }
                 Err(NumError::NonFinite) => {
-                    return Err(self.src.err(
-                        pos,
-                        format!(
-                            "<{}>: expected a finite number, found \"{}\"",
-                            self.e.name,
-                            excerpt(tok)
-                        ),
-                    ))
+                    return Err(self
+                        .src
+                        .err(
+                            pos,
+                            format!(
+                                "<{}>: expected a finite number, found \"{}\"",
+                                self.e.name,
+                                excerpt(tok)
+                            ),
+                        )
+                        .with_kind(SceneErrorKind::BadValue))
                 }
             }
         }

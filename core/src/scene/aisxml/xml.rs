@@ -8,7 +8,7 @@
 //! element structure (which element may appear inside which), checked as the
 //! tree is built so that nesting depth is bounded by the schema.
 
-use crate::error::{Location, SceneError};
+use crate::error::{Location, SceneError, SceneErrorKind};
 use quick_xml::events::Event;
 use quick_xml::Reader;
 use std::collections::HashMap;
@@ -393,6 +393,14 @@ fn quick_xml_message(e: &quick_xml::Error) -> String {
 /// Parses the document into its root element, checking XML well-formedness
 /// and the AISXML element structure.
 pub(super) fn parse_document(src: &Src) -> Result<Elem, SceneError> {
+    // Every error here is a syntax error unless it says otherwise.
+    parse_tree(src).map_err(|e| match e.kind {
+        SceneErrorKind::Invalid => e.with_kind(SceneErrorKind::Syntax),
+        _ => e,
+    })
+}
+
+fn parse_tree(src: &Src) -> Result<Elem, SceneError> {
     let mut reader = Reader::from_str(src.text);
     {
         let c = reader.config_mut();
@@ -427,7 +435,8 @@ pub(super) fn parse_document(src: &Src) -> Result<Elem, SceneError> {
                             "unexpected element <{}> after the root element (expected a single <scene> root)",
                             excerpt(&name)
                         ),
-                    ));
+                    )
+                    .with_kind(SceneErrorKind::UnknownElement));
                 }
                 let allowed = allowed_children(parent);
                 if !allowed.contains(&name.as_str()) {
@@ -449,7 +458,9 @@ pub(super) fn parse_document(src: &Src) -> Result<Elem, SceneError> {
                             list.join(", ")
                         )
                     };
-                    return Err(src.err(start, msg));
+                    return Err(src
+                        .err(start, msg)
+                        .with_kind(SceneErrorKind::UnknownElement));
                 }
                 let elem = Elem {
                     name,

@@ -1,0 +1,311 @@
+//! `<mesh>`: triangles from inline `<vertices>`, `<normals>` and
+//! `<triangles>`, or from an OBJ or PLY file of the bundle.
+
+use super::table::{attr, Attribute, REQUIRED};
+use super::values::{parse_uint, El};
+use super::xml::{excerpt, Attr, Elem};
+use super::{Resolver, Result};
+use crate::error::{read_error_kind, SceneErrorKind};
+use crate::mesh::Mesh;
+use crate::scene::source::normalize_rel_path;
+use crate::scene::MAX_MESH_ELEMENTS;
+use glam::{DVec3, Vec3};
+
+/// The attributes of `<mesh>`.
+pub(super) const MESH: &[Attribute] = &[
+    attr(
+        "id",
+        "id",
+        REQUIRED,
+        "the name models use to instance the mesh",
+    ),
+    attr(
+        "file",
+        "path",
+        "none (inline data)",
+        "an OBJ or PLY file, relative to the scene's directory and inside it",
+    ),
+    attr(
+        "invert",
+        "boolean",
+        "false",
+        "reverse every triangle's winding and negate every normal",
+    ),
+];
+
+impl<'a> Resolver<'a> {
+    pub(super) fn mesh(&mut self, e: &'a Elem) -> Result<()> {
+        let el = self.el(e);
+        el.check_attrs(MESH)?;
+        let (id_attr, id) = el.id("id")?;
+        if let Some(&(_, pos)) = self.mesh_ids.get(&id) {
+            return Err(el.attr_err(
+                id_attr,
+                format!(
+                    "duplicate id \"{}\": already used by the <mesh> at {} (expected a unique mesh id)",
+                    excerpt(&id),
+                    self.src.line_col(pos)
+                ),
+            ).with_kind(SceneErrorKind::Reference));
+        }
+        let invert = el.boolean("invert")?.unwrap_or(false);
+        let (mut mesh, offset) = match el.get("file") {
+            Some(f) => {
+                if let Some(c) = e.children.first() {
+                    return Err(self.src.err(
+                        c.pos,
+                        format!(
+                            "<{}> inside a <mesh> with file= (expected either file= or inline data, not both)",
+                            c.name
+                        ),
+                    ).with_kind(SceneErrorKind::UnknownElement));
+                }
+                let mut mesh = self.mesh_file(&el, f)?;
+                let offset = recentre(mesh.positions.iter().map(|p| p.as_dvec3()));
+                if offset != DVec3::ZERO {
+                    for p in &mut mesh.positions {
+                        *p = (p.as_dvec3() - offset).as_vec3();
+                    }
+                }
+                (mesh, offset)
+            }
+            None => inline_mesh(&el, &id)?,
+        };
+        for (n, what) in [
+            (mesh.positions.len(), "vertices"),
+            (mesh.triangles.len(), "triangles"),
+        ] {
+            if n > MAX_MESH_ELEMENTS {
+                return Err(el
+                    .err(format!(
+                        "<mesh> \"{}\" has {n} {what} (expected at most {MAX_MESH_ELEMENTS})",
+                        excerpt(&id)
+                    ))
+                    .with_kind(SceneErrorKind::Limit));
+            }
+        }
+        if mesh.normals.is_empty() {
+            mesh.compute_smooth_normals();
+        }
+        if invert {
+            mesh.invert();
+        }
+        self.mesh_ids.insert(id, (self.desc.meshes.len(), e.pos));
+        self.desc.meshes.push(mesh);
+        self.mesh_offsets.push(offset);
+        Ok(())
+    }
+
+    fn mesh_file(&mut self, el: &El<'a>, f: &'a Attr) -> Result<Mesh> {
+        let rel = normalize_rel_path(&f.value).map_err(|m| {
+            el.attr_err(
+                f,
+                format!("{m} (expected a relative path inside the scene's directory)"),
+            )
+            .with_kind(SceneErrorKind::Reference)
+        })?;
+        let path = self.bundle_path(&rel);
+        let lower = path.to_ascii_lowercase();
+        let is_obj = lower.ends_with(".obj");
+        if !is_obj && !lower.ends_with(".ply") {
+            return Err(el.expected(f, "a mesh file ending in .obj or .ply"));
+        }
+        let bytes = self.source.read(&path).map_err(|e| {
+            el.attr_err(
+                f,
+                format!(
+                    "cannot read mesh file \"{path}\" ({e}); expected a file of the scene bundle"
+                ),
+            )
+            .with_kind(read_error_kind(&e))
+        })?;
+        let mesh = if is_obj {
+            crate::mesh::obj::parse(&path, &bytes)?
+        } else {
+            crate::mesh::ply::parse(&path, &bytes)?
+        };
+        // The loaders promise these; check anyway so that nothing downstream
+        // (smooth normals, the BVH) can index out of bounds.
+        let bad = |what: String| el.attr_err(f, format!("mesh file \"{path}\": {what}"));
+        if mesh.triangles.is_empty() {
+            return Err(bad(
+                "the mesh has no triangles (expected at least one)".into()
+            ));
+        }
+        let nv = mesh.positions.len();
+        if let Some((t, i)) = mesh
+            .triangles
+            .iter()
+            .enumerate()
+            .find_map(|(t, tri)| tri.iter().find(|&&i| i as usize >= nv).map(|&i| (t, i)))
+        {
+            return Err(bad(format!(
+                "triangle {t} refers to vertex {i} but there are only {nv} vertices"
+            )));
+        }
+        if !mesh.normals.is_empty() && mesh.normals.len() != nv {
+            return Err(bad(format!(
+                "{} normals for {nv} vertices (expected one normal per vertex)",
+                mesh.normals.len()
+            )));
+        }
+        if !mesh
+            .positions
+            .iter()
+            .chain(&mesh.normals)
+            .all(|p| p.is_finite())
+        {
+            return Err(bad(
+                "non-finite coordinates (expected finite numbers)".into()
+            ));
+        }
+        self.files.insert(path);
+        Ok(mesh)
+    }
+}
+
+/// Where to put a mesh's object-space origin: the centre of its bounding box
+/// when the mesh lies far from the origin compared with its size (more than
+/// 8 half-extents away), else the origin itself. Vertices are stored in f32
+/// relative to it, so a mesh a million units out keeps the precision it has
+/// at the origin; the model's f64 transform takes the offset back (the
+/// renderer composes it with the camera-relative shift in f64).
+fn recentre(points: impl Iterator<Item = DVec3>) -> DVec3 {
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for p in points {
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    if !(lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()) {
+        return DVec3::ZERO;
+    }
+    let centre = (lo + hi) * 0.5;
+    let half = ((hi - lo) * 0.5).max_element();
+    if centre.abs().max_element() > 8.0 * half {
+        centre
+    } else {
+        DVec3::ZERO
+    }
+}
+
+/// An inline mesh: `<vertices>`, optional `<normals>`, `<triangles>`; and
+/// the offset its vertices were stored relative to (see [`recentre`]).
+fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
+    let mut parts: [Option<&Elem>; 3] = [None, None, None];
+    for c in &el.e.children {
+        let slot = match c.name.as_str() {
+            "vertices" => 0,
+            "normals" => 1,
+            _ => 2,
+        };
+        if let Some(first) = parts[slot] {
+            return Err(el
+                .src
+                .err(
+                    c.pos,
+                    format!(
+                        "second <{}> in <mesh> \"{}\" (the first is at {}; expected at most one)",
+                        c.name,
+                        excerpt(id),
+                        el.src.line_col(first.pos)
+                    ),
+                )
+                .with_kind(SceneErrorKind::UnknownElement));
+        }
+        parts[slot] = Some(c);
+    }
+    for c in parts.iter().flatten() {
+        El::new(el.src, c).check_attrs(&[])?;
+    }
+    let [Some(ve), ne, Some(te)] = parts else {
+        return Err(el
+            .err(format!(
+                "<mesh> \"{}\" has no {} (expected file= or inline <vertices> and <triangles>)",
+                excerpt(id),
+                if parts[0].is_none() {
+                    "<vertices>"
+                } else {
+                    "<triangles>"
+                }
+            ))
+            .with_kind(SceneErrorKind::Missing));
+    };
+    let vel = El::new(el.src, ve);
+    let v = vel.text_reals()?;
+    if !v.len().is_multiple_of(3) {
+        return Err(vel.err(format!(
+            "<vertices> of mesh \"{}\": expected 3 numbers per vertex (a multiple of 3), found {}",
+            excerpt(id),
+            v.len()
+        )));
+    }
+    let to_vecs = |v: &[f64], o: DVec3| -> Vec<Vec3> {
+        v.chunks_exact(3)
+            .map(|c| (DVec3::new(c[0], c[1], c[2]) - o).as_vec3())
+            .collect()
+    };
+    let offset = recentre(v.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2])));
+    let positions = to_vecs(&v, offset);
+    let normals = match ne {
+        None => Vec::new(),
+        Some(ne) => {
+            let nel = El::new(el.src, ne);
+            let n = nel.text_reals()?;
+            if n.len() != v.len() {
+                return Err(nel.err(format!(
+                    "<normals> of mesh \"{}\": expected one normal per vertex ({} numbers for {} vertices), found {} numbers",
+                    excerpt(id),
+                    v.len(),
+                    positions.len(),
+                    n.len()
+                )));
+            }
+            to_vecs(&n, DVec3::ZERO)
+        }
+    };
+    let tel = El::new(el.src, te);
+    let nv = positions.len();
+    let mut idx: Vec<u32> = Vec::new();
+    for (pos, tok) in tel.text_tokens() {
+        let Some(i) = parse_uint(tok).and_then(|i| u32::try_from(i).ok()) else {
+            return Err(el.src.err(
+                pos,
+                format!(
+                    "<triangles>: expected a vertex index (an integer ≥ 0), found \"{}\"",
+                    excerpt(tok)
+                ),
+            ));
+        };
+        if i as usize >= nv {
+            return Err(el.src.err(
+                pos,
+                format!(
+                    "<triangles> of mesh \"{}\": vertex index {i} is out of range (expected an index below the vertex count, {nv})",
+                    excerpt(id)
+                ),
+            ));
+        }
+        idx.push(i);
+    }
+    if idx.is_empty() {
+        return Err(tel.err(format!(
+            "<triangles> of mesh \"{}\" is empty (expected at least one triangle)",
+            excerpt(id)
+        )));
+    }
+    if !idx.len().is_multiple_of(3) {
+        return Err(tel.err(format!(
+            "<triangles> of mesh \"{}\": expected 3 indices per triangle (a multiple of 3), found {}",
+            excerpt(id),
+            idx.len()
+        )));
+    }
+    Ok((
+        Mesh {
+            positions,
+            normals,
+            triangles: idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        },
+        offset,
+    ))
+}

@@ -1,0 +1,244 @@
+//! `<render>`: how a camera's frame is rendered and where it is written,
+//! including Trevi's adaptive sampling (docs/aisxml-extensions.md).
+
+use super::table::{attr, extension, Attribute, REQUIRED};
+use super::values::El;
+use super::xml::{excerpt, is_xml_ws, Attr, Elem};
+use super::{Resolver, Result};
+use crate::error::SceneErrorKind;
+use crate::scene::source::normalize_rel_path;
+use crate::scene::{
+    Adaptive, AoDistance, RenderSettings, MAX_ADAPTIVE_SAMPLES, MAX_DEPTH, MAX_IMAGE_SIDE,
+    MAX_RAY_SAMPLES, MAX_SUPERSAMPLE,
+};
+
+/// The attributes of `<render>`.
+pub(super) const RENDER: &[Attribute] = &[
+    attr(
+        "width",
+        "integer in [1, 65536]",
+        REQUIRED,
+        "the frame's width in pixels",
+    ),
+    attr(
+        "height",
+        "integer in [1, 65536]",
+        REQUIRED,
+        "the frame's height in pixels",
+    ),
+    attr(
+        "supersample",
+        "integer in [1, 65535]",
+        "1",
+        "n: n×n samples per pixel",
+    ),
+    attr(
+        "jitter",
+        "boolean",
+        "false",
+        "jitter samples inside their strata",
+    ),
+    attr(
+        "max-depth",
+        "integer in [0, 10000]",
+        "5",
+        "the reflection and refraction depth",
+    ),
+    attr(
+        "shadow-samples",
+        "integer in [1, 65536]",
+        "1",
+        "shadow rays per light per sample",
+    ),
+    attr(
+        "ao-samples",
+        "integer in [0, 65536]",
+        "0",
+        "ambient-occlusion rays per sample",
+    ),
+    attr(
+        "ao-distance",
+        "real > 0 | auto",
+        "auto",
+        "s_max; auto is half the diagonal of the scene's bounds",
+    ),
+    attr(
+        "diffuse-samples",
+        "integer in [0, 65536]",
+        "0",
+        "diffuse-interreflection rays per sample at the first level",
+    ),
+    attr(
+        "diffuse-depth",
+        "integer in [1, 10000]",
+        "1",
+        "diffuse bounce levels",
+    ),
+    attr("seed", "integer ≥ 0 (64 bits)", "0", "the random seed"),
+    attr(
+        "output",
+        "path ending in .png or .exr",
+        "<camera id>.png",
+        "the output file, relative to the scene's directory",
+    ),
+    extension(
+        "noise-threshold",
+        "real > 0",
+        "none (adaptive sampling off)",
+        "the target standard error of a pixel's mean",
+    ),
+    extension(
+        "min-samples",
+        "integer ≥ 1",
+        "4",
+        "camera samples every pixel takes before it may stop",
+    ),
+    extension(
+        "max-samples",
+        "integer ≥ min-samples",
+        "256",
+        "camera samples after which a pixel stops",
+    ),
+];
+
+impl<'a> Resolver<'a> {
+    pub(super) fn render(
+        &mut self,
+        e: &'a Elem,
+        camera: &El<'a>,
+        camera_id_attr: &'a Attr,
+        camera_id: &str,
+    ) -> Result<RenderSettings> {
+        let el = self.el(e);
+        el.check_attrs(RENDER)?;
+        el.req("width")?;
+        el.req("height")?;
+        // Every count has a maximum (see the constants and the limits table
+        // of docs/aisxml-extensions.md): past it, arithmetic on it would
+        // overflow or lose precision, or memory would grow without bound.
+        let width = el.u32_in("width", 1, MAX_IMAGE_SIDE)?.unwrap_or(1);
+        let height = el.u32_in("height", 1, MAX_IMAGE_SIDE)?.unwrap_or(1);
+        let supersample = el.u32_in("supersample", 1, MAX_SUPERSAMPLE)?.unwrap_or(1);
+        let jitter = el.boolean("jitter")?.unwrap_or(false);
+        let max_depth = el.u32_in("max-depth", 0, MAX_DEPTH)?.unwrap_or(5);
+        let shadow_samples = el
+            .u32_in("shadow-samples", 1, MAX_RAY_SAMPLES)?
+            .unwrap_or(1);
+        let ao_samples = el.u32_in("ao-samples", 0, MAX_RAY_SAMPLES)?.unwrap_or(0);
+        let ao_distance = match el.get("ao-distance") {
+            Some(a) if a.value.trim_matches(is_xml_ws) == "auto" => AoDistance::Auto,
+            Some(_) => AoDistance::Fixed(
+                el.real_in("ao-distance", "a number > 0 or \"auto\"", |v| v > 0.0)?
+                    .unwrap_or(1.0) as f32,
+            ),
+            None => AoDistance::Auto,
+        };
+        let diffuse_samples = el
+            .u32_in("diffuse-samples", 0, MAX_RAY_SAMPLES)?
+            .unwrap_or(0);
+        let diffuse_depth = el.u32_in("diffuse-depth", 1, MAX_DEPTH)?.unwrap_or(1);
+        let seed = el.uint("seed", 0, u64::MAX)?.unwrap_or(0);
+
+        let output_attr = el.get("output");
+        let output = match output_attr {
+            Some(a) => {
+                let rel = normalize_rel_path(&a.value).map_err(|m| {
+                    el.attr_err(
+                        a,
+                        format!("{m} (expected a relative path inside the scene's directory)"),
+                    )
+                    .with_kind(SceneErrorKind::Reference)
+                })?;
+                if !has_image_extension(&rel) {
+                    return Err(el.expected(a, "a file name ending in .png or .exr"));
+                }
+                rel
+            }
+            None => {
+                let default = format!("{camera_id}.png");
+                match normalize_rel_path(&default) {
+                    Ok(rel) if has_image_extension(&rel) => rel,
+                    _ => {
+                        return Err(camera.attr_err(
+                            camera_id_attr,
+                            format!(
+                                "the default output \"{}\" is not a usable file name (expected an id that makes one, or an explicit output= on <render>)",
+                                excerpt(&default)
+                            ),
+                        ).with_kind(SceneErrorKind::BadValue))
+                    }
+                }
+            }
+        };
+        let output = self.bundle_path(&output);
+        if let Some(&first) = self.outputs.get(&output) {
+            let msg = format!(
+                "output \"{}\" is already written by the <render> at {} (expected a distinct output per camera)",
+                excerpt(&output),
+                self.src.line_col(first)
+            );
+            return Err(match output_attr {
+                Some(a) => el.attr_err(a, msg),
+                None => el.err(msg),
+            }
+            .with_kind(SceneErrorKind::Reference));
+        }
+        self.outputs.insert(output.clone(), e.pos);
+
+        let threshold = el.real_in("noise-threshold", "a number > 0", |v| v > 0.0)?;
+        let min_samples = el.u32_in("min-samples", 1, MAX_ADAPTIVE_SAMPLES)?;
+        let max_samples = el.u32_in("max-samples", 1, MAX_ADAPTIVE_SAMPLES)?;
+        let adaptive = match threshold {
+            None => {
+                if let Some(a) = el.get("min-samples").or_else(|| el.get("max-samples")) {
+                    return Err(el.attr_err(
+                        a,
+                        "only allowed together with \"noise-threshold\" (expected noise-threshold= to enable adaptive sampling)",
+                    ));
+                }
+                None
+            }
+            Some(t) => {
+                let min_samples = min_samples.unwrap_or(4);
+                let max_samples = max_samples.unwrap_or(256);
+                if max_samples < min_samples {
+                    let a = el
+                        .get("max-samples")
+                        .or_else(|| el.get("min-samples"))
+                        .ok_or_else(|| el.err("max-samples < min-samples"))?;
+                    return Err(el.expected(
+                        a,
+                        &format!(
+                            "max-samples ≥ min-samples ({min_samples} ≤ {max_samples} is violated)"
+                        ),
+                    ));
+                }
+                Some(Adaptive {
+                    threshold: t as f32,
+                    min_samples,
+                    max_samples,
+                })
+            }
+        };
+        Ok(RenderSettings {
+            width,
+            height,
+            supersample,
+            jitter,
+            max_depth,
+            shadow_samples,
+            ao_samples,
+            ao_distance,
+            diffuse_samples,
+            diffuse_depth,
+            seed,
+            output,
+            adaptive,
+        })
+    }
+}
+
+fn has_image_extension(path: &str) -> bool {
+    let lower = path.to_ascii_lowercase();
+    lower.ends_with(".png") || lower.ends_with(".exr")
+}
