@@ -1,7 +1,7 @@
 //! Rendering on this machine: an embedded coordinator on 127.0.0.1 (an
 //! ephemeral port, data in a temporary directory) and an in-process worker
-//! with every core, driven by the same client code as a farm (`remote.rs`),
-//! so the output is byte-identical to the farm's.
+//! with every core, driven by the same client as a farm (`client.rs`), so
+//! the output is byte-identical to the farm's.
 
 use anyhow::{Context, Result};
 use std::path::Path;

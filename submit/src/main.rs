@@ -11,8 +11,8 @@
 //! A local render stopped by SIGINT or SIGTERM removes its temporary files
 //! and any half-written output, and exits with 128 + the signal's number.
 
+mod client;
 mod local;
-mod remote;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -139,10 +139,10 @@ fn run(args: Args) -> Result<()> {
         )?;
         return runtime.block_on(async {
             let mut client =
-                remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
+                client::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
             match cmd {
                 Command::Status { id } => {
-                    println!("{}", remote::describe(&client.status(*id).await?));
+                    println!("{}", client::describe(&client.status(*id).await?));
                     if let Some(out) = &args.preview {
                         let p = client.save_preview(*id, out).await?;
                         println!(
@@ -156,11 +156,11 @@ fn run(args: Args) -> Result<()> {
                 }
                 Command::List { limit } => {
                     for s in client.list(*limit).await? {
-                        println!("{}", remote::describe(&s));
+                        println!("{}", client::describe(&s));
                     }
                 }
                 Command::Cancel { id } => {
-                    println!("{}", remote::describe(&client.cancel(*id).await?))
+                    println!("{}", client::describe(&client.cancel(*id).await?))
                 }
                 Command::Fetch { id, output } => {
                     let (out, s) = client.fetch(*id, output.as_deref()).await?;
@@ -212,15 +212,15 @@ fn run(args: Args) -> Result<()> {
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("."));
     let progress = if args.quiet {
-        remote::Progress::Quiet
+        client::Progress::Quiet
     } else if std::io::stderr().is_terminal() {
-        remote::Progress::Bar
+        client::Progress::Bar
     } else {
-        remote::Progress::Lines
+        client::Progress::Lines
     };
     // Every output is checked (format, not a device or directory) before
     // anything renders.
-    let targets: Vec<remote::Target> = cameras
+    let targets: Vec<client::Target> = cameras
         .iter()
         .map(|&cam| {
             let desc = &scene.desc.cameras[cam];
@@ -228,7 +228,7 @@ fn run(args: Args) -> Result<()> {
                 Some(o) => o.clone(),
                 None => scene_dir.join(&desc.render.output),
             };
-            remote::Target::new(desc.id.clone(), out)
+            client::Target::new(desc.id.clone(), out)
                 .with_context(|| format!("camera \"{}\"", desc.id))
         })
         .collect::<Result<_>>()?;
@@ -237,7 +237,7 @@ fn run(args: Args) -> Result<()> {
         match &args.coordinator {
             Some(url) => {
                 let mut client =
-                    remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
+                    client::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
                 client.preview = args.preview.clone();
                 client
                     .render(
@@ -257,7 +257,7 @@ fn run(args: Args) -> Result<()> {
                     local::Embedded::start(args.threads.unwrap_or(0), args.tile, data.path())
                         .await?;
                 let render = async {
-                    let mut client = remote::Client::connect(&farm.url, None).await?;
+                    let mut client = client::Client::connect(&farm.url, None).await?;
                     client.announce = false;
                     client.preview = args.preview.clone();
                     client
@@ -265,7 +265,7 @@ fn run(args: Args) -> Result<()> {
                         .await
                 };
                 // A signal drops the render, and with it the half-written
-                // output (see remote::PartFile); `data` goes after the
+                // output (see client::PartFile); `data` goes after the
                 // runtime.
                 let result = tokio::select! {
                     r = render => r,
