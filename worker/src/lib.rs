@@ -121,18 +121,46 @@ fn default_name() -> String {
     format!("{host}-{}", std::process::id())
 }
 
+/// Why [`run`] could not start or had to give up.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
     #[error(transparent)]
     Endpoint(#[from] trevi_proto::EndpointError),
     /// The coordinator's TLS certificate is not trusted or not for its name:
-    /// retrying cannot help.
-    #[error("cannot connect to {0}: {1}")]
-    Certificate(String, String),
-    #[error("cannot start {0} render threads: {1}")]
-    Pool(usize, String),
-    #[error("{0}")]
-    Token(String),
+    /// retrying cannot help. `why` is the transport error's chain of causes
+    /// on one line, without tonic's repetitions (see
+    /// [`trevi_proto::connect::error_chain`]).
+    #[error("cannot connect to {coordinator}: {why}")]
+    Certificate { coordinator: String, why: String },
+    #[error("cannot start {threads} render threads")]
+    Pool {
+        threads: usize,
+        source: rayon::ThreadPoolBuildError,
+    },
+    #[error(transparent)]
+    Token(#[from] trevi_proto::TokenError),
+}
+
+/// Why the scene of a leased tile could not be loaded. The worker gives the
+/// tile back with this text; the coordinator counts it against the tile.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneLoadError {
+    /// The coordinator refused the download or the stream broke off (the
+    /// status's message says why: an unknown or damaged bundle...).
+    #[error("{}", .0.message())]
+    Download(#[source] tonic::Status),
+    /// The bytes that arrived are not the bundle that was asked for.
+    #[error("bundle {want} arrived with hash {got}")]
+    HashMismatch { want: String, got: String },
+    /// The bytes are not a bundle encoding.
+    #[error(transparent)]
+    Bundle(Box<dyn std::error::Error + Send + Sync>),
+    /// The bundle's scene does not parse or build.
+    #[error(transparent)]
+    Scene(#[from] trevi_core::SceneError),
+    /// The blocking task that builds the scene panicked or was cancelled.
+    #[error(transparent)]
+    Task(#[from] tokio::task::JoinError),
 }
 
 /// Why a session with the coordinator ended.
@@ -172,7 +200,7 @@ pub async fn run(
     let endpoint = trevi_proto::endpoint(&cfg.coordinator, &cfg.tls)?
         .connect_timeout(Duration::from_secs(5))
         .tcp_nodelay(true);
-    let bearer = Bearer::new(cfg.token.as_deref()).map_err(WorkerError::Token)?;
+    let bearer = Bearer::new(cfg.token.as_deref())?;
     let threads = if cfg.threads == 0 {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     } else {
@@ -183,7 +211,7 @@ pub async fn run(
             .num_threads(threads)
             .thread_name(|i| format!("trevi-render-{i}"))
             .build()
-            .map_err(|e| WorkerError::Pool(threads, e.to_string()))?,
+            .map_err(|source| WorkerError::Pool { threads, source })?,
     );
     let cache = Arc::new(tokio::sync::Mutex::new(SceneCache {
         cap: cfg.cache_size,
@@ -212,8 +240,10 @@ pub async fn run(
                 s.serve(&cfg, &cache, &shutdown, &mut backoff).await
             }
             Err(e) if trevi_proto::connect::is_certificate_error(&e) => {
-                let why = trevi_proto::connect::error_chain(&e);
-                return Err(WorkerError::Certificate(cfg.coordinator.clone(), why));
+                return Err(WorkerError::Certificate {
+                    coordinator: cfg.coordinator.clone(),
+                    why: trevi_proto::connect::error_chain(&e),
+                });
             }
             Err(e) => End::Reconnect(format!(
                 "cannot connect: {}",
@@ -572,7 +602,11 @@ impl Session {
     }
 
     /// The built scene for `hash`, from the cache or fetched and built.
-    async fn scene(&mut self, cache: &mut SceneCache, hash: &str) -> Result<Arc<Scene>, String> {
+    async fn scene(
+        &mut self,
+        cache: &mut SceneCache,
+        hash: &str,
+    ) -> Result<Arc<Scene>, SceneLoadError> {
         if let Some(s) = cache.get(hash) {
             return Ok(s);
         }
@@ -583,27 +617,22 @@ impl Session {
                 size: 0,
             })
             .await
-            .map_err(|s| s.message().to_string())?
+            .map_err(SceneLoadError::Download)?
             .into_inner();
         let mut bytes = Vec::new();
-        while let Some(c) = stream
-            .message()
-            .await
-            .map_err(|s| s.message().to_string())?
-        {
+        while let Some(c) = stream.message().await.map_err(SceneLoadError::Download)? {
             bytes.extend_from_slice(&c.data);
         }
         let want = hash.to_string();
-        let scene = tokio::task::spawn_blocking(move || -> Result<Scene, String> {
+        let scene = tokio::task::spawn_blocking(move || -> Result<Scene, SceneLoadError> {
             let got = trevi_core::bundle::sha256_hex(&bytes);
             if got != want {
-                return Err(format!("bundle {want} arrived with hash {got}"));
+                return Err(SceneLoadError::HashMismatch { want, got });
             }
-            let bundle = Bundle::decode(&bytes)?;
-            Scene::from_bundle(&bundle).map_err(|e| e.to_string())
+            let bundle = Bundle::decode(&bytes).map_err(|e| SceneLoadError::Bundle(e.into()))?;
+            Ok(Scene::from_bundle(&bundle)?)
         })
-        .await
-        .map_err(|e| e.to_string())??;
+        .await??;
         let scene = Arc::new(scene);
         tracing::info!(bundle = %hash, "scene built");
         cache.put(hash.to_string(), scene.clone());
