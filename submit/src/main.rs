@@ -62,8 +62,8 @@ struct Args {
     /// Worker threads on this machine (default: every core).
     #[arg(long, env = "TREVI_THREADS")]
     threads: Option<usize>,
-    /// Tile edge in pixels.
-    #[arg(long, default_value_t = 64)]
+    /// Tile edge in pixels (at least 1).
+    #[arg(long, default_value_t = default_tile(), value_parser = tile_edge)]
     tile: u32,
     /// No progress output.
     #[arg(short, long, global = true)]
@@ -181,9 +181,6 @@ fn run(args: Args) -> Result<()> {
     let Some(scene_path) = args.scene.clone() else {
         bail!("name a scene file (or one of status, list, cancel, fetch); see --help");
     };
-    if args.tile == 0 {
-        bail!("--tile must be at least 1");
-    }
     if args.detach && args.coordinator.is_none() {
         bail!("--detach needs --coordinator URL: the embedded farm ends with this process");
     }
@@ -276,6 +273,21 @@ fn run(args: Args) -> Result<()> {
             }
         }
     })
+}
+
+/// `--tile`'s default: the coordinator's own, so that a local render and a
+/// farm's cut a frame alike.
+fn default_tile() -> u32 {
+    trevi_coordinator::FarmConfig::new(PathBuf::new()).default_tile
+}
+
+/// A `--tile` edge: 0 is refused, naming the flag, not clamped.
+fn tile_edge(s: &str) -> Result<u32, String> {
+    match s.parse::<u32>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 /// The TLS settings of `--tls-ca` and `--tls-domain`.

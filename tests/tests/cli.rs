@@ -1,4 +1,5 @@
-//! `trevi-submit` on this machine, as a user runs it: real process, real files.
+//! `trevi-submit` on this machine, as a user runs it: real process, real
+//! files; and the flag values `trevi-submit` and `trevi-worker` refuse.
 
 mod common;
 
@@ -309,4 +310,45 @@ fn a_local_render_interrupted_by_a_signal_leaves_nothing_behind() {
         );
         assert!(!dir.path().join("slow.png").exists());
     }
+}
+
+/// A flag value that makes no sense (0 scenes cached, 0 tiles in flight,
+/// polling every 0 ms, 0-pixel tiles) was once quietly taken as 1: each is
+/// refused, naming the flag, before anything starts, and nothing is written.
+#[test]
+fn nonsense_flag_values_are_refused_naming_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("two.xml"), TWO_CAMERAS).unwrap();
+    let refused = |o: Output, flag: &str| {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{flag} 0 was accepted: {err}");
+        assert!(
+            err.contains(&format!("'{flag} <")) && err.contains("at least 1"),
+            "{flag}: {err}"
+        );
+    };
+    // Unreachable: a worker that started would only retry its connection.
+    let worker = |args: &[&str], envs: &[(&str, &str)]| {
+        Command::new(bin("trevi-worker"))
+            .args(["--coordinator", "http://127.0.0.1:9"])
+            .args(args)
+            .envs(envs.iter().copied())
+            .env_remove("TREVI_SCENE_CACHE")
+            .env_remove("TREVI_TILES_IN_FLIGHT")
+            .env_remove("TREVI_POLL_MS")
+            .current_dir(dir.path())
+            .output()
+            .expect("run trevi-worker")
+    };
+    for flag in ["--scene-cache", "--tiles-in-flight", "--poll-ms"] {
+        refused(worker(&[flag, "0"], &[]), flag);
+    }
+    // The same through the environment.
+    refused(worker(&[], &[("TREVI_SCENE_CACHE", "0")]), "--scene-cache");
+    refused(
+        worker(&[], &[("TREVI_TILES_IN_FLIGHT", "0")]),
+        "--tiles-in-flight",
+    );
+    refused(submit(&["two.xml", "--tile", "0"], dir.path()), "--tile");
+    assert_eq!(files_in(dir.path()), vec!["two.xml"]);
 }

@@ -16,6 +16,7 @@
 //! reported to the coordinator (which counts it against the tile) and the
 //! worker goes on.
 
+use std::num::NonZeroUsize;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -34,12 +35,13 @@ pub struct WorkerConfig {
     pub threads: usize,
     /// How the worker introduces itself in the coordinator's logs.
     pub name: String,
-    /// How many built scenes to keep.
-    pub cache_size: usize,
+    /// How many built scenes to keep ([`SCENE_CACHE`] by default).
+    pub cache_size: NonZeroUsize,
     /// Tiles in flight at once (each leased, rendered and sent by its own
     /// loop, all sharing the render threads), so the threads stay busy
-    /// while a result travels and the next lease arrives.
-    pub tiles_in_flight: usize,
+    /// while a result travels and the next lease arrives
+    /// ([`TILES_IN_FLIGHT`] by default).
+    pub tiles_in_flight: NonZeroUsize,
     /// The coordinator's worker token, if it has one.
     pub token: Option<String>,
     /// The CA to trust and the name to expect for an `https://` coordinator.
@@ -55,6 +57,14 @@ pub struct WorkerConfig {
 
 /// The default [`WorkerConfig::poll`].
 pub const POLL: Duration = Duration::from_millis(500);
+
+/// The default [`WorkerConfig::cache_size`]: a few scenes, so a farm
+/// rendering several jobs at once does not build them again and again.
+pub const SCENE_CACHE: NonZeroUsize = NonZeroUsize::new(4).unwrap();
+
+/// The default [`WorkerConfig::tiles_in_flight`]: one rendering, one
+/// travelling.
+pub const TILES_IN_FLIGHT: NonZeroUsize = NonZeroUsize::new(2).unwrap();
 
 /// Tests only: a deliberate failure when rendering the tile whose top-left
 /// corner is at (`x`, `y`), standing in for a scene that crashes the
@@ -96,13 +106,25 @@ impl TestFault {
 }
 
 impl WorkerConfig {
+    /// The defaults, working for `coordinator`.
     pub fn new(coordinator: impl Into<String>) -> Self {
         WorkerConfig {
             coordinator: coordinator.into(),
+            ..WorkerConfig::default()
+        }
+    }
+}
+
+/// Every setting's default; `coordinator` is empty and must be set (see
+/// [`WorkerConfig::new`]).
+impl Default for WorkerConfig {
+    fn default() -> Self {
+        WorkerConfig {
+            coordinator: String::new(),
             threads: 0,
             name: default_name(),
-            cache_size: 4,
-            tiles_in_flight: 2,
+            cache_size: SCENE_CACHE,
+            tiles_in_flight: TILES_IN_FLIGHT,
             token: None,
             tls: trevi_proto::ClientTls::default(),
             poll: POLL,
@@ -172,7 +194,7 @@ enum End {
 
 /// Scenes built from bundles, most recently used last.
 struct SceneCache {
-    cap: usize,
+    cap: NonZeroUsize,
     scenes: Vec<(String, Arc<Scene>)>,
 }
 
@@ -185,7 +207,7 @@ impl SceneCache {
         Some(s)
     }
     fn put(&mut self, hash: String, scene: Arc<Scene>) {
-        if self.scenes.len() >= self.cap.max(1) {
+        if self.scenes.len() >= self.cap.get() {
             self.scenes.remove(0);
         }
         self.scenes.push((hash, scene));
@@ -370,7 +392,7 @@ impl Session {
             .max(Duration::from_millis(10));
         tracing::info!(worker = me.id, coordinator = %cfg.coordinator, threads = self.threads, "registered");
         let mut slots = tokio::task::JoinSet::new();
-        for _ in 0..cfg.tiles_in_flight.max(1) {
+        for _ in 0..cfg.tiles_in_flight.get() {
             let mut slot = self.clone();
             let (cache, shutdown, me) = (cache.clone(), shutdown.clone(), me.clone());
             let (poll, fault) = (cfg.poll, cfg.test_fault);
