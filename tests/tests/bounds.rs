@@ -12,8 +12,9 @@ use trevi_proto::pb;
 
 /// A frame as wide as a scene may be (65536, the format's limit): one band
 /// of 64-pixel tiles is 48 MiB of rows, over the default 32 MiB window.
-/// (The report's 100000000-pixel frame is now refused by the scene parser at
-/// its `width` attribute; see `the_reported_100000000_pixel_frame_is_a_located_scene_error`.)
+/// (A wider one, like the report's 100000000-pixel frame, is refused by the
+/// scene parser at its `width` attribute; see
+/// `the_reported_100000000_pixel_frame_is_a_located_scene_error`.)
 fn wide_scene(dir: &Dir, width: u32) -> std::path::PathBuf {
     dir.write(
         "wide.xml",

@@ -188,10 +188,9 @@ fn the_format_follows_dash_o_and_an_unknown_extension_is_refused() {
     );
 }
 
-/// `-o /dev/full` once replaced the device node with the image (a rename
-/// over the target). A target that exists and is not a regular file (a
-/// device behind a link, a FIFO, a directory) is refused before rendering
-/// and left as it was.
+/// A target that exists and is not a regular file (a device behind a link,
+/// a FIFO, a directory) is refused before rendering and left as it was:
+/// renaming the image onto `-o /dev/full` would replace the device node.
 #[cfg(unix)]
 #[test]
 fn a_target_that_is_not_a_regular_file_is_refused_and_left_alone() {
@@ -239,9 +238,10 @@ fn a_target_that_is_not_a_regular_file_is_refused_and_left_alone() {
     );
 }
 
-/// A local render stopped by SIGINT or SIGTERM once left its
-/// `trevi-submit-*` directory in the temporary directory. Now it removes
-/// it, writes no output, and exits with 128 + the signal's number.
+/// A local render stopped by SIGINT or SIGTERM removes its
+/// `trevi-submit-*` directory from the temporary directory, writes no
+/// output, and exits with 128 + the signal's number, so that a shell sees
+/// which signal it was and nothing piles up in the temporary directory.
 #[cfg(unix)]
 #[test]
 fn a_local_render_interrupted_by_a_signal_leaves_nothing_behind() {
@@ -313,8 +313,9 @@ fn a_local_render_interrupted_by_a_signal_leaves_nothing_behind() {
 }
 
 /// A flag value that makes no sense (0 scenes cached, 0 tiles in flight,
-/// polling every 0 ms, 0-pixel tiles) was once quietly taken as 1: each is
-/// refused, naming the flag, before anything starts, and nothing is written.
+/// polling every 0 ms, 0-pixel tiles) is refused, naming the flag, before
+/// anything starts, and nothing is written: taking it as 1 instead would
+/// hide the mistake.
 #[test]
 fn nonsense_flag_values_are_refused_naming_the_flag() {
     let dir = tempfile::tempdir().unwrap();

@@ -411,8 +411,9 @@ fn a_worker_survives_a_coordinator_restart() {
     assert!(std::fs::read(&out2).unwrap() == expected);
 }
 
-/// `-o y.exr` for a scene whose `output` is `.png` once got PNG bytes under
-/// the EXR name, on the farm as on this machine: the format follows `-o`.
+/// The format follows `-o`, on the farm as on this machine: `-o y.exr` for
+/// a scene whose `output` is `.png` gets EXR bytes, never PNG bytes under
+/// the EXR name.
 #[test]
 fn the_farm_writes_the_format_that_dash_o_names() {
     let dir = Dir::new();
@@ -505,9 +506,9 @@ fn fetch_downloads_a_detached_job_s_image_once_it_is_done() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("99"));
 }
 
-/// `-o /dev/full` once replaced the device node: the downloaded file was
-/// renamed over it. A target that exists and is not a regular file is
-/// refused, by `fetch` as by a render.
+/// A target that exists and is not a regular file is refused, by `fetch`
+/// as by a render: renaming the downloaded file onto `-o /dev/full` would
+/// replace the device node.
 #[cfg(unix)]
 #[test]
 fn fetch_and_render_refuse_a_target_that_is_not_a_regular_file() {
