@@ -609,18 +609,7 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
 
 /// Decodes a preview PNG into RGBA bytes.
 fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
-    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
-        .read_info()
-        .unwrap();
-    let mut buf = vec![
-        0;
-        reader
-            .output_buffer_size()
-            .expect("the image fits in memory")
-    ];
-    let info = reader.next_frame(&mut buf).unwrap();
-    buf.truncate(info.buffer_size());
-    (info.width, info.height, buf)
+    trevi_core::output::decode_png(bytes).unwrap()
 }
 
 #[test]

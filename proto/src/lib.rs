@@ -34,18 +34,24 @@ pub struct Bearer(Option<tonic::metadata::MetadataValue<tonic::metadata::Ascii>>
 
 impl Bearer {
     /// `None`: no header. A token must be printable ASCII without spaces.
-    pub fn new(token: Option<&str>) -> Result<Bearer, String> {
+    pub fn new(token: Option<&str>) -> Result<Bearer, TokenError> {
         match token {
             None => Ok(Bearer(None)),
             Some(t) if t.is_empty() || t.chars().any(|c| !c.is_ascii_graphic()) => {
-                Err("a token must be printable ASCII without spaces".into())
+                Err(TokenError::NotPrintable)
             }
-            Some(t) => format!("Bearer {t}")
-                .parse()
-                .map(|v| Bearer(Some(v)))
-                .map_err(|e| format!("bad token: {e}")),
+            Some(t) => Ok(Bearer(Some(format!("Bearer {t}").parse()?))),
         }
     }
+}
+
+/// A token that cannot travel in an `authorization` header.
+#[derive(Debug, thiserror::Error)]
+pub enum TokenError {
+    #[error("a token must be printable ASCII without spaces")]
+    NotPrintable,
+    #[error("bad token: {0}")]
+    Header(#[from] tonic::metadata::errors::InvalidMetadataValue),
 }
 
 impl tonic::service::Interceptor for Bearer {
@@ -155,6 +161,19 @@ impl pb::JobState {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_token_with_spaces_or_nothing_in_it_is_refused() {
+        for bad in ["", "two words", "tab\there", "caf\u{e9}"] {
+            let e = Bearer::new(Some(bad)).err();
+            assert!(
+                matches!(e, Some(TokenError::NotPrintable)),
+                "{bad:?}: {e:?}"
+            );
+        }
+        assert!(Bearer::new(Some("s3cret-token_1")).is_ok());
+        assert!(Bearer::new(None).is_ok());
+    }
 
     #[test]
     fn pixels_round_trip_bit_exactly() {

@@ -1,7 +1,7 @@
 //! Rendering on this machine: an embedded coordinator on 127.0.0.1 (an
 //! ephemeral port, data in a temporary directory) and an in-process worker
-//! with every core, driven by the same client code as a farm (`remote.rs`),
-//! so the output is byte-identical to the farm's. The scene the submitter
+//! with every core, driven by the same client as a farm (`client.rs`), so
+//! the output is byte-identical to the farm's. The scene the submitter
 //! parsed is built here once and handed to both: the coordinator keeps its
 //! cameras and the worker starts with it in its scene cache, so neither
 //! parses the bundle again.

@@ -11,8 +11,8 @@
 //! A local render stopped by SIGINT or SIGTERM removes its temporary files
 //! and any half-written output, and exits with 128 + the signal's number.
 
+mod client;
 mod local;
-mod remote;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -62,8 +62,8 @@ struct Args {
     /// Worker threads on this machine (default: every core).
     #[arg(long, env = "TREVI_THREADS")]
     threads: Option<usize>,
-    /// Tile edge in pixels.
-    #[arg(long, default_value_t = 64)]
+    /// Tile edge in pixels (at least 1).
+    #[arg(long, default_value_t = default_tile(), value_parser = tile_edge)]
     tile: u32,
     /// No progress output.
     #[arg(short, long, global = true)]
@@ -139,10 +139,10 @@ fn run(args: Args) -> Result<()> {
         )?;
         return runtime.block_on(async {
             let mut client =
-                remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
+                client::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
             match cmd {
                 Command::Status { id } => {
-                    println!("{}", remote::describe(&client.status(*id).await?));
+                    println!("{}", client::describe(&client.status(*id).await?));
                     if let Some(out) = &args.preview {
                         let p = client.save_preview(*id, out).await?;
                         println!(
@@ -156,11 +156,11 @@ fn run(args: Args) -> Result<()> {
                 }
                 Command::List { limit } => {
                     for s in client.list(*limit).await? {
-                        println!("{}", remote::describe(&s));
+                        println!("{}", client::describe(&s));
                     }
                 }
                 Command::Cancel { id } => {
-                    println!("{}", remote::describe(&client.cancel(*id).await?))
+                    println!("{}", client::describe(&client.cancel(*id).await?))
                 }
                 Command::Fetch { id, output } => {
                     let (out, s) = client.fetch(*id, output.as_deref()).await?;
@@ -181,9 +181,6 @@ fn run(args: Args) -> Result<()> {
     let Some(scene_path) = args.scene.clone() else {
         bail!("name a scene file (or one of status, list, cancel, fetch); see --help");
     };
-    if args.tile == 0 {
-        bail!("--tile must be at least 1");
-    }
     if args.detach && args.coordinator.is_none() {
         bail!("--detach needs --coordinator URL: the embedded farm ends with this process");
     }
@@ -218,15 +215,15 @@ fn run(args: Args) -> Result<()> {
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("."));
     let progress = if args.quiet {
-        remote::Progress::Quiet
+        client::Progress::Quiet
     } else if std::io::stderr().is_terminal() {
-        remote::Progress::Bar
+        client::Progress::Bar
     } else {
-        remote::Progress::Lines
+        client::Progress::Lines
     };
     // Every output is checked (format, not a device or directory) before
     // anything renders.
-    let targets: Vec<remote::Target> = cameras
+    let targets: Vec<client::Target> = cameras
         .iter()
         .map(|&cam| {
             let c = &desc.cameras[cam];
@@ -234,7 +231,7 @@ fn run(args: Args) -> Result<()> {
                 Some(o) => o.clone(),
                 None => scene_dir.join(&c.render.output),
             };
-            remote::Target::new(c.id.clone(), out).with_context(|| format!("camera \"{}\"", c.id))
+            client::Target::new(c.id.clone(), out).with_context(|| format!("camera \"{}\"", c.id))
         })
         .collect::<Result<_>>()?;
     runtime.block_on(async {
@@ -242,7 +239,7 @@ fn run(args: Args) -> Result<()> {
             Some(url) => {
                 drop(desc);
                 let mut client =
-                    remote::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
+                    client::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
                 client.preview = args.preview.clone();
                 client
                     .render(
@@ -267,7 +264,7 @@ fn run(args: Args) -> Result<()> {
                 )
                 .await?;
                 let render = async {
-                    let mut client = remote::Client::connect(&farm.url, None).await?;
+                    let mut client = client::Client::connect(&farm.url, None).await?;
                     client.announce = false;
                     client.preview = args.preview.clone();
                     client
@@ -275,7 +272,7 @@ fn run(args: Args) -> Result<()> {
                         .await
                 };
                 // A signal drops the render, and with it the half-written
-                // output (see remote::PartFile); `data` goes after the
+                // output (see client::PartFile); `data` goes after the
                 // runtime.
                 let result = tokio::select! {
                     r = render => r,
@@ -286,6 +283,21 @@ fn run(args: Args) -> Result<()> {
             }
         }
     })
+}
+
+/// `--tile`'s default: the coordinator's own, so that a local render and a
+/// farm's cut a frame alike.
+fn default_tile() -> u32 {
+    trevi_coordinator::FarmConfig::new(PathBuf::new()).default_tile
+}
+
+/// A `--tile` edge: 0 is refused, naming the flag, not clamped.
+fn tile_edge(s: &str) -> Result<u32, String> {
+    match s.parse::<u32>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 /// The TLS settings of `--tls-ca` and `--tls-domain`.

@@ -6,26 +6,15 @@
 mod common;
 
 use common::*;
-use std::io::{Read, Write};
-use std::net::TcpStream;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
-use trevi_proto::pb::{self, jobs_client::JobsClient};
-
-/// `VmHWM` (peak resident set) of a live process, in KiB.
-fn peak_rss_kib(pid: u32) -> u64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-        .unwrap_or_else(|| panic!("no VmHWM in /proc/{pid}/status"))
-}
+use trevi_proto::pb;
 
 /// A frame as wide as a scene may be (65536, the format's limit): one band
 /// of 64-pixel tiles is 48 MiB of rows, over the default 32 MiB window.
-/// (The report's 100000000-pixel frame is now refused by the scene parser at
-/// its `width` attribute; see `the_reported_100000000_pixel_frame_is_a_located_scene_error`.)
+/// (A wider one, like the report's 100000000-pixel frame, is refused by the
+/// scene parser at its `width` attribute; see
+/// `the_reported_100000000_pixel_frame_is_a_located_scene_error`.)
 fn wide_scene(dir: &Dir, width: u32) -> std::path::PathBuf {
     dir.write(
         "wide.xml",
@@ -72,11 +61,12 @@ fn a_frame_whose_one_band_exceeds_the_window_is_refused_at_once_by_a_coordinator
     assert!(t.elapsed() < Duration::from_secs(20), "{:?}", t.elapsed());
     // Nothing was allocated for it: no job, and the coordinator stayed small.
     std::thread::sleep(Duration::from_secs(1));
-    let peak = peak_rss_kib(c.proc.0.id());
+    let peak = proc_kib(c.proc.0.id(), "VmHWM");
     assert!(peak < RSS_BOUND_KIB, "coordinator peak RSS {peak} KiB");
     let jobs = runtime().block_on(async {
-        let mut j = JobsClient::connect(c.url.clone()).await.unwrap();
-        j.list_jobs(pb::ListJobsRequest::default())
+        jobs(&c, None)
+            .await
+            .list_jobs(pb::ListJobsRequest::default())
             .await
             .unwrap()
             .into_inner()
@@ -152,22 +142,6 @@ fn a_frame_whose_one_band_exceeds_the_window_is_refused_at_once_in_local_mode() 
     assert!(!dir.path().join("wide.png").exists());
 }
 
-/// A raw HTTP/1.1 GET: the body.
-fn http_get(addr: &str, path: &str) -> String {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut raw = String::new();
-    s.read_to_string(&mut raw).unwrap();
-    let (head, body) = raw.split_once("\r\n\r\n").unwrap();
-    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
-    body.to_string()
-}
-
 #[test]
 fn seven_thousand_jobs_list_past_the_4_mib_message_limit() {
     let dir = Dir::new();
@@ -194,7 +168,7 @@ fn seven_thousand_jobs_list_past_the_4_mib_message_limit() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     const JOBS: u64 = 7000;
     runtime().block_on(async {
-        let mut j = JobsClient::connect(c.url.clone()).await.unwrap();
+        let mut j = jobs(&c, None).await;
         let first = j.get_job(pb::JobId { id: 1 }).await.unwrap().into_inner();
         let mut tasks = Vec::new();
         for _ in 0..8 {
@@ -249,7 +223,8 @@ fn seven_thousand_jobs_list_past_the_4_mib_message_limit() {
     let o = submit(&dir, &["list", "--coordinator", &c.url, "--limit", "10"]);
     assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 10);
     // The monitor's poll shows the newest few, not all of them.
-    let body = http_get(c.http.as_deref().unwrap(), "/api/state");
+    let (code, body) = http::get(c.http.as_deref().unwrap(), "/api/state", None);
+    assert_eq!(code, 200, "{body}");
     assert!(body.len() < 256 << 10, "/api/state is {} bytes", body.len());
     let v: serde_json::Value = serde_json::from_str(&body).unwrap();
     // Job 1 (submitted by trevi-submit) is still queued: it and the 50

@@ -1,4 +1,5 @@
-//! `trevi-submit` on this machine, as a user runs it: real process, real files.
+//! `trevi-submit` on this machine, as a user runs it: real process, real
+//! files; and the flag values `trevi-submit` and `trevi-worker` refuse.
 
 mod common;
 
@@ -187,10 +188,9 @@ fn the_format_follows_dash_o_and_an_unknown_extension_is_refused() {
     );
 }
 
-/// `-o /dev/full` once replaced the device node with the image (a rename
-/// over the target). A target that exists and is not a regular file (a
-/// device behind a link, a FIFO, a directory) is refused before rendering
-/// and left as it was.
+/// A target that exists and is not a regular file (a device behind a link,
+/// a FIFO, a directory) is refused before rendering and left as it was:
+/// renaming the image onto `-o /dev/full` would replace the device node.
 #[cfg(unix)]
 #[test]
 fn a_target_that_is_not_a_regular_file_is_refused_and_left_alone() {
@@ -238,9 +238,10 @@ fn a_target_that_is_not_a_regular_file_is_refused_and_left_alone() {
     );
 }
 
-/// A local render stopped by SIGINT or SIGTERM once left its
-/// `trevi-submit-*` directory in the temporary directory. Now it removes
-/// it, writes no output, and exits with 128 + the signal's number.
+/// A local render stopped by SIGINT or SIGTERM removes its
+/// `trevi-submit-*` directory from the temporary directory, writes no
+/// output, and exits with 128 + the signal's number, so that a shell sees
+/// which signal it was and nothing piles up in the temporary directory.
 #[cfg(unix)]
 #[test]
 fn a_local_render_interrupted_by_a_signal_leaves_nothing_behind() {
@@ -309,4 +310,46 @@ fn a_local_render_interrupted_by_a_signal_leaves_nothing_behind() {
         );
         assert!(!dir.path().join("slow.png").exists());
     }
+}
+
+/// A flag value that makes no sense (0 scenes cached, 0 tiles in flight,
+/// polling every 0 ms, 0-pixel tiles) is refused, naming the flag, before
+/// anything starts, and nothing is written: taking it as 1 instead would
+/// hide the mistake.
+#[test]
+fn nonsense_flag_values_are_refused_naming_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("two.xml"), TWO_CAMERAS).unwrap();
+    let refused = |o: Output, flag: &str| {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{flag} 0 was accepted: {err}");
+        assert!(
+            err.contains(&format!("'{flag} <")) && err.contains("at least 1"),
+            "{flag}: {err}"
+        );
+    };
+    // Unreachable: a worker that started would only retry its connection.
+    let worker = |args: &[&str], envs: &[(&str, &str)]| {
+        Command::new(bin("trevi-worker"))
+            .args(["--coordinator", "http://127.0.0.1:9"])
+            .args(args)
+            .envs(envs.iter().copied())
+            .env_remove("TREVI_SCENE_CACHE")
+            .env_remove("TREVI_TILES_IN_FLIGHT")
+            .env_remove("TREVI_POLL_MS")
+            .current_dir(dir.path())
+            .output()
+            .expect("run trevi-worker")
+    };
+    for flag in ["--scene-cache", "--tiles-in-flight", "--poll-ms"] {
+        refused(worker(&[flag, "0"], &[]), flag);
+    }
+    // The same through the environment.
+    refused(worker(&[], &[("TREVI_SCENE_CACHE", "0")]), "--scene-cache");
+    refused(
+        worker(&[], &[("TREVI_TILES_IN_FLIGHT", "0")]),
+        "--tiles-in-flight",
+    );
+    refused(submit(&["two.xml", "--tile", "0"], dir.path()), "--tile");
+    assert_eq!(files_in(dir.path()), vec!["two.xml"]);
 }

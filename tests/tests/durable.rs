@@ -6,20 +6,10 @@
 mod common;
 
 use common::*;
-use trevi_proto::pb::{self, jobs_client::JobsClient};
+use trevi_proto::pb;
 
 const TILES_IN_FLIGHT: usize = 2;
 const WORKERS: usize = 2;
-
-fn tiles_done(rt: &tokio::runtime::Runtime, url: &str, id: u64) -> Option<pb::JobStatus> {
-    rt.block_on(async {
-        let mut c = JobsClient::connect(url.to_string()).await.ok()?;
-        c.get_job(pb::JobId { id })
-            .await
-            .ok()
-            .map(|r| r.into_inner())
-    })
-}
 
 /// Tiles the workers rendered, from their logs.
 fn rendered(dir: &Dir) -> usize {
@@ -75,10 +65,10 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
     for (i, at) in [3u64, 20, 0].into_iter().enumerate() {
         if at > 0 {
             wait_for(&dir, &format!("{at} tiles done"), 120, || {
-                tiles_done(&rt, &url, 1).is_some_and(|s| s.tiles_done >= at)
+                try_job(&rt, &c, 1).is_some_and(|s| s.tiles_done >= at)
             });
         }
-        let s = tiles_done(&rt, &url, 1);
+        let s = try_job(&rt, &c, 1);
         if let Some(s) = &s {
             assert_eq!(s.tiles_total, total);
             assert!(
@@ -92,7 +82,7 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
         c = coordinator_with(&dir, &addr, &format!("coordinator{}", i + 1), &[], &[]);
         // What the restarted coordinator found.
         if at > 0 {
-            let s = tiles_done(&rt, &url, 1).expect("the job survived the restart");
+            let s = try_job(&rt, &c, 1).expect("the job survived the restart");
             assert!(s.tiles_done >= at, "{s:?}\n{}", dir.logs());
         }
     }
@@ -103,7 +93,7 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
         "output differs from the undisturbed render\n{}",
         dir.logs()
     );
-    let s = tiles_done(&rt, &url, 1).unwrap();
+    let s = try_job(&rt, &c, 1).unwrap();
     assert_eq!(s.state, pb::JobState::Done as i32);
     assert_eq!(s.tiles_done, total);
     let n = rendered(&dir);
@@ -125,8 +115,8 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
         dir.logs()
     );
     rt.block_on(async {
-        let mut j = JobsClient::connect(c.url.clone()).await.unwrap();
-        let mut s = j
+        let mut s = jobs(&c, None)
+            .await
             .download_output(pb::JobId { id: 1 })
             .await
             .unwrap()
@@ -224,9 +214,8 @@ fn five_submitters_fifty_jobs_four_workers() {
     }
     let rt = runtime();
     let list = rt.block_on(async {
-        JobsClient::connect(c.url.clone())
+        jobs(&c, None)
             .await
-            .unwrap()
             .list_jobs(pb::ListJobsRequest::default())
             .await
             .unwrap()

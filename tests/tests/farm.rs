@@ -9,11 +9,10 @@
 
 mod common;
 
+use common::fake_worker::grey;
 use common::*;
-use std::path::Path;
 use std::process::Command;
-use tonic::transport::Channel;
-use trevi_proto::pb::{self, jobs_client::JobsClient, workers_client::WorkersClient};
+use trevi_proto::pb;
 
 const SCENE: &str = r#"<scene version="1">
   <settings background="0.1 0.1 0.2" ambient="0.1 0.1 0.1"/>
@@ -39,21 +38,6 @@ fn coordinator_at(dir: &Dir, lease_ttl_ms: u64, listen: &str, name: &str) -> Coo
 
 fn worker(dir: &Dir, url: &str, name: &str) -> Proc {
     worker_with(dir, url, name, &[], &[])
-}
-
-async fn jobs(url: &str) -> JobsClient<Channel> {
-    JobsClient::connect(url.to_string()).await.unwrap()
-}
-
-fn job(rt: &tokio::runtime::Runtime, url: &str, id: u64) -> pb::JobStatus {
-    rt.block_on(async {
-        jobs(url)
-            .await
-            .get_job(pb::JobId { id })
-            .await
-            .unwrap()
-            .into_inner()
-    })
 }
 
 #[test]
@@ -103,11 +87,7 @@ fn health_and_reflection_answer() {
     let rt = runtime();
     rt.block_on(async {
         use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
-        let channel = Channel::from_shared(c.url.clone())
-            .unwrap()
-            .connect()
-            .await
-            .unwrap();
+        let channel = channel(&c).await;
         let mut h = HealthClient::new(channel.clone());
         for service in ["", "trevi.v1.Jobs", "trevi.v1.Workers", "trevi.v1.Bundles"] {
             let r = h
@@ -173,16 +153,11 @@ fn a_worker_killed_mid_job_does_not_stop_the_job() {
     .unwrap();
     let rt = runtime();
     wait_for(&dir, "the first tiles", 60, || {
-        rt.block_on(async {
-            match jobs(&c.url).await.get_job(pb::JobId { id: 1 }).await {
-                Ok(s) => s.into_inner().tiles_done >= 3,
-                Err(_) => false,
-            }
-        })
+        try_job(&rt, &c, 1).is_some_and(|s| s.tiles_done >= 3)
     });
     doomed.0.kill().unwrap(); // SIGKILL
     doomed.0.wait().unwrap();
-    let s = job(&rt, &c.url, 1);
+    let s = job(&rt, &c, 1);
     assert!(
         s.tiles_done < s.tiles_total,
         "the job ended before the kill; make the scene slower"
@@ -218,70 +193,22 @@ fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
     .unwrap();
     let rt = runtime();
     rt.block_on(async {
-        let mut w = WorkersClient::connect(c.url.clone()).await.unwrap();
-        let reg = w
-            .register(pb::RegisterRequest {
-                name: "liar".into(),
-                threads: 1,
-            })
-            .await
-            .unwrap()
-            .into_inner();
-        let (id, session) = (reg.worker_id, reg.session);
-        let lease_req = || pb::LeaseRequest {
-            worker_id: id,
-            session: session.clone(),
-            ..Default::default()
-        };
-        let mut lease = None;
-        while lease.is_none() {
-            lease = w.lease_tile(lease_req()).await.unwrap().into_inner().lease;
-        }
-        let lease = lease.unwrap();
+        let mut w = FakeWorker::register(&workers(&c, None).await, "liar").await;
+        let lease = w.lease().await;
         let rect: trevi_core::Rect = lease.rect.unwrap().into();
-        let sender = w.clone();
-        let send = |pixels: Vec<[f32; 3]>, lease: pb::Lease| {
-            let mut w = sender.clone();
-            let session = session.clone();
-            async move {
-                let msgs = vec![
-                    pb::TileUpload {
-                        part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
-                            worker_id: id,
-                            lease_id: lease.lease_id,
-                            job_id: lease.job_id,
-                            rect: lease.rect,
-                            rays: 1,
-                            session,
-                        })),
-                    },
-                    pb::TileUpload {
-                        part: Some(pb::tile_upload::Part::Pixels(trevi_proto::pixels_to_bytes(
-                            &pixels,
-                        ))),
-                    },
-                ];
-                w.submit_tile(tokio_stream::iter(msgs)).await
-            }
-        };
         // Too few pixels.
-        let short = vec![[0.5f32; 3]; rect.pixel_count() - 1];
-        let e = send(short, lease.clone()).await.unwrap_err();
+        let short = grey(rect.pixel_count() - 1);
+        let e = w.send(w.header(&lease), vec![short]).await.unwrap_err();
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
         // The tile is back in the queue, first.
-        let again = w
-            .lease_tile(lease_req())
-            .await
-            .unwrap()
-            .into_inner()
-            .lease
-            .unwrap();
+        let again = w.try_lease().await.unwrap();
         assert_eq!(again.rect, lease.rect);
         let mut nan = vec![[0.5f32; 3]; rect.pixel_count()];
         nan[3][2] = f32::NAN;
-        let e = send(nan, again.clone()).await.unwrap_err();
+        let nan = trevi_proto::pixels_to_bytes(&nan);
+        let e = w.send(w.header(&again), vec![nan]).await.unwrap_err();
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
-        let s = jobs(&c.url)
+        let s = jobs(&c, None)
             .await
             .get_job(pb::JobId { id: 1 })
             .await
@@ -299,40 +226,21 @@ fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
     );
 }
 
-fn detach(dir: &Dir, url: &str, scene: &Path, priority: &str) -> u64 {
-    let o = submit(
-        dir,
-        &[
-            scene.to_str().unwrap(),
-            "--coordinator",
-            url,
-            "--priority",
-            priority,
-            "--detach",
-            "--tile",
-            "16",
-        ],
-    );
-    assert!(o.status.success(), "{}", dir.logs());
-    String::from_utf8_lossy(&o.stdout)
-        .trim()
-        .parse()
-        .unwrap_or_else(|_| panic!("--detach printed {:?}", String::from_utf8_lossy(&o.stdout)))
-}
-
 #[test]
 fn priorities_order_jobs_and_a_cancelled_job_stops_and_leaves_no_output() {
     let dir = Dir::new();
     let scene = dir.write("s.xml", SCENE);
     let slow = dir.write("slow.xml", SLOW_SCENE);
     let c = coordinator(&dir, 10_000);
-    let low = detach(&dir, &c.url, &scene, "-1");
-    let high = detach(&dir, &c.url, &scene, "5");
-    let doomed = detach(&dir, &c.url, &slow, "9");
+    let detach =
+        |scene, priority| detach(&dir, &c, scene, &["--priority", priority, "--tile", "16"]);
+    let low = detach(&scene, "-1");
+    let high = detach(&scene, "5");
+    let doomed = detach(&slow, "9");
     let rt = runtime();
     let _w = worker(&dir, &c.url, "worker");
     wait_for(&dir, "the doomed job to start", 60, || {
-        job(&rt, &c.url, doomed).tiles_done >= 2
+        job(&rt, &c, doomed).tiles_done >= 2
     });
     let o = submit(
         &dir,
@@ -340,15 +248,11 @@ fn priorities_order_jobs_and_a_cancelled_job_stops_and_leaves_no_output() {
     );
     assert!(o.status.success(), "{}", dir.logs());
     assert!(String::from_utf8_lossy(&o.stdout).contains("cancelled"));
-    let at_cancel = job(&rt, &c.url, doomed).tiles_done;
+    let at_cancel = job(&rt, &c, doomed).tiles_done;
     wait_for(&dir, "both jobs", 60, || {
-        job(&rt, &c.url, low).state == pb::JobState::Done as i32
+        job(&rt, &c, low).state == pb::JobState::Done as i32
     });
-    let (l, h, d) = (
-        job(&rt, &c.url, low),
-        job(&rt, &c.url, high),
-        job(&rt, &c.url, doomed),
-    );
+    let (l, h, d) = (job(&rt, &c, low), job(&rt, &c, high), job(&rt, &c, doomed));
     assert_eq!(h.state, pb::JobState::Done as i32);
     assert!(
         h.finish_order < l.finish_order,
@@ -366,7 +270,7 @@ fn priorities_order_jobs_and_a_cancelled_job_stops_and_leaves_no_output() {
     );
     assert!(!dir.path().join("slow.png").exists());
     let e = rt.block_on(async {
-        let mut s = jobs(&c.url)
+        let mut s = jobs(&c, None)
             .await
             .download_output(pb::JobId { id: doomed })
             .await?
@@ -403,30 +307,15 @@ fn a_bundle_reaching_outside_its_directory_is_refused_by_submit_and_coordinator(
     let rt = runtime();
     rt.block_on(async {
         use trevi_core::Bundle;
-        use trevi_proto::pb::bundles_client::BundlesClient;
-        let mut b = BundlesClient::connect(c.url.clone()).await.unwrap();
+        let mut b = bundles(&c, None).await;
         let mut files = std::collections::BTreeMap::new();
         files.insert("s.xml".to_string(), OUTSIDE_SCENE.as_bytes().to_vec());
         let bundle = Bundle {
             scene: "s.xml".into(),
             files: files.clone(),
         };
-        let upload = |bytes: Vec<u8>| {
-            let mut b = b.clone();
-            async move {
-                b.upload_bundle(tokio_stream::iter([pb::BundleChunk { data: bytes }]))
-                    .await
-            }
-        };
-        let hash = upload(bundle.encode()).await.unwrap().into_inner().hash;
-        let e = jobs(&c.url)
-            .await
-            .submit_job(pb::SubmitJobRequest {
-                bundle_hash: hash,
-                ..Default::default()
-            })
-            .await
-            .unwrap_err();
+        let hash = upload(&mut b, vec![bundle.encode()]).await.unwrap();
+        let e = submit_job(&c, &hash).await.unwrap_err();
         assert_eq!(e.code(), tonic::Code::InvalidArgument);
         assert!(e.message().contains("outside.obj"), "{}", e.message());
 
@@ -435,19 +324,9 @@ fn a_bundle_reaching_outside_its_directory_is_refused_by_submit_and_coordinator(
             scene: "s.xml".into(),
             files,
         };
-        let e = upload(sneaky.encode()).await.unwrap_err();
+        let e = upload(&mut b, vec![sneaky.encode()]).await.unwrap_err();
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
-        let _ = &mut b;
     });
-}
-
-fn sigterm(p: &Proc) {
-    let ok = Command::new("kill")
-        .args(["-TERM", &p.0.id().to_string()])
-        .status()
-        .expect("run kill")
-        .success();
-    assert!(ok);
 }
 
 #[test]
@@ -474,17 +353,12 @@ fn sigterm_makes_a_worker_give_its_tiles_back_and_exit() {
     .unwrap();
     let rt = runtime();
     wait_for(&dir, "the first tiles", 60, || {
-        rt.block_on(async {
-            match jobs(&c.url).await.get_job(pb::JobId { id: 1 }).await {
-                Ok(s) => s.into_inner().tiles_done >= 2,
-                Err(_) => false,
-            }
-        })
+        try_job(&rt, &c, 1).is_some_and(|s| s.tiles_done >= 2)
     });
-    sigterm(&first);
+    signal(&first, "TERM");
     let status = wait_child(&dir, &mut first.0, 30);
     assert!(status.success(), "worker exit {status:?}\n{}", dir.logs());
-    let s = job(&rt, &c.url, 1);
+    let s = job(&rt, &c, 1);
     assert!(
         s.tiles_done < s.tiles_total,
         "the job ended before the signal"
@@ -537,8 +411,9 @@ fn a_worker_survives_a_coordinator_restart() {
     assert!(std::fs::read(&out2).unwrap() == expected);
 }
 
-/// `-o y.exr` for a scene whose `output` is `.png` once got PNG bytes under
-/// the EXR name, on the farm as on this machine: the format follows `-o`.
+/// The format follows `-o`, on the farm as on this machine: `-o y.exr` for
+/// a scene whose `output` is `.png` gets EXR bytes, never PNG bytes under
+/// the EXR name.
 #[test]
 fn the_farm_writes_the_format_that_dash_o_names() {
     let dir = Dir::new();
@@ -609,7 +484,7 @@ fn fetch_downloads_a_detached_job_s_image_once_it_is_done() {
     let _w = worker(&dir, &c.url, "worker");
     let rt = runtime();
     wait_for(&dir, "job 1 to finish", 60, || {
-        job(&rt, &c.url, 1).state() == pb::JobState::Done
+        job(&rt, &c, 1).state() == pb::JobState::Done
     });
     // By default the job's output name, in the current directory.
     let (code, err) = fetch(&[]);
@@ -631,9 +506,9 @@ fn fetch_downloads_a_detached_job_s_image_once_it_is_done() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("99"));
 }
 
-/// `-o /dev/full` once replaced the device node: the downloaded file was
-/// renamed over it. A target that exists and is not a regular file is
-/// refused, by `fetch` as by a render.
+/// A target that exists and is not a regular file is refused, by `fetch`
+/// as by a render: renaming the downloaded file onto `-o /dev/full` would
+/// replace the device node.
 #[cfg(unix)]
 #[test]
 fn fetch_and_render_refuse_a_target_that_is_not_a_regular_file() {

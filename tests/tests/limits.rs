@@ -11,33 +11,16 @@ use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use tonic::Code;
-use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient};
-
-async fn bundles(c: &Coordinator) -> BundlesClient<tonic::transport::Channel> {
-    let ch = trevi_proto::endpoint(&c.url, &c.tls)
-        .unwrap()
-        .connect()
-        .await
-        .unwrap();
-    BundlesClient::new(ch)
-}
+use trevi_proto::pb::{self, bundles_client::BundlesClient};
+use trevi_proto::AuthChannel;
 
 /// Uploads `data` as one chunk.
 async fn upload_one(c: &Coordinator, data: Vec<u8>) -> Result<pb::BundleRef, tonic::Status> {
-    bundles(c)
+    bundles(c, None)
         .await
         .upload_bundle(tokio_stream::iter([pb::BundleChunk { data }]))
         .await
         .map(|r| r.into_inner())
-}
-
-async fn jobs(c: &Coordinator) -> JobsClient<tonic::transport::Channel> {
-    let ch = trevi_proto::endpoint(&c.url, &c.tls)
-        .unwrap()
-        .connect()
-        .await
-        .unwrap();
-    JobsClient::new(ch)
 }
 
 const MIB: usize = 1 << 20;
@@ -66,16 +49,6 @@ fn big_bundle_chunks(seed: u8, mib: usize) -> (impl Iterator<Item = pb::BundleCh
         .chain(std::iter::once(tail))
         .map(|data| pb::BundleChunk { data });
     (chunks, size)
-}
-
-/// A field of `/proc/PID/status` in KiB (`VmHWM`: peak resident memory).
-fn proc_kib(pid: u32, field: &str) -> u64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
-        .and_then(|v| v.split_whitespace().next()?.parse().ok())
-        .unwrap_or_else(|| panic!("no {field} in /proc/{pid}/status"))
 }
 
 /// Files in the coordinator's bundle directory whose name starts with
@@ -115,7 +88,7 @@ fn many_concurrent_large_uploads_stream_to_disk_within_a_memory_bound() {
     let results = rt.block_on(async {
         let mut set = tokio::task::JoinSet::new();
         for i in 0..UPLOADS {
-            let mut b = bundles(&c).await;
+            let mut b = bundles(&c, None).await;
             set.spawn(async move {
                 let (chunks, size) = big_bundle_chunks(i as u8, EACH_MIB);
                 let r = b.upload_bundle(tokio_stream::iter(chunks)).await;
@@ -155,7 +128,7 @@ type UploadCall = tokio::task::JoinHandle<(Result<pb::BundleRef, tonic::Status>,
 /// An upload that sends `first` and then nothing, until the returned
 /// sender is dropped.
 fn stalled_upload(
-    mut b: BundlesClient<tonic::transport::Channel>,
+    mut b: BundlesClient<AuthChannel>,
     first: Vec<u8>,
 ) -> (tokio::sync::mpsc::Sender<pb::BundleChunk>, UploadCall) {
     let (tx, rx) = tokio::sync::mpsc::channel(2);
@@ -184,8 +157,8 @@ fn uploads_beyond_the_cap_are_refused_and_a_stalled_one_is_dropped_after_the_idl
     let rt = runtime();
     rt.block_on(async {
         let head = bundle_of(&tiny_scene(1)).encode()[..20].to_vec();
-        let (tx1, call1) = stalled_upload(bundles(&c).await, head.clone());
-        let (tx2, call2) = stalled_upload(bundles(&c).await, head.clone());
+        let (tx1, call1) = stalled_upload(bundles(&c, None).await, head.clone());
+        let (tx2, call2) = stalled_upload(bundles(&c, None).await, head.clone());
         let started = Instant::now();
         while bundle_files(&c, ".upload-").len() < 2 {
             assert!(
@@ -256,7 +229,7 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
         let e = upload_one(&c, b"not a bundle".to_vec()).await.unwrap_err();
         assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
         // An upload the client abandons half way.
-        let (tx, call) = stalled_upload(bundles(&c).await, vec![1u8; 4096]);
+        let (tx, call) = stalled_upload(bundles(&c, None).await, vec![1u8; 4096]);
         let t = Instant::now();
         while bundle_files(&c, ".upload-").len() != 1 {
             assert!(t.elapsed() < Duration::from_secs(10), "{}", dir.logs());
@@ -283,14 +256,7 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
             .await
             .unwrap()
             .hash;
-        jobs(&c)
-            .await
-            .submit_job(pb::SubmitJobRequest {
-                bundle_hash: used.clone(),
-                ..Default::default()
-            })
-            .await
-            .unwrap();
+        submit_job(&c, &used).await.unwrap();
         // Young: both stay for now.
         assert_eq!(bundle_files(&c, ""), {
             let mut v = vec![used.clone(), unused.clone()];
@@ -317,17 +283,10 @@ fn a_damaged_bundle_fails_its_jobs_by_name_and_uploading_it_again_repairs_it() {
     let rt = runtime();
     let bytes = bundle_of(&tiny_scene(3)).encode();
     let upload = |bytes: Vec<u8>| async { upload_one(&c, bytes).await.unwrap().hash };
-    let submit = |hash: String| async {
-        jobs(&c)
-            .await
-            .submit_job(pb::SubmitJobRequest {
-                bundle_hash: hash,
-                ..Default::default()
-            })
-            .await
-    };
+    let farm = &c;
+    let submit = |hash: String| async move { submit_job(farm, &hash).await };
     let hash = rt.block_on(upload(bytes.clone()));
-    let first = rt.block_on(submit(hash.clone())).unwrap().into_inner().id;
+    let first = rt.block_on(submit(hash.clone())).unwrap().id;
     // Damaged on disk while the job waits for a worker.
     let stored = c.data.join("bundles").join(&hash);
     let mut bad = bytes.clone();
@@ -335,11 +294,7 @@ fn a_damaged_bundle_fails_its_jobs_by_name_and_uploading_it_again_repairs_it() {
     bad[mid] ^= 0x55;
     std::fs::write(&stored, &bad).unwrap();
     let _w = worker_with(&dir, &c.url, "worker", &[], &[]);
-    let get = |id: u64| {
-        rt.block_on(async { jobs(&c).await.get_job(pb::JobId { id }).await })
-            .unwrap()
-            .into_inner()
-    };
+    let get = |id: u64| job(&rt, &c, id);
     wait_for(&dir, "the job on the damaged bundle to fail", 30, || {
         get(first).state == pb::JobState::Failed as i32
     });
@@ -355,7 +310,7 @@ fn a_damaged_bundle_fails_its_jobs_by_name_and_uploading_it_again_repairs_it() {
     // The right bytes again: the copy is repaired and a job renders.
     assert_eq!(rt.block_on(upload(bytes.clone())), hash);
     assert_eq!(std::fs::read(&stored).unwrap(), bytes);
-    let second = rt.block_on(submit(hash.clone())).unwrap().into_inner().id;
+    let second = rt.block_on(submit(hash.clone())).unwrap().id;
     wait_for(&dir, "the job on the repaired bundle to finish", 60, || {
         let s = get(second).state;
         assert_ne!(
@@ -367,36 +322,6 @@ fn a_damaged_bundle_fails_its_jobs_by_name_and_uploading_it_again_repairs_it() {
         );
         s == pb::JobState::Done as i32
     });
-}
-
-/// A raw HTTP/1.1 request: (status code, body).
-fn http(addr: &str, request: &str) -> (u16, String) {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-    s.write_all(request.as_bytes()).unwrap();
-    let mut raw = String::new();
-    let _ = s.read_to_string(&mut raw);
-    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((&raw, ""));
-    let code = head
-        .split_whitespace()
-        .nth(1)
-        .and_then(|c| c.parse().ok())
-        .unwrap_or(0);
-    (code, body.to_string())
-}
-
-fn post(addr: &str, path: &str, headers: &[&str], body: &str) -> (u16, String) {
-    let mut req = format!(
-        "POST {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n",
-        body.len()
-    );
-    for h in headers {
-        req.push_str(h);
-        req.push_str("\r\n");
-    }
-    req.push_str("\r\n");
-    req.push_str(body);
-    http(addr, &req)
 }
 
 #[test]
@@ -417,18 +342,7 @@ fn cross_site_posts_to_the_monitor_api_are_refused() {
             .unwrap()
             .hash
     });
-    let id = rt.block_on(async {
-        jobs(&c)
-            .await
-            .submit_job(pb::SubmitJobRequest {
-                bundle_hash: hash,
-                ..Default::default()
-            })
-            .await
-            .unwrap()
-            .into_inner()
-            .id
-    });
+    let id = rt.block_on(submit_job(&c, &hash)).unwrap().id;
     let cancel = format!("/api/jobs/{id}/cancel");
     let priority = format!("/api/jobs/{id}/priority");
     let json = "Content-Type: application/json";
@@ -455,16 +369,12 @@ fn cross_site_posts_to_the_monitor_api_are_refused() {
     ];
     for (headers, code) in &refused {
         for (path, body) in [(&cancel, "{}"), (&priority, r#"{"priority": 5}"#)] {
-            let (got, answer) = post(&addr, path, headers, body);
+            let (got, answer) = http::post(&addr, path, headers, body);
             assert_eq!(got, *code, "{path} with {headers:?}: {answer}");
             assert!(answer.contains("refused"), "{answer}");
         }
     }
-    let state = |id: u64| {
-        rt.block_on(async { jobs(&c).await.get_job(pb::JobId { id }).await })
-            .unwrap()
-            .into_inner()
-    };
+    let state = |id: u64| job(&rt, &c, id);
     let j = state(id);
     assert_eq!(
         (j.state, j.priority),
@@ -473,10 +383,10 @@ fn cross_site_posts_to_the_monitor_api_are_refused() {
     );
     // The monitor's own requests (its origin, JSON) and plain clients
     // (no origin, JSON) still work.
-    let (got, body) = post(&addr, &priority, &[&origin, json], r#"{"priority": 5}"#);
+    let (got, body) = http::post(&addr, &priority, &[&origin, json], r#"{"priority": 5}"#);
     assert_eq!(got, 200, "{body}");
     assert_eq!(state(id).priority, 5);
-    let (got, body) = post(&addr, &cancel, &[json], "");
+    let (got, body) = http::post(&addr, &cancel, &[json], "");
     assert_eq!(got, 200, "{body}");
     assert_eq!(state(id).state, pb::JobState::Cancelled as i32);
 }
@@ -551,7 +461,7 @@ fn idle_monitor_connections_are_closed_and_grpc_keeps_answering_meanwhile() {
     );
     assert!(all_closed < Duration::from_secs(10), "{all_closed:?}");
     // And the monitor serves again.
-    let (code, body) = http(
+    let (code, body) = http::request(
         &addr,
         &format!("GET /healthz HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"),
     );

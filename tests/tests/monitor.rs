@@ -12,6 +12,7 @@
 
 mod common;
 
+use common::http::{get as http_get, parse_response};
 use common::{coordinator_with, make_certs, submit, worker_with, Coordinator, Dir, Proc};
 use serde_json::json;
 use std::io::{Read, Write};
@@ -19,6 +20,7 @@ use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use trevi_core::output::decode_png;
 
 const SUBMIT_TOKEN: &str = "submit-s3cret";
 const WORKER_TOKEN: &str = "worker-s3cret";
@@ -103,50 +105,6 @@ impl Farm {
     }
 }
 
-/// A PNG's width, height and pixels (RGB or RGBA bytes as stored).
-fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
-    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
-        .read_info()
-        .unwrap();
-    let mut buf = vec![
-        0;
-        reader
-            .output_buffer_size()
-            .expect("the image fits in memory")
-    ];
-    let info = reader.next_frame(&mut buf).unwrap();
-    buf.truncate(info.buffer_size());
-    (info.width, info.height, buf)
-}
-
-/// A plain HTTP/1.1 GET: (status code, body).
-fn http_get(addr: &str, path: &str, token: Option<&str>) -> (u16, String) {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-    let auth = token
-        .map(|t| format!("Authorization: Bearer {t}\r\n"))
-        .unwrap_or_default();
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Connection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut raw = String::new();
-    s.read_to_string(&mut raw).unwrap();
-    parse_response(&raw)
-}
-
-/// (status code, body) of a raw HTTP/1.1 response; code 0 if there is none.
-fn parse_response(raw: &str) -> (u16, String) {
-    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((raw, ""));
-    let code = head
-        .split_whitespace()
-        .nth(1)
-        .and_then(|c| c.parse().ok())
-        .unwrap_or(0);
-    (code, body.to_string())
-}
-
 #[test]
 fn metrics_parse_as_prometheus_text_and_count_the_tiles_and_the_preview_file_shows_the_frame() {
     let farm = Farm::start();
@@ -178,10 +136,10 @@ fn metrics_parse_as_prometheus_text_and_count_the_tiles_and_the_preview_file_sho
     // --preview kept the finished job's preview: the whole 64×48 frame
     // (no shrinking below 512 pixels), every pixel reached, and the same
     // picture as the frame itself.
-    let (w, h, rgba) = decode_png(&std::fs::read(&live).unwrap());
+    let (w, h, rgba) = decode_png(&std::fs::read(&live).unwrap()).unwrap();
     assert_eq!((w, h), (64, 48));
     assert!(rgba.chunks(4).all(|p| p[3] == 255));
-    let (_, _, frame) = decode_png(&std::fs::read(&out).unwrap());
+    let (_, _, frame) = decode_png(&std::fs::read(&out).unwrap()).unwrap();
     let rgb: Vec<u8> = rgba.chunks(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
     assert_eq!(rgb, frame, "at scale 1 the preview is the frame");
     // `status ID --preview FILE` writes the same image once.

@@ -15,9 +15,9 @@ fn read(rel: &str) -> String {
     std::fs::read_to_string(root().join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"))
 }
 
-/// The README's test command once failed on a fresh clone (no test built
-/// the binaries the end-to-end tests start) and CI ran an extra
-/// `cargo build` first. CI now runs that command and no other cargo command.
+/// CI runs the README's test command and no other cargo command, so that
+/// the command a reader copies works on a fresh clone: no extra
+/// `cargo build` may hide that the tests build the binaries they start.
 #[test]
 fn ci_runs_exactly_the_readme_s_test_command() {
     let readme = read("README.md");
@@ -106,10 +106,10 @@ fn no_test_is_ignored_without_a_reason() {
     );
 }
 
-/// The README's images were renders of older code. `docs/images/make.sh`
-/// renders them from the examples; every README image but the monitor's
-/// screenshot is one of the script's, and every one of the script's is
-/// shown.
+/// The README shows what the code renders today: `docs/images/make.sh`
+/// renders its images from the examples; every README image but the
+/// monitor's screenshot is one of the script's, and every one of the
+/// script's is shown.
 #[test]
 fn the_readme_s_images_are_the_ones_docs_images_make_sh_renders() {
     let script = read("docs/images/make.sh");

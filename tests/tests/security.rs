@@ -4,54 +4,15 @@
 
 mod common;
 
+use common::fake_worker::{grey, tile_upload};
 use common::*;
 use std::path::Path;
 use std::process::Command;
-use tonic::transport::Channel;
 use tonic::Code;
-use trevi_proto::pb::{
-    self, bundles_client::BundlesClient, jobs_client::JobsClient, workers_client::WorkersClient,
-};
-use trevi_proto::{AuthChannel, Bearer};
+use trevi_proto::pb;
 
 const SUBMIT: &str = "submit-secret-1234";
 const WORK: &str = "worker-secret-5678";
-
-/// A channel to the coordinator, over TLS when its URL is `https://`.
-async fn channel(c: &Coordinator) -> Channel {
-    trevi_proto::endpoint(&c.url, &c.tls)
-        .unwrap()
-        .connect()
-        .await
-        .unwrap()
-}
-
-async fn jobs(c: &Coordinator, token: Option<&str>) -> JobsClient<AuthChannel> {
-    JobsClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
-}
-
-async fn workers(c: &Coordinator, token: Option<&str>) -> WorkersClient<AuthChannel> {
-    WorkersClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
-}
-
-async fn bundles(c: &Coordinator, token: Option<&str>) -> BundlesClient<AuthChannel> {
-    BundlesClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
-        .max_encoding_message_size(64 << 20)
-}
-
-async fn upload(
-    b: &mut BundlesClient<AuthChannel>,
-    chunks: Vec<Vec<u8>>,
-) -> Result<String, tonic::Status> {
-    let msgs: Vec<pb::BundleChunk> = chunks
-        .into_iter()
-        .map(|data| pb::BundleChunk { data })
-        .collect();
-    Ok(b.upload_bundle(tokio_stream::iter(msgs))
-        .await?
-        .into_inner()
-        .hash)
-}
 
 fn code<T: std::fmt::Debug>(r: Result<T, tonic::Status>) -> Code {
     match r {
@@ -260,7 +221,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
     rt.block_on(async {
         let mut b = bundles(&c, None).await;
         let mut j = jobs(&c, None).await;
-        let mut w = workers(&c, None).await;
+        let w = workers(&c, None).await;
 
         // A bundle over the size limit, sent in legal chunks.
         let big = vec![vec![7u8; 600 << 10], vec![7u8; 600 << 10]];
@@ -380,58 +341,29 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
             .unwrap()
             .into_inner()
             .id;
-        let reg = w
-            .register(pb::RegisterRequest {
-                name: "liar".into(),
-                threads: 1,
-            })
-            .await
-            .unwrap()
-            .into_inner();
-        let (me, session) = (reg.worker_id, reg.session);
-        let other = w
-            .register(pb::RegisterRequest {
-                name: "other".into(),
-                threads: 1,
-            })
-            .await
-            .unwrap()
-            .into_inner()
-            .worker_id;
-        let lease_req = || pb::LeaseRequest {
-            worker_id: me,
-            session: session.clone(),
-            ..Default::default()
-        };
-        let lease = loop {
-            if let Some(l) = w.lease_tile(lease_req()).await.unwrap().into_inner().lease {
-                break l;
-            }
-        };
+        let mut liar = FakeWorker::register(&w, "liar").await;
+        let other = FakeWorker::register(&w, "other").await.id;
+        let me = liar.id;
+        let lease = liar.lease().await;
         let rect: trevi_core::Rect = lease.rect.unwrap().into();
-        let sender = w.clone();
+        let sender = liar.client.clone();
+        let session = liar.session.clone();
         let send = |worker_id: u64, lease_id: u64, rect: pb::Rect, pixels: Vec<Vec<u8>>| {
+            let header = pb::TileHeader {
+                worker_id,
+                lease_id,
+                job_id: job,
+                rect: Some(rect),
+                rays: 1,
+                session: session.clone(),
+            };
             let mut w = sender.clone();
-            let session = session.clone();
             async move {
-                let mut msgs = vec![pb::TileUpload {
-                    part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
-                        worker_id,
-                        lease_id,
-                        job_id: job,
-                        rect: Some(rect),
-                        rays: 1,
-                        session,
-                    })),
-                }];
-                msgs.extend(pixels.into_iter().map(|p| pb::TileUpload {
-                    part: Some(pb::tile_upload::Part::Pixels(p)),
-                }));
-                w.submit_tile(tokio_stream::iter(msgs)).await
+                w.submit_tile(tokio_stream::iter(tile_upload(header, pixels)))
+                    .await
             }
         };
-        let px = |n: usize| trevi_proto::pixels_to_bytes(&vec![[0.5f32; 3]; n]);
-        let full = px(rect.pixel_count());
+        let full = grey(rect.pixel_count());
         // A lease the worker does not hold (made up, or someone else's).
         let e = send(
             me,
@@ -478,13 +410,9 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
             code(send(me, lease.lease_id, lease.rect.unwrap(), vec![]).await),
             Code::InvalidArgument
         );
-        let again = loop {
-            if let Some(l) = w.lease_tile(lease_req()).await.unwrap().into_inner().lease {
-                break l;
-            }
-        };
+        let again = liar.lease().await;
         assert_eq!(again.rect, lease.rect, "the refused tile is back first");
-        let oversized = vec![full.clone(), px(10)];
+        let oversized = vec![full.clone(), grey(10)];
         assert_eq!(
             code(send(me, again.lease_id, again.rect.unwrap(), oversized).await),
             Code::InvalidArgument

@@ -5,12 +5,12 @@
 
 mod common;
 
+use common::fake_worker::grey;
 use common::*;
 use std::path::Path;
 use std::time::{Duration, Instant};
-use tonic::transport::Channel;
 use tonic::Code;
-use trevi_proto::pb::{self, jobs_client::JobsClient, workers_client::WorkersClient};
+use trevi_proto::pb;
 
 /// One 64×64 tile that takes tens of seconds on one thread: SLOW_SCENE at
 /// 2304 samples a pixel instead of 36.
@@ -31,68 +31,10 @@ const ONE_TILE: &str = r#"<scene version="1">
 </scene>
 "#;
 
-/// Submits `scene` without waiting; returns the job id.
-fn detach(dir: &Dir, url: &str, scene: &Path, tile: &str, priority: &str) -> u64 {
-    let o = submit(
-        dir,
-        &[
-            scene.to_str().unwrap(),
-            "--coordinator",
-            url,
-            "--detach",
-            "--tile",
-            tile,
-            "--priority",
-            priority,
-        ],
-    );
-    assert!(o.status.success(), "{}", dir.logs());
-    String::from_utf8_lossy(&o.stdout)
-        .trim()
-        .parse()
-        .unwrap_or_else(|_| panic!("--detach printed {:?}", String::from_utf8_lossy(&o.stdout)))
-}
-
-fn job(rt: &tokio::runtime::Runtime, url: &str, id: u64) -> pb::JobStatus {
-    rt.block_on(async {
-        JobsClient::connect(url.to_string())
-            .await
-            .unwrap()
-            .get_job(pb::JobId { id })
-            .await
-            .unwrap()
-            .into_inner()
-    })
-}
-
-fn cancel(rt: &tokio::runtime::Runtime, url: &str, id: u64) {
-    rt.block_on(async {
-        JobsClient::connect(url.to_string())
-            .await
-            .unwrap()
-            .cancel_job(pb::JobId { id })
-            .await
-            .unwrap();
-    });
-}
-
-/// Waits until job `id` is in `state`; returns its status.
-fn wait_state(
-    dir: &Dir,
-    rt: &tokio::runtime::Runtime,
-    url: &str,
-    id: u64,
-    state: pb::JobState,
-    secs: u64,
-) -> pb::JobStatus {
-    let mut last = None;
-    wait_for(dir, &format!("job {id} to be {state:?}"), secs, || {
-        let s = job(rt, url, id);
-        let hit = s.state == state as i32;
-        last = Some(s);
-        hit
-    });
-    last.unwrap()
+/// Submits `scene` without waiting, in tiles of `tile` pixels; returns the
+/// job id.
+fn detach(dir: &Dir, c: &Coordinator, scene: &Path, tile: &str, priority: &str) -> u64 {
+    common::detach(dir, c, scene, &["--tile", tile, "--priority", priority])
 }
 
 #[test]
@@ -113,8 +55,8 @@ fn a_tile_that_kills_every_worker_fails_its_job_naming_the_tile() {
         .map(|i| worker_with(&dir, &c.url, &format!("crash{i}"), &[], &abort))
         .collect();
     let rt = runtime();
-    let id = detach(&dir, &c.url, &scene, "16", "0");
-    let s = wait_state(&dir, &rt, &c.url, id, pb::JobState::Failed, 60);
+    let id = detach(&dir, &c, &scene, "16", "0");
+    let s = wait_state(&dir, &rt, &c, id, pb::JobState::Failed, 60);
     assert!(
         s.error.contains("tile 1 (8x16 at (16, 0))")
             && s.error.contains("lost the worker rendering it 3 times"),
@@ -149,8 +91,8 @@ fn a_panic_in_one_tile_is_reported_and_the_worker_lives_on() {
     let panic = [("TREVI_TEST_PANIC_ON_TILE", "16,0")];
     let mut w = worker_with(&dir, &c.url, "panicky", &[], &panic);
     let rt = runtime();
-    let id = detach(&dir, &c.url, &scene, "16", "0");
-    let s = wait_state(&dir, &rt, &c.url, id, pb::JobState::Failed, 30);
+    let id = detach(&dir, &c, &scene, "16", "0");
+    let s = wait_state(&dir, &rt, &c, id, pb::JobState::Failed, 30);
     assert!(
         s.error.contains("tile 1 (8x16 at (16, 0)) failed 5 times")
             && s.error
@@ -165,18 +107,18 @@ fn a_panic_in_one_tile_is_reported_and_the_worker_lives_on() {
         dir.logs()
     );
     // Still the same registration, and still working.
-    let next = detach(&dir, &c.url, &one, "16", "0");
-    wait_state(&dir, &rt, &c.url, next, pb::JobState::Done, 20);
+    let next = detach(&dir, &c, &one, "16", "0");
+    wait_state(&dir, &rt, &c, next, pb::JobState::Done, 20);
     let log = dir.read_log("panicky");
     assert_eq!(log.matches("registered").count(), 1, "{log}");
 }
 
 /// Waits until the job's single tile has been rendering a little while.
-fn rendering(dir: &Dir, rt: &tokio::runtime::Runtime, url: &str, id: u64) {
-    wait_state(dir, rt, url, id, pb::JobState::Running, 20);
+fn rendering(dir: &Dir, rt: &tokio::runtime::Runtime, c: &Coordinator, id: u64) {
+    wait_state(dir, rt, c, id, pb::JobState::Running, 20);
     std::thread::sleep(Duration::from_millis(700));
     assert_eq!(
-        job(rt, url, id).tiles_done,
+        job(rt, c, id).tiles_done,
         0,
         "the tile is not expensive enough"
     );
@@ -196,10 +138,10 @@ fn cancel_stops_a_tile_in_progress_within_a_second() {
     );
     let _w = worker_with(&dir, &c.url, "worker", &[], &[]);
     let rt = runtime();
-    let id = detach(&dir, &c.url, &expensive, "64", "0");
-    rendering(&dir, &rt, &c.url, id);
+    let id = detach(&dir, &c, &expensive, "64", "0");
+    rendering(&dir, &rt, &c, id);
     let t0 = Instant::now();
-    cancel(&rt, &c.url, id);
+    cancel(&rt, &c, id);
     wait_for(&dir, "the worker to stop rendering", 5, || {
         dir.read_log("worker").contains("render cancelled")
     });
@@ -210,9 +152,9 @@ fn cancel_stops_a_tile_in_progress_within_a_second() {
         dir.logs()
     );
     // The worker is free for the next job at once.
-    let next = detach(&dir, &c.url, &one, "16", "0");
+    let next = detach(&dir, &c, &one, "16", "0");
     let t1 = Instant::now();
-    wait_state(&dir, &rt, &c.url, next, pb::JobState::Done, 20);
+    wait_state(&dir, &rt, &c, next, pb::JobState::Done, 20);
     assert!(
         t1.elapsed() < Duration::from_secs(5),
         "{:?}\n{}",
@@ -235,14 +177,10 @@ fn sigterm_stops_a_worker_within_a_second_and_gives_its_tile_back() {
     );
     let mut w = worker_with(&dir, &c.url, "worker", &[], &[]);
     let rt = runtime();
-    let id = detach(&dir, &c.url, &expensive, "64", "0");
-    rendering(&dir, &rt, &c.url, id);
+    let id = detach(&dir, &c, &expensive, "64", "0");
+    rendering(&dir, &rt, &c, id);
     let t0 = Instant::now();
-    let kill = std::process::Command::new("kill")
-        .args(["-TERM", &w.0.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(kill.success());
+    signal(&w, "TERM");
     let status = wait_child(&dir, &mut w.0, 10);
     let took = t0.elapsed();
     assert!(status.success(), "{status:?}\n{}", dir.logs());
@@ -260,7 +198,7 @@ fn sigterm_stops_a_worker_within_a_second_and_gives_its_tile_back() {
     wait_for(&dir, "the second worker to take the tile", 10, || {
         dir.read_log("worker2").contains("scene built")
     });
-    cancel(&rt, &c.url, id);
+    cancel(&rt, &c, id);
 }
 
 #[test]
@@ -280,21 +218,21 @@ fn a_lease_is_held_only_by_a_tile_being_rendered() {
     );
     let _busy = worker_with(&dir, &c.url, "busy", &["--tiles-in-flight", "2"], &[]);
     let rt = runtime();
-    let big = detach(&dir, &c.url, &expensive, "64", "1");
-    rendering(&dir, &rt, &c.url, big);
-    let small = detach(&dir, &c.url, &tiny, "16", "0");
+    let big = detach(&dir, &c, &expensive, "64", "1");
+    rendering(&dir, &rt, &c, big);
+    let small = detach(&dir, &c, &tiny, "16", "0");
     // Give the busy worker's other loop time to (wrongly) take a tile.
     std::thread::sleep(Duration::from_millis(1500));
     let _free = worker_with(&dir, &c.url, "free", &[], &[]);
     let t0 = Instant::now();
-    wait_state(&dir, &rt, &c.url, small, pb::JobState::Done, 10);
+    wait_state(&dir, &rt, &c, small, pb::JobState::Done, 10);
     assert_eq!(
-        job(&rt, &c.url, big).state,
+        job(&rt, &c, big).state,
         pb::JobState::Running as i32,
         "inconclusive: the expensive tile finished first ({:?})",
         t0.elapsed()
     );
-    cancel(&rt, &c.url, big);
+    cancel(&rt, &c, big);
 }
 
 #[test]
@@ -309,38 +247,20 @@ fn a_worker_cannot_act_under_another_workers_id() {
         &[],
     );
     let rt = runtime();
-    let id = detach(&dir, &c.url, &scene, "16", "0");
+    let id = detach(&dir, &c, &scene, "16", "0");
     rt.block_on(async {
-        let channel = Channel::from_shared(c.url.clone())
-            .unwrap()
-            .connect()
-            .await
-            .unwrap();
-        let mut w = WorkersClient::new(channel);
-        let register = |name: &str| pb::RegisterRequest {
-            name: name.into(),
-            threads: 1,
-        };
-        let a = w.register(register("a")).await.unwrap().into_inner();
-        let b = w.register(register("b")).await.unwrap().into_inner();
+        let client = workers(&c, None).await;
+        let mut a = FakeWorker::register(&client, "a").await;
+        let mut b = FakeWorker::register(&client, "b").await;
         assert_eq!(a.session.len(), 32);
         assert_ne!(a.session, b.session);
-        let lease = w
-            .lease_tile(pb::LeaseRequest {
-                worker_id: a.worker_id,
-                session: a.session.clone(),
-                ..Default::default()
-            })
-            .await
-            .unwrap()
-            .into_inner()
-            .lease
-            .expect("a tile for a");
+        let lease = a.try_lease().await.expect("a tile for a");
         // b, knowing a's id (ids are sequential) but not its secret.
         for session in [b.session.clone(), Vec::new()] {
+            let w = &mut b.client;
             let e = w
                 .lease_tile(pb::LeaseRequest {
-                    worker_id: a.worker_id,
+                    worker_id: a.id,
                     session: session.clone(),
                     ..Default::default()
                 })
@@ -349,7 +269,7 @@ fn a_worker_cannot_act_under_another_workers_id() {
             assert_eq!(e.code(), Code::PermissionDenied, "lease: {e:?}");
             let e = w
                 .heartbeat(pb::HeartbeatRequest {
-                    worker_id: a.worker_id,
+                    worker_id: a.id,
                     lease_ids: vec![lease.lease_id],
                     session: session.clone(),
                 })
@@ -358,7 +278,7 @@ fn a_worker_cannot_act_under_another_workers_id() {
             assert_eq!(e.code(), Code::PermissionDenied, "heartbeat: {e:?}");
             let e = w
                 .return_tile(pb::TileReturn {
-                    worker_id: a.worker_id,
+                    worker_id: a.id,
                     session: session.clone(),
                     lease_id: lease.lease_id,
                     error: "forged".into(),
@@ -367,31 +287,22 @@ fn a_worker_cannot_act_under_another_workers_id() {
                 .unwrap_err();
             assert_eq!(e.code(), Code::PermissionDenied, "return: {e:?}");
             let rect: trevi_core::Rect = lease.rect.unwrap().into();
-            let pixels = vec![[0.5f32; 3]; rect.pixel_count()];
-            let msgs = vec![
-                pb::TileUpload {
-                    part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
-                        worker_id: a.worker_id,
-                        lease_id: lease.lease_id,
-                        job_id: id,
-                        rect: lease.rect,
-                        rays: 1,
-                        session: session.clone(),
-                    })),
-                },
-                pb::TileUpload {
-                    part: Some(pb::tile_upload::Part::Pixels(trevi_proto::pixels_to_bytes(
-                        &pixels,
-                    ))),
-                },
-            ];
-            let e = w.submit_tile(tokio_stream::iter(msgs)).await.unwrap_err();
+            let forged = pb::TileHeader {
+                job_id: id,
+                session: session.clone(),
+                ..a.header(&lease)
+            };
+            let e = b
+                .send(forged, vec![grey(rect.pixel_count())])
+                .await
+                .unwrap_err();
             assert_eq!(e.code(), Code::PermissionDenied, "submit: {e:?}");
         }
         // a's lease is untouched and a, with its secret, may go on.
-        let hb = w
+        let hb = a
+            .client
             .heartbeat(pb::HeartbeatRequest {
-                worker_id: a.worker_id,
+                worker_id: a.id,
                 lease_ids: vec![lease.lease_id],
                 session: a.session.clone(),
             })
@@ -400,6 +311,6 @@ fn a_worker_cannot_act_under_another_workers_id() {
             .into_inner();
         assert!(hb.dropped.is_empty(), "{:?}", hb.dropped);
     });
-    let s = job(&rt, &c.url, id);
+    let s = job(&rt, &c, id);
     assert_eq!(s.tiles_done, 0, "a forged result was taken");
 }

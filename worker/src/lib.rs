@@ -16,6 +16,7 @@
 //! reported to the coordinator (which counts it against the tile) and the
 //! worker goes on.
 
+use std::num::NonZeroUsize;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -34,12 +35,13 @@ pub struct WorkerConfig {
     pub threads: usize,
     /// How the worker introduces itself in the coordinator's logs.
     pub name: String,
-    /// How many built scenes to keep.
-    pub cache_size: usize,
+    /// How many built scenes to keep ([`SCENE_CACHE`] by default).
+    pub cache_size: NonZeroUsize,
     /// Tiles in flight at once (each leased, rendered and sent by its own
     /// loop, all sharing the render threads), so the threads stay busy
-    /// while a result travels and the next lease arrives.
-    pub tiles_in_flight: usize,
+    /// while a result travels and the next lease arrives
+    /// ([`TILES_IN_FLIGHT`] by default).
+    pub tiles_in_flight: NonZeroUsize,
     /// The coordinator's worker token, if it has one.
     pub token: Option<String>,
     /// The CA to trust and the name to expect for an `https://` coordinator.
@@ -75,6 +77,14 @@ impl std::fmt::Debug for Preloaded {
 
 /// The default [`WorkerConfig::poll`].
 pub const POLL: Duration = Duration::from_millis(500);
+
+/// The default [`WorkerConfig::cache_size`]: a few scenes, so a farm
+/// rendering several jobs at once does not build them again and again.
+pub const SCENE_CACHE: NonZeroUsize = NonZeroUsize::new(4).unwrap();
+
+/// The default [`WorkerConfig::tiles_in_flight`]: one rendering, one
+/// travelling.
+pub const TILES_IN_FLIGHT: NonZeroUsize = NonZeroUsize::new(2).unwrap();
 
 /// Tests only: a deliberate failure when rendering the tile whose top-left
 /// corner is at (`x`, `y`), standing in for a scene that crashes the
@@ -116,13 +126,25 @@ impl TestFault {
 }
 
 impl WorkerConfig {
+    /// The defaults, working for `coordinator`.
     pub fn new(coordinator: impl Into<String>) -> Self {
         WorkerConfig {
             coordinator: coordinator.into(),
+            ..WorkerConfig::default()
+        }
+    }
+}
+
+/// Every setting's default; `coordinator` is empty and must be set (see
+/// [`WorkerConfig::new`]).
+impl Default for WorkerConfig {
+    fn default() -> Self {
+        WorkerConfig {
+            coordinator: String::new(),
             threads: 0,
             name: default_name(),
-            cache_size: 4,
-            tiles_in_flight: 2,
+            cache_size: SCENE_CACHE,
+            tiles_in_flight: TILES_IN_FLIGHT,
             token: None,
             tls: trevi_proto::ClientTls::default(),
             poll: POLL,
@@ -142,18 +164,46 @@ fn default_name() -> String {
     format!("{host}-{}", std::process::id())
 }
 
+/// Why [`run`] could not start or had to give up.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
     #[error(transparent)]
     Endpoint(#[from] trevi_proto::EndpointError),
     /// The coordinator's TLS certificate is not trusted or not for its name:
-    /// retrying cannot help.
-    #[error("cannot connect to {0}: {1}")]
-    Certificate(String, String),
-    #[error("cannot start {0} render threads: {1}")]
-    Pool(usize, String),
-    #[error("{0}")]
-    Token(String),
+    /// retrying cannot help. `why` is the transport error's chain of causes
+    /// on one line, without tonic's repetitions (see
+    /// [`trevi_proto::connect::error_chain`]).
+    #[error("cannot connect to {coordinator}: {why}")]
+    Certificate { coordinator: String, why: String },
+    #[error("cannot start {threads} render threads")]
+    Pool {
+        threads: usize,
+        source: rayon::ThreadPoolBuildError,
+    },
+    #[error(transparent)]
+    Token(#[from] trevi_proto::TokenError),
+}
+
+/// Why the scene of a leased tile could not be loaded. The worker gives the
+/// tile back with this text; the coordinator counts it against the tile.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneLoadError {
+    /// The coordinator refused the download or the stream broke off (the
+    /// status's message says why: an unknown or damaged bundle...).
+    #[error("{}", .0.message())]
+    Download(#[source] tonic::Status),
+    /// The bytes that arrived are not the bundle that was asked for.
+    #[error("bundle {want} arrived with hash {got}")]
+    HashMismatch { want: String, got: String },
+    /// The bytes are not a bundle encoding.
+    #[error(transparent)]
+    Bundle(#[from] trevi_core::bundle::BundleError),
+    /// The bundle's scene does not parse or build.
+    #[error(transparent)]
+    Scene(#[from] trevi_core::SceneError),
+    /// The blocking task that builds the scene panicked or was cancelled.
+    #[error(transparent)]
+    Task(#[from] tokio::task::JoinError),
 }
 
 /// Why a session with the coordinator ended.
@@ -165,7 +215,7 @@ enum End {
 
 /// Scenes built from bundles, most recently used last.
 struct SceneCache {
-    cap: usize,
+    cap: NonZeroUsize,
     scenes: Vec<(String, Arc<Scene>)>,
 }
 
@@ -178,7 +228,7 @@ impl SceneCache {
         Some(s)
     }
     fn put(&mut self, hash: String, scene: Arc<Scene>) {
-        if self.scenes.len() >= self.cap.max(1) {
+        if self.scenes.len() >= self.cap.get() {
             self.scenes.remove(0);
         }
         self.scenes.push((hash, scene));
@@ -193,7 +243,7 @@ pub async fn run(
     let endpoint = trevi_proto::endpoint(&cfg.coordinator, &cfg.tls)?
         .connect_timeout(Duration::from_secs(5))
         .tcp_nodelay(true);
-    let bearer = Bearer::new(cfg.token.as_deref()).map_err(WorkerError::Token)?;
+    let bearer = Bearer::new(cfg.token.as_deref())?;
     let threads = if cfg.threads == 0 {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     } else {
@@ -204,7 +254,7 @@ pub async fn run(
             .num_threads(threads)
             .thread_name(|i| format!("trevi-render-{i}"))
             .build()
-            .map_err(|e| WorkerError::Pool(threads, e.to_string()))?,
+            .map_err(|source| WorkerError::Pool { threads, source })?,
     );
     let mut scenes = SceneCache {
         cap: cfg.cache_size,
@@ -237,8 +287,10 @@ pub async fn run(
                 s.serve(&cfg, &cache, &shutdown, &mut backoff).await
             }
             Err(e) if trevi_proto::connect::is_certificate_error(&e) => {
-                let why = trevi_proto::connect::error_chain(&e);
-                return Err(WorkerError::Certificate(cfg.coordinator.clone(), why));
+                return Err(WorkerError::Certificate {
+                    coordinator: cfg.coordinator.clone(),
+                    why: trevi_proto::connect::error_chain(&e),
+                });
             }
             Err(e) => End::Reconnect(format!(
                 "cannot connect: {}",
@@ -365,7 +417,7 @@ impl Session {
             .max(Duration::from_millis(10));
         tracing::info!(worker = me.id, coordinator = %cfg.coordinator, threads = self.threads, "registered");
         let mut slots = tokio::task::JoinSet::new();
-        for _ in 0..cfg.tiles_in_flight.max(1) {
+        for _ in 0..cfg.tiles_in_flight.get() {
             let mut slot = self.clone();
             let (cache, shutdown, me) = (cache.clone(), shutdown.clone(), me.clone());
             let (poll, fault) = (cfg.poll, cfg.test_fault);
@@ -597,7 +649,11 @@ impl Session {
     }
 
     /// The built scene for `hash`, from the cache or fetched and built.
-    async fn scene(&mut self, cache: &mut SceneCache, hash: &str) -> Result<Arc<Scene>, String> {
+    async fn scene(
+        &mut self,
+        cache: &mut SceneCache,
+        hash: &str,
+    ) -> Result<Arc<Scene>, SceneLoadError> {
         if let Some(s) = cache.get(hash) {
             return Ok(s);
         }
@@ -608,27 +664,22 @@ impl Session {
                 size: 0,
             })
             .await
-            .map_err(|s| s.message().to_string())?
+            .map_err(SceneLoadError::Download)?
             .into_inner();
         let mut bytes = Vec::new();
-        while let Some(c) = stream
-            .message()
-            .await
-            .map_err(|s| s.message().to_string())?
-        {
+        while let Some(c) = stream.message().await.map_err(SceneLoadError::Download)? {
             bytes.extend_from_slice(&c.data);
         }
         let want = hash.to_string();
-        let scene = tokio::task::spawn_blocking(move || -> Result<Scene, String> {
+        let scene = tokio::task::spawn_blocking(move || -> Result<Scene, SceneLoadError> {
             let got = trevi_core::bundle::sha256_hex(&bytes);
             if got != want {
-                return Err(format!("bundle {want} arrived with hash {got}"));
+                return Err(SceneLoadError::HashMismatch { want, got });
             }
-            let bundle = Bundle::decode(&bytes).map_err(|e| e.to_string())?;
-            Scene::from_bundle(&bundle).map_err(|e| e.to_string())
+            let bundle = Bundle::decode(&bytes)?;
+            Ok(Scene::from_bundle(&bundle)?)
         })
-        .await
-        .map_err(|e| e.to_string())??;
+        .await??;
         let scene = Arc::new(scene);
         tracing::info!(bundle = %hash, "scene built");
         cache.put(hash.to_string(), scene.clone());

@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use std::num::{IntErrorKind, NonZeroU64, NonZeroUsize, ParseIntError};
 use trevi_worker::WorkerConfig;
 
 #[derive(Parser, Debug)]
@@ -13,12 +14,15 @@ struct Args {
     /// Render threads (default: every core).
     #[arg(long, env = "TREVI_THREADS", default_value_t = 0)]
     threads: usize,
-    /// Built scenes kept in memory.
-    #[arg(long, env = "TREVI_SCENE_CACHE", default_value_t = 4)]
-    scene_cache: usize,
-    /// Tiles rendered at once (sharing the threads), hiding network latency.
-    #[arg(long, env = "TREVI_TILES_IN_FLIGHT", default_value_t = 2)]
-    tiles_in_flight: usize,
+    /// Built scenes kept in memory (at least 1).
+    #[arg(long, env = "TREVI_SCENE_CACHE", default_value_t = trevi_worker::SCENE_CACHE,
+          value_parser = at_least_one::<NonZeroUsize>)]
+    scene_cache: NonZeroUsize,
+    /// Tiles rendered at once (sharing the threads), hiding network latency
+    /// (at least 1).
+    #[arg(long, env = "TREVI_TILES_IN_FLIGHT", default_value_t = trevi_worker::TILES_IN_FLIGHT,
+          value_parser = at_least_one::<NonZeroUsize>)]
+    tiles_in_flight: NonZeroUsize,
     /// Name shown in the coordinator's logs (default: host-pid).
     #[arg(long, env = "TREVI_WORKER_NAME")]
     name: Option<String>,
@@ -37,10 +41,25 @@ struct Args {
     #[arg(long, env = "TREVI_TLS_DOMAIN")]
     tls_domain: Option<String>,
     /// How often a rendering tile's lease is heartbeated, and the longest
-    /// wait for a lease, in milliseconds: how soon a cancelled job or a stop
-    /// (SIGTERM) ends a render.
-    #[arg(long, env = "TREVI_POLL_MS", default_value_t = trevi_worker::POLL.as_millis() as u64)]
-    poll_ms: u64,
+    /// wait for a lease, in milliseconds (at least 1): how soon a cancelled
+    /// job or a stop (SIGTERM) ends a render.
+    #[arg(long, env = "TREVI_POLL_MS", default_value_t = poll_ms_default(),
+          value_parser = at_least_one::<NonZeroU64>)]
+    poll_ms: NonZeroU64,
+}
+
+/// A number that must be at least 1 (a `NonZero` integer): clap refuses 0,
+/// naming the flag, rather than the worker quietly taking 1.
+fn at_least_one<T: std::str::FromStr<Err = ParseIntError>>(s: &str) -> Result<T, String> {
+    s.parse().map_err(|e: ParseIntError| match e.kind() {
+        IntErrorKind::Zero => "must be at least 1".to_string(),
+        _ => e.to_string(),
+    })
+}
+
+/// `--poll-ms`'s default: [`trevi_worker::POLL`].
+fn poll_ms_default() -> NonZeroU64 {
+    NonZeroU64::new(trevi_worker::POLL.as_millis() as u64).expect("POLL is not zero")
 }
 
 #[tokio::main]
@@ -57,8 +76,7 @@ async fn main() -> Result<()> {
     cfg.threads = args.threads;
     cfg.cache_size = args.scene_cache;
     cfg.tiles_in_flight = args.tiles_in_flight;
-    anyhow::ensure!(args.poll_ms > 0, "--poll-ms must be at least 1");
-    cfg.poll = std::time::Duration::from_millis(args.poll_ms);
+    cfg.poll = std::time::Duration::from_millis(args.poll_ms.get());
     // Hooks for the end-to-end tests: a tile that crashes the renderer.
     cfg.test_fault = trevi_worker::TestFault::from_env("TREVI_TEST_ABORT_ON_TILE", true)
         .or_else(|| trevi_worker::TestFault::from_env("TREVI_TEST_PANIC_ON_TILE", false));

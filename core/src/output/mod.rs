@@ -45,7 +45,7 @@ mod srgb;
 mod tests;
 
 pub use self::exr::read_exr_rgb;
-pub use self::png::read_png_rgb8;
+pub use self::png::{decode_png, read_png_rgb8};
 pub use self::srgb::{linear_to_srgb8, Srgb8};
 
 use self::exr::{ExrSink, BLOCK_ROWS};

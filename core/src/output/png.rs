@@ -203,3 +203,36 @@ pub fn read_png_rgb8(path: &Path) -> Result<(u32, u32, Vec<[u8; 3]>), OutputErro
         .collect();
     Ok((width, height, pixels))
 }
+
+/// Decodes a whole 8-bit PNG held in memory, RGB like the frames this
+/// module writes or RGBA like the coordinator's previews: `(width, height,
+/// samples)`, the samples row by row as stored (3 or 4 a pixel).
+///
+/// For tests and tools only, like [`read_png_rgb8`].
+pub fn decode_png(bytes: &[u8]) -> Result<(u32, u32, Vec<u8>), OutputError> {
+    let what = || "a PNG in memory".to_string();
+    let decode_err = |e: ::png::DecodingError| OutputError::Encode {
+        path: what(),
+        message: e.to_string(),
+    };
+    let mut reader = ::png::Decoder::new(io::Cursor::new(bytes))
+        .read_info()
+        .map_err(decode_err)?;
+    let info = reader.info();
+    if info.bit_depth != ::png::BitDepth::Eight {
+        return Err(OutputError::Encode {
+            path: what(),
+            message: format!("expected an 8-bit PNG, found {:?}", info.bit_depth),
+        });
+    }
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| OutputError::Encode {
+            path: what(),
+            message: "the image does not fit in memory".into(),
+        })?;
+    let mut buf = vec![0; size];
+    let frame = reader.next_frame(&mut buf).map_err(decode_err)?;
+    buf.truncate(frame.buffer_size());
+    Ok((frame.width, frame.height, buf))
+}

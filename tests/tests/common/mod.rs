@@ -1,6 +1,21 @@
 //! Helpers shared by the farm tests that start real processes: binaries,
-//! working directories with logs, children killed on drop, polling.
+//! working directories with logs, children killed on drop, polling; and in
+//! their own files the coordinator's clients and jobs ([`farm`]), a worker
+//! made by hand ([`fake_worker`]) and raw HTTP to the monitor ([`http`]).
 #![allow(dead_code)]
+
+pub mod fake_worker;
+pub mod farm;
+pub mod http;
+
+// Each test crate uses a few of these.
+#[allow(unused_imports)]
+pub use fake_worker::FakeWorker;
+#[allow(unused_imports)]
+pub use farm::{
+    bundles, cancel, channel, detach, job, jobs, submit_and_wait, submit_job, try_job, upload,
+    wait_state, workers,
+};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -433,6 +448,27 @@ pub fn wait_child(dir: &Dir, child: &mut Child, secs: u64) -> std::process::Exit
         );
         std::thread::sleep(Duration::from_millis(20));
     }
+}
+
+/// A field of `/proc/PID/status` in KiB (`VmHWM`: peak resident memory,
+/// `VmRSS`: resident now).
+pub fn proc_kib(pid: u32, field: &str) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no {field} in /proc/{pid}/status"))
+}
+
+/// Sends `kill -SIGNAL` (`"TERM"`, `"INT"`) to a child.
+pub fn signal(p: &Proc, signal: &str) {
+    let ok = Command::new("kill")
+        .args([&format!("-{signal}"), &p.0.id().to_string()])
+        .status()
+        .expect("run kill")
+        .success();
+    assert!(ok, "kill -{signal} {} failed", p.0.id());
 }
 
 /// A bundle of one scene file, `s.xml`, for tests that speak gRPC directly.

@@ -1,8 +1,9 @@
-//! The farm client: upload a bundle, submit jobs, watch them, download the
-//! images; and `status`, `list`, `cancel`.
+//! The client of a coordinator: upload a bundle, submit jobs, watch them,
+//! download the images; and `status`, `list`, `cancel`, `fetch`.
 //!
-//! The same code drives a remote coordinator and the embedded one
-//! (see `local.rs`), so both produce the same bytes.
+//! It drives a farm's coordinator and the one embedded in `trevi-submit`
+//! for a local render (see `local.rs`) alike, so both produce the same
+//! bytes.
 
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
