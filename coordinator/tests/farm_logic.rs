@@ -8,6 +8,7 @@ use trevi_coordinator::{
     Farm, FarmConfig, FarmError, JobSpec, JobState, Limits, SubmitOptions, TileOutcome, TileResult,
     WorkerOptions,
 };
+use trevi_core::output::decode_png;
 use trevi_core::{FrameWriter, Rect};
 
 fn pixel(x: u32, y: u32) -> [f32; 3] {
@@ -607,11 +608,6 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
     assert_eq!(f.info(job).unwrap().state, JobState::Done);
 }
 
-/// Decodes a preview PNG into RGBA bytes.
-fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
-    trevi_core::output::decode_png(bytes).unwrap()
-}
-
 #[test]
 fn the_preview_fills_in_tile_by_tile_and_outlives_the_job() {
     let dir = tempfile::tempdir().unwrap();
@@ -621,7 +617,14 @@ fn the_preview_fills_in_tile_by_tile_and_outlives_the_job() {
         .submit(spec(1100, 40, 64, "wide.png", 0), SubmitOptions::default())
         .unwrap()
         .id;
-    let opaque = |png: &[u8]| decode_png(png).2.chunks(4).filter(|p| p[3] == 255).count();
+    let opaque = |png: &[u8]| {
+        decode_png(png)
+            .unwrap()
+            .2
+            .chunks(4)
+            .filter(|p| p[3] == 255)
+            .count()
+    };
     let p = f.preview(job).unwrap();
     assert_eq!((p.width, p.height, p.tiles), (367, 14, 0));
     assert_eq!(opaque(&p.png), 0, "a queued job's preview is empty");
@@ -648,7 +651,7 @@ fn the_preview_fills_in_tile_by_tile_and_outlives_the_job() {
     assert_eq!(f.info(job).unwrap().state, JobState::Done);
     // Done: the last preview is still there, complete, and matches the
     // frame's pixels averaged over 3×3 blocks.
-    let (pw, ph, rgba) = decode_png(&f.preview(job).unwrap().png);
+    let (pw, ph, rgba) = decode_png(&f.preview(job).unwrap().png).unwrap();
     assert_eq!(opaque(&f.preview(job).unwrap().png), (pw * ph) as usize);
     let (px, py) = (100u32, 5u32);
     let mut mean = [0f32; 3];

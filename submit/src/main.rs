@@ -288,7 +288,7 @@ fn run(args: Args) -> Result<()> {
 /// `--tile`'s default: the coordinator's own, so that a local render and a
 /// farm's cut a frame alike.
 fn default_tile() -> u32 {
-    trevi_coordinator::FarmConfig::new(PathBuf::new()).default_tile
+    trevi_coordinator::FarmConfig::default().default_tile
 }
 
 /// A `--tile` edge: 0 is refused, naming the flag, not clamped.
