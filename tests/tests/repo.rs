@@ -1,6 +1,6 @@
 //! What the repository promises about itself: CI runs the README's test
 //! command and nothing may be skipped there, the README's images come from a
-//! script, and its farm commands can be found.
+//! script, its farm commands can be found, and its layout names what exists.
 
 mod common;
 
@@ -169,4 +169,58 @@ fn the_readme_installs_the_farm_s_programs_before_running_them() {
         assert!(at < first_run, "`{install}` comes after the first command");
         assert!(root().join(package).join("Cargo.toml").is_file());
     }
+}
+
+/// The README's layout section is the map a newcomer reads first: every
+/// directory and `src/` path it names exists, and every module of the
+/// tracer (core/src) is on it.
+#[test]
+fn the_readme_s_layout_names_what_exists() {
+    let readme = read("README.md");
+    let section = readme
+        .split("## How it is built\n\n```\n")
+        .nth(1)
+        .and_then(|s| s.split("```").next())
+        .expect("the README's layout block under \"## How it is built\"");
+    let mut krate = String::new();
+    let mut core_named = Vec::new();
+    let mut missing = Vec::new();
+    for line in section.lines() {
+        if !line.starts_with(' ') {
+            if let Some(dir) = line.split_whitespace().next() {
+                krate = dir.to_string();
+                if !root().join(dir).is_dir() {
+                    missing.push(dir.to_string());
+                }
+            }
+            continue;
+        }
+        for word in line.split(|c: char| c.is_whitespace() || c == ',' || c == ':') {
+            if let Some(path) = word.strip_prefix("src/") {
+                let rel = format!("{krate}src/{path}");
+                if !root().join(&rel).exists() {
+                    missing.push(rel);
+                }
+                if krate == "core/" {
+                    core_named.push(path.trim_end_matches('/').to_string());
+                }
+            }
+        }
+    }
+    assert!(missing.is_empty(), "the README's layout names {missing:?}, which do not exist");
+    let mut unnamed = Vec::new();
+    for entry in std::fs::read_dir(root().join("core/src")).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().into_owned();
+        // The crate root and the parsers' test helpers are not steps of the pipeline.
+        if name == "lib.rs" || name == "testing.rs" {
+            continue;
+        }
+        let on_map = core_named
+            .iter()
+            .any(|n| n == &name || n.starts_with(&format!("{name}/")));
+        if !on_map {
+            unnamed.push(name);
+        }
+    }
+    assert!(unnamed.is_empty(), "core/src has {unnamed:?}, which the README's layout does not name");
 }
