@@ -189,12 +189,6 @@ impl BundleStore {
         Ok(file)
     }
 
-    /// Marks the stored bundle `hash` as used (see [`BundleStore::collect`]);
-    /// a bundle not stored is [`FarmError::UnknownBundle`].
-    pub fn mark_used(&self, hash: &str) -> Result<(), FarmError> {
-        self.open_used(hash).map(drop)
-    }
-
     /// The stored bundle file with this hash, open at its start, after
     /// checking its content against the hash (reading it once, a piece at a
     /// time), and its size. A damaged copy is [`FarmError::BadBundle`]

@@ -286,15 +286,21 @@ impl Farm {
         priority: i32,
         tile_size: u32,
     ) -> Result<JobSpec, FarmError> {
-        // The bundle must be stored (and is marked as used) even when its
-        // summary is cached.
-        self.bundles.mark_used(bundle_hash)?;
-        let summary = self.summaries.get_or_parse(bundle_hash, || {
-            let bundle = self.bundles.get(bundle_hash)?;
-            let desc = trevi_core::scene::aisxml::parse_scene(&bundle.scene, &bundle)
-                .map_err(|e| FarmError::BadScene(e.to_string()))?;
-            Ok::<_, FarmError>(SceneSummary::of(&desc))
-        })?;
+        let summary = match self.summaries.get(bundle_hash) {
+            // Cached, but the stored copy must still be there and intact
+            // (this also marks it used); checking it reads and hashes the
+            // file but parses nothing.
+            Some(summary) => {
+                self.bundles.open_verified(bundle_hash)?;
+                summary
+            }
+            None => self.summaries.get_or_parse(bundle_hash, || {
+                let bundle = self.bundles.get(bundle_hash)?;
+                let desc = trevi_core::scene::aisxml::parse_scene(&bundle.scene, &bundle)
+                    .map_err(|e| FarmError::BadScene(e.to_string()))?;
+                Ok::<_, FarmError>(SceneSummary::of(&desc))
+            })?,
+        };
         let cam = if camera.is_empty() {
             summary.cameras.first()
         } else {

@@ -2,8 +2,11 @@
 //! once per bundle: each camera's id, frame size, supersampling and output.
 //!
 //! Submitting one job per camera of a scene asks the same bundle about each
-//! camera in turn; without this cache every submission would read, decode
-//! and parse the whole bundle (meshes included) again. The cache is small
+//! camera in turn; without this cache every submission would decode and
+//! parse the whole bundle (meshes included) again. With it, a submission
+//! on a cached bundle still has the stored copy checked against its hash
+//! (so a copy damaged on disk is refused), which reads it but parses
+//! nothing. The cache is small
 //! ([`Summaries::CAPACITY`] bundles, the least recently used dropped first)
 //! because a summary is only worth keeping while its jobs are being
 //! submitted, and it holds only what [`crate::Farm::job_spec`] reads, never
@@ -175,7 +178,7 @@ mod tests {
 
     #[test]
     fn a_farm_parses_a_bundle_once_for_all_its_cameras() {
-        let (_tmp, farm, hash, _) = farm_with_the_scene();
+        let (tmp, farm, hash, _) = farm_with_the_scene();
         let a = farm.job_spec(&hash, "a", 0, 0).unwrap();
         let b = farm.job_spec(&hash, "b", 0, 0).unwrap();
         let first = farm.job_spec(&hash, "", 0, 0).unwrap();
@@ -183,9 +186,20 @@ mod tests {
         assert_eq!(first.camera, "a");
         assert_eq!(farm.summaries().parses(), 1);
         assert!(farm.job_spec(&hash, "c", 0, 0).is_err());
-        // A bundle not stored is refused even if a summary were cached.
+        // A bundle not stored is refused even if a summary were cached; so
+        // is a stored copy damaged since it was parsed.
         farm.summaries().put("0".repeat(64).as_str(), summary(1));
         assert!(farm.job_spec(&"0".repeat(64), "c1", 0, 0).is_err());
+        let stored = tmp.path().join("bundles").join(&hash);
+        let mut bytes = std::fs::read(&stored).unwrap();
+        let last = bytes.len() - 1;
+        bytes[last] ^= 1;
+        std::fs::write(&stored, bytes).unwrap();
+        assert!(matches!(
+            farm.job_spec(&hash, "a", 0, 0),
+            Err(crate::FarmError::BadBundle(m)) if m.contains("damaged")
+        ));
+        assert_eq!(farm.summaries().parses(), 1);
     }
 
     #[test]

@@ -151,3 +151,21 @@ fn the_tables_name_each_attribute_once_with_a_meaning() {
         }
     }
 }
+
+#[test]
+fn the_check_reads_tags_signatures_and_tables() {
+    let text =
+        "### `<render>`\n| attribute | default |\n|---|---|\n| `width`, `height` | required |\n\n\
+                `<camera id position (direction | lookat) [up]>` and \
+                <light type=\"spot\" position=\"0 1 0\"/> but not <lights x=\"1\">\n";
+    let mut shown = Shown::new();
+    in_tags(text, &mut shown);
+    in_tables(text, &mut shown);
+    let names = |e: &str| shown[e].iter().map(String::as_str).collect::<Vec<_>>();
+    assert_eq!(names("render"), ["height", "width"]);
+    assert_eq!(
+        names("camera"),
+        ["direction", "id", "lookat", "position", "up"]
+    );
+    assert_eq!(names("light"), ["position", "type"]);
+}
