@@ -328,18 +328,29 @@ fn nonsense_flag_values_are_refused_naming_the_flag() {
             "{flag}: {err}"
         );
     };
-    // Unreachable: a worker that started would only retry its connection.
+    // Unreachable: a worker that started would only retry its connection,
+    // so one still running after a while is killed (and the check fails).
     let worker = |args: &[&str], envs: &[(&str, &str)]| {
-        Command::new(bin("trevi-worker"))
+        let mut child = Command::new(bin("trevi-worker"))
             .args(["--coordinator", "http://127.0.0.1:9"])
             .args(args)
-            .envs(envs.iter().copied())
             .env_remove("TREVI_SCENE_CACHE")
             .env_remove("TREVI_TILES_IN_FLIGHT")
             .env_remove("TREVI_POLL_MS")
+            .envs(envs.iter().copied())
             .current_dir(dir.path())
-            .output()
-            .expect("run trevi-worker")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("run trevi-worker");
+        let started = std::time::Instant::now();
+        while child.try_wait().unwrap().is_none()
+            && started.elapsed() < std::time::Duration::from_secs(20)
+        {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let _ = child.kill();
+        child.wait_with_output().unwrap()
     };
     for flag in ["--scene-cache", "--tiles-in-flight", "--poll-ms"] {
         refused(worker(&[flag, "0"], &[]), flag);
