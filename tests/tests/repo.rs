@@ -207,7 +207,10 @@ fn the_readme_s_layout_names_what_exists() {
             }
         }
     }
-    assert!(missing.is_empty(), "the README's layout names {missing:?}, which do not exist");
+    assert!(
+        missing.is_empty(),
+        "the README's layout names {missing:?}, which do not exist"
+    );
     let mut unnamed = Vec::new();
     for entry in std::fs::read_dir(root().join("core/src")).unwrap() {
         let name = entry.unwrap().file_name().to_string_lossy().into_owned();
@@ -222,5 +225,8 @@ fn the_readme_s_layout_names_what_exists() {
             unnamed.push(name);
         }
     }
-    assert!(unnamed.is_empty(), "core/src has {unnamed:?}, which the README's layout does not name");
+    assert!(
+        unnamed.is_empty(),
+        "core/src has {unnamed:?}, which the README's layout does not name"
+    );
 }
