@@ -627,8 +627,8 @@ fn print_report(reports: &[MeshReport], threads: usize, reps: usize, embree: boo
 fn render(scene_path: &Path, camera: &str, threads: usize) {
     let _ = threads; // the global rayon pool has `threads` threads
     let t0 = Instant::now();
-    let bundle = trevi_core::Bundle::from_scene_file(scene_path).expect("read the scene bundle");
-    let scene = Scene::from_bundle(&bundle).expect("parse and build the scene");
+    let parsed = trevi_core::ParsedBundle::from_scene_file(scene_path).expect("read the scene");
+    let scene = Scene::build(parsed.desc);
     let t_build = t0.elapsed().as_secs_f64();
     let cam = scene.camera_index(camera).expect("camera id");
     let rs = &scene.desc.cameras[cam].render;
@@ -680,8 +680,8 @@ impl RayObserver for Recorder {
 /// End-to-end rays per CPU-second on every `every`-th tile of the frame,
 /// against traversal alone on the very rays those tiles traced.
 fn mix(scene_path: &Path, camera: &str, every: usize, reps: usize, threads: usize) {
-    let bundle = trevi_core::Bundle::from_scene_file(scene_path).expect("read the scene bundle");
-    let scene = Scene::from_bundle(&bundle).expect("parse and build the scene");
+    let parsed = trevi_core::ParsedBundle::from_scene_file(scene_path).expect("read the scene");
+    let scene = Scene::build(parsed.desc);
     let cam = scene.camera_index(camera).expect("camera id");
     let rs = &scene.desc.cameras[cam].render;
     let all = trevi_core::tile::band_order_tiles(rs.width, rs.height, 64);

@@ -284,8 +284,9 @@ fn direct(args: &[String]) {
     let scene_path = args.get(1).expect("SCENE");
     let out = args.get(2).expect("OUT");
     let tile = num(args, "--tile", 64) as u32;
-    let bundle = Bundle::from_scene_file(std::path::Path::new(scene_path)).expect("scene");
-    let scene = trevi_core::Scene::from_bundle(&bundle).expect("scene");
+    let parsed =
+        trevi_core::ParsedBundle::from_scene_file(std::path::Path::new(scene_path)).expect("scene");
+    let scene = trevi_core::Scene::build(parsed.desc);
     let r = &scene.desc.cameras[0].render;
     let (w, h) = (r.width, r.height);
     let start = Instant::now();
