@@ -107,8 +107,14 @@ fn a_panic_in_one_tile_is_reported_and_the_worker_lives_on() {
         dir.logs()
     );
     // Still the same registration, and still working.
-    let next = detach(&dir, &c, &one, "16", "0");
-    wait_state(&dir, &rt, &c, next, pb::JobState::Done, 20);
+    submit_and_wait(
+        &dir,
+        &rt,
+        &c,
+        &one,
+        &["--tile", "16", "--priority", "0"],
+        20,
+    );
     let log = dir.read_log("panicky");
     assert_eq!(log.matches("registered").count(), 1, "{log}");
 }
