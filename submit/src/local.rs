@@ -151,6 +151,9 @@ impl Embedded {
         let mut wcfg = WorkerConfig::new(url.clone());
         wcfg.threads = threads;
         wcfg.name = "embedded".into();
+        // The user asked for this render on this machine: it gets the
+        // machine's normal share, not a spare machine's leftovers.
+        wcfg.priority = trevi_worker::Priority::Normal;
         wcfg.preloaded = vec![Preloaded {
             hash: scene.hash,
             scene: scene.scene,

@@ -320,3 +320,76 @@ fn a_worker_cannot_act_under_another_workers_id() {
     let s = job(&rt, &c, id);
     assert_eq!(s.tiles_done, 0, "a forged result was taken");
 }
+
+/// The kernel's scheduling policy and nice value of each of process
+/// `pid`'s threads named `trevi-render-*` (fields 41 and 19 of
+/// /proc/PID/task/TID/stat).
+#[cfg(target_os = "linux")]
+fn render_threads(pid: u32) -> Vec<(i64, i64)> {
+    let mut out = Vec::new();
+    for task in std::fs::read_dir(format!("/proc/{pid}/task")).unwrap() {
+        let task = task.unwrap().path();
+        let comm = std::fs::read_to_string(task.join("comm")).unwrap_or_default();
+        if !comm.starts_with("trevi-render-") {
+            continue;
+        }
+        let stat = std::fs::read_to_string(task.join("stat")).unwrap();
+        let f: Vec<&str> = stat[stat.rfind(')').unwrap() + 2..].split(' ').collect();
+        out.push((f[41 - 3].parse().unwrap(), f[19 - 3].parse().unwrap()));
+    }
+    out
+}
+
+/// A worker on a spare machine renders only with CPU time nobody else
+/// wants: its render threads run under SCHED_IDLE (5) by default; with
+/// `--priority normal` (dedicated nodes) they keep the default policy (0)
+/// and nice value.
+#[cfg(target_os = "linux")]
+#[test]
+fn render_threads_run_at_idle_priority_unless_asked_for_normal() {
+    let dir = Dir::new();
+    let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
+    // No flag and no TREVI_PRIORITY: the worker's default.
+    let idle = worker_with(&dir, &c.url, "idle", &[], &[("TREVI_PRIORITY", "")]);
+    let normal = worker_with(
+        &dir,
+        &c.url,
+        "normal",
+        &["--priority", "normal"],
+        &[("TREVI_PRIORITY", "")],
+    );
+    for name in ["idle", "normal"] {
+        wait_for(
+            &dir,
+            &format!("worker {name} to start its render threads"),
+            20,
+            || dir.read_log(name).contains("render threads at"),
+        );
+    }
+    assert!(
+        dir.read_log("idle").contains("idle priority (SCHED_IDLE)"),
+        "{}",
+        dir.logs()
+    );
+    let threads = render_threads(idle.0.id());
+    assert_eq!(threads.len(), 1, "{}", dir.logs());
+    for (policy, _) in threads {
+        assert_eq!(policy, 5, "SCHED_IDLE\n{}", dir.logs());
+    }
+    let threads = render_threads(normal.0.id());
+    assert_eq!(threads.len(), 1, "{}", dir.logs());
+    for t in threads {
+        assert_eq!(t, (0, 0), "SCHED_OTHER at nice 0\n{}", dir.logs());
+    }
+    let o = std::process::Command::new(common::bin("trevi-worker"))
+        .args(["--coordinator", &c.url, "--priority", "low"])
+        .env_clear()
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--priority") && err.contains("idle or normal"),
+        "{err}"
+    );
+}

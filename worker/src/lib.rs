@@ -15,6 +15,13 @@
 //! gives the lease back unrendered and returns. A render that panics is
 //! reported to the coordinator (which counts it against the tile) and the
 //! worker goes on.
+//!
+//! The render threads run at idle priority unless told otherwise
+//! ([`priority`]): a worker on a spare desk takes only the CPU time its
+//! owner leaves unused.
+
+pub mod priority;
+pub use priority::Priority;
 
 use std::num::NonZeroUsize;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -54,6 +61,9 @@ pub struct WorkerConfig {
     /// scene cache, so their bundles are never downloaded or parsed (a
     /// local render hands over the scene it parsed for itself).
     pub preloaded: Vec<Preloaded>,
+    /// The render threads' CPU priority ([`Priority::Idle`] by default: a
+    /// worker on somebody's desk stays out of its owner's way).
+    pub priority: Priority,
     /// Tests only: make the render of one tile fail (see [`TestFault`]).
     #[doc(hidden)]
     pub test_fault: Option<TestFault>,
@@ -149,6 +159,7 @@ impl Default for WorkerConfig {
             tls: trevi_proto::ClientTls::default(),
             poll: POLL,
             preloaded: Vec::new(),
+            priority: Priority::default(),
             test_fault: None,
         }
     }
@@ -253,6 +264,15 @@ pub async fn run(
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("trevi-render-{i}"))
+            .start_handler({
+                let priority = cfg.priority;
+                move |i| {
+                    let applied = priority::apply_to_this_thread(priority);
+                    if i == 0 {
+                        tracing::info!(threads, "render threads at {applied}");
+                    }
+                }
+            })
             .build()
             .map_err(|source| WorkerError::Pool { threads, source })?,
     );

@@ -3,7 +3,7 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use std::num::{IntErrorKind, NonZeroU64, NonZeroUsize, ParseIntError};
-use trevi_worker::WorkerConfig;
+use trevi_worker::{Priority, WorkerConfig};
 
 #[derive(Parser, Debug)]
 #[command(name = "trevi-worker", version, about = "A Trevi render farm worker")]
@@ -46,6 +46,11 @@ struct Args {
     #[arg(long, env = "TREVI_POLL_MS", default_value_t = poll_ms_default(),
           value_parser = at_least_one::<NonZeroU64>)]
     poll_ms: NonZeroU64,
+    /// The render threads' CPU priority: `idle` (only the CPU time nothing
+    /// else on the machine wants: Linux's SCHED_IDLE, else nice 19) or
+    /// `normal` (for machines that do nothing but render).
+    #[arg(long, env = "TREVI_PRIORITY", default_value_t = Priority::default())]
+    priority: Priority,
 }
 
 /// A number that must be at least 1 (a `NonZero` integer): clap refuses 0,
@@ -77,6 +82,7 @@ async fn main() -> Result<()> {
     cfg.cache_size = args.scene_cache;
     cfg.tiles_in_flight = args.tiles_in_flight;
     cfg.poll = std::time::Duration::from_millis(args.poll_ms.get());
+    cfg.priority = args.priority;
     // Hooks for the end-to-end tests: a tile that crashes the renderer.
     cfg.test_fault = trevi_worker::TestFault::from_env("TREVI_TEST_ABORT_ON_TILE", true)
         .or_else(|| trevi_worker::TestFault::from_env("TREVI_TEST_PANIC_ON_TILE", false));

@@ -346,18 +346,27 @@ pub fn make_certs(dir: &Dir, name: &str) -> Option<PathBuf> {
     Some(out_dir)
 }
 
+/// Starts a worker with one render thread. Its threads run at normal
+/// priority (`TREVI_PRIORITY=normal`), so that tests timing a worker do not
+/// depend on what else the machine runs; an `envs` entry with an empty
+/// value removes that variable instead (the worker's own default).
 pub fn worker_with(dir: &Dir, url: &str, name: &str, args: &[&str], envs: &[(&str, &str)]) -> Proc {
     let mut cmd = Command::new(bin("trevi-worker"));
     cmd.args(["--coordinator", url, "--threads", "1", "--name", name])
         .args(args)
         .env("RUST_LOG", "info,trevi_worker=debug")
+        .env("TREVI_PRIORITY", "normal")
         .env_remove("TREVI_TOKEN")
         .env_remove("TREVI_TLS_CA")
         .env_remove("TREVI_TLS_DOMAIN")
         .stdout(Stdio::null())
         .stderr(dir.log(name));
     for (k, v) in envs {
-        cmd.env(k, v);
+        if v.is_empty() {
+            cmd.env_remove(k);
+        } else {
+            cmd.env(k, v);
+        }
     }
     Proc(cmd.spawn().expect("start trevi-worker"))
 }
