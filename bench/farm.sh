@@ -64,7 +64,7 @@ for i in $(seq "$rounds"); do
     /usr/bin/time -f "%U %S" -o "$work/t.emb" $R/trevi-submit "$work/mid.xml" --camera front -o "$work/emb.png" --quiet
     t2=$(date +%s.%N)
     start_coordinator
-    $R/trevi-worker --coordinator "http://127.0.0.1:$PORT" 2>"$work/worker.err" &
+    $R/trevi-worker --coordinator "http://127.0.0.1:$PORT" --priority normal 2>"$work/worker.err" &
     WP=$!
     sleep 0.3
     t3=$(date +%s.%N)
