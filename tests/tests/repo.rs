@@ -230,3 +230,30 @@ fn the_readme_s_layout_names_what_exists() {
         "core/src has {unnamed:?}, which the README's layout does not name"
     );
 }
+
+/// The systemd unit for spare machines starts the worker with flags the
+/// worker has: a renamed flag would leave a service that never starts.
+#[test]
+fn the_systemd_unit_runs_the_worker_with_flags_it_has() {
+    let unit = read("deploy/systemd/trevi-worker.service");
+    let exec = unit
+        .lines()
+        .find_map(|l| l.strip_prefix("ExecStart="))
+        .expect("an ExecStart= line");
+    let mut words = exec.split_whitespace();
+    assert_eq!(words.next(), Some("/usr/local/bin/trevi-worker"));
+    let flags: Vec<&str> = words.filter(|w| w.starts_with("--")).collect();
+    assert!(!flags.is_empty(), "{exec}");
+    let help = Command::new(common::bin("trevi-worker"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    assert!(help.status.success());
+    let help = String::from_utf8_lossy(&help.stdout);
+    for flag in flags {
+        assert!(
+            help.contains(&format!("{flag} ")),
+            "trevi-worker has no {flag}:\n{help}"
+        );
+    }
+}
