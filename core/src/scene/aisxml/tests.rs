@@ -1122,10 +1122,11 @@ fn render_missing_or_repeated() {
     );
 }
 
-/// Issue 15 item 10: every count of `<render>` has a documented maximum
-/// (the limits table of docs/aisxml-extensions.md). At the maximum the scene
-/// parses; one past it is an error at the attribute (`ao-samples` of
-/// 4294967295 used to be accepted, `supersample` 65537 overflowed n²).
+/// Every count of `<render>` has a documented maximum (the limits table of
+/// docs/aisxml-extensions.md). At the maximum the scene parses; one past it
+/// is an error at the attribute, so that no count can make a render run
+/// for ever (`ao-samples` of 4294967295) or overflow (`supersample` 65537
+/// squared).
 #[test]
 fn render_counts_have_documented_maxima() {
     use crate::scene::{
@@ -1204,9 +1205,9 @@ fn render_counts_have_documented_maxima() {
     }
 }
 
-/// Issue 15 item 14's class in the scene reader: the duplicate-attribute
-/// check compared each attribute with every earlier one, quadratic in a
-/// tag's attributes (200,000 of them: tens of seconds).
+/// Hostile input must not make a reader quadratic: the duplicate-attribute
+/// check stays linear in a tag's attributes (a pairwise comparison took
+/// tens of seconds on 200,000 of them).
 #[test]
 fn a_tag_with_200k_attributes_is_checked_in_linear_time() {
     let mut tag = String::from(r#"<scene version="1""#);
