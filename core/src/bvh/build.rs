@@ -7,9 +7,9 @@ use super::{Bvh, Pair, Ref};
 use crate::geometry::Aabb;
 use glam::Vec3;
 
-const BINS: usize = 16;
-const TRAVERSAL_COST: f32 = 1.0;
-const INTERSECT_COST: f32 = 1.0;
+pub(super) const BINS: usize = 16;
+pub(super) const TRAVERSAL_COST: f32 = 1.0;
+pub(super) const INTERSECT_COST: f32 = 1.0;
 /// Subtrees of at least this many primitives are built in parallel.
 const PAR_SUBTREE: usize = 8192;
 /// Nodes of at least this many primitives are binned in parallel.
@@ -298,31 +298,7 @@ fn find_split(
     };
     let bin_box = &stats.boxes;
     let bin_count = &stats.count;
-    // Sweep from the right to get suffix areas, then from the left.
-    let mut right_area = [0.0f32; BINS];
-    let mut acc = Aabb::EMPTY;
-    let mut n = 0;
-    let mut right_count = [0usize; BINS];
-    for i in (1..BINS).rev() {
-        acc = acc.union(bin_box[i]);
-        n += bin_count[i];
-        right_area[i] = acc.half_area();
-        right_count[i] = n;
-    }
-    let mut best = (f32::INFINITY, 0usize);
-    let mut acc = Aabb::EMPTY;
-    let mut n = 0;
-    for i in 0..BINS - 1 {
-        acc = acc.union(bin_box[i]);
-        n += bin_count[i];
-        if n == 0 || right_count[i + 1] == 0 {
-            continue;
-        }
-        let cost = acc.half_area() * n as f32 + right_area[i + 1] * right_count[i + 1] as f32;
-        if cost < best.0 {
-            best = (cost, i);
-        }
-    }
+    let best = cheapest_split(bin_box, bin_count);
     let leaf_cost = bounds.half_area() * count as f32 * INTERSECT_COST;
     let split_cost = TRAVERSAL_COST * bounds.half_area() + INTERSECT_COST * best.0;
     if !best.0.is_finite() {
@@ -362,4 +338,36 @@ fn find_split(
         }
     }
     Some(s)
+}
+
+/// The cheapest split between the bins: `(SAH cost of both sides, last bin
+/// of the left side)`, or an infinite cost when every split leaves a side
+/// empty. Shared by the build and the reference tree, so both split alike.
+pub(super) fn cheapest_split(bin_box: &[Aabb; BINS], bin_count: &[usize; BINS]) -> (f32, usize) {
+    // Sweep from the right to get suffix areas, then from the left.
+    let mut right_area = [0.0f32; BINS];
+    let mut acc = Aabb::EMPTY;
+    let mut n = 0;
+    let mut right_count = [0usize; BINS];
+    for i in (1..BINS).rev() {
+        acc = acc.union(bin_box[i]);
+        n += bin_count[i];
+        right_area[i] = acc.half_area();
+        right_count[i] = n;
+    }
+    let mut best = (f32::INFINITY, 0usize);
+    let mut acc = Aabb::EMPTY;
+    let mut n = 0;
+    for i in 0..BINS - 1 {
+        acc = acc.union(bin_box[i]);
+        n += bin_count[i];
+        if n == 0 || right_count[i + 1] == 0 {
+            continue;
+        }
+        let cost = acc.half_area() * n as f32 + right_area[i + 1] * right_count[i + 1] as f32;
+        if cost < best.0 {
+            best = (cost, i);
+        }
+    }
+    best
 }

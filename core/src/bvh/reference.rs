@@ -5,6 +5,7 @@
 //! is as deep as the real walk's, so both fall back to recursion at the
 //! same point.
 
+use super::build::{cheapest_split, BINS, INTERSECT_COST, TRAVERSAL_COST};
 use super::Visit;
 use crate::geometry::{ray_box, Aabb};
 use glam::Vec3;
@@ -26,10 +27,6 @@ pub struct RefBvh {
     /// Primitive indices in leaf order.
     pub prims: Vec<u32>,
 }
-
-const BINS: usize = 16;
-const TRAVERSAL_COST: f32 = 1.0;
-const INTERSECT_COST: f32 = 1.0;
 
 impl RefBvh {
     /// Builds the tree; `max_leaf` bounds a leaf's primitive count except
@@ -299,31 +296,7 @@ fn find_split(
         bin_box[b] = bin_box[b].union(boxes[p as usize]);
         bin_count[b] += 1;
     }
-    // Sweep from the right to get suffix areas, then from the left.
-    let mut right_area = [0.0f32; BINS];
-    let mut acc = Aabb::EMPTY;
-    let mut n = 0;
-    let mut right_count = [0usize; BINS];
-    for i in (1..BINS).rev() {
-        acc = acc.union(bin_box[i]);
-        n += bin_count[i];
-        right_area[i] = acc.half_area();
-        right_count[i] = n;
-    }
-    let mut best = (f32::INFINITY, 0usize);
-    let mut acc = Aabb::EMPTY;
-    let mut n = 0;
-    for i in 0..BINS - 1 {
-        acc = acc.union(bin_box[i]);
-        n += bin_count[i];
-        if n == 0 || right_count[i + 1] == 0 {
-            continue;
-        }
-        let cost = acc.half_area() * n as f32 + right_area[i + 1] * right_count[i + 1] as f32;
-        if cost < best.0 {
-            best = (cost, i);
-        }
-    }
+    let best = cheapest_split(&bin_box, &bin_count);
     let leaf_cost = bounds.half_area() * count as f32 * INTERSECT_COST;
     let split_cost = TRAVERSAL_COST * bounds.half_area() + INTERSECT_COST * best.0;
     if !best.0.is_finite() {
