@@ -28,6 +28,21 @@ pub enum Progress {
     Lines,
 }
 
+/// A bundle as it travels: its encoding and the hash of that encoding,
+/// computed once (the local render's embedded farm and the upload share it).
+pub struct Encoded {
+    pub bytes: Vec<u8>,
+    pub hash: String,
+}
+
+impl Encoded {
+    pub fn new(bundle: &Bundle) -> Encoded {
+        let bytes = bundle.encode();
+        let hash = trevi_core::bundle::sha256_hex(&bytes);
+        Encoded { bytes, hash }
+    }
+}
+
 /// A connection to a coordinator.
 pub struct Client {
     url: String,
@@ -93,9 +108,8 @@ impl Client {
     }
 
     /// Uploads exactly this bundle, in chunks; returns its hash.
-    pub async fn upload(&mut self, bundle: &Bundle) -> Result<String> {
-        let bytes = bundle.encode();
-        let want = trevi_core::bundle::sha256_hex(&bytes);
+    pub async fn upload(&mut self, bundle: &Encoded) -> Result<String> {
+        let (bytes, want) = (&bundle.bytes, bundle.hash.clone());
         let chunks: Vec<pb::BundleChunk> = bytes
             .chunks(CHUNK_SIZE)
             .map(|c| pb::BundleChunk { data: c.to_vec() })
@@ -377,7 +391,7 @@ impl Client {
     /// follows each and downloads its image.
     pub async fn render(
         &mut self,
-        bundle: &Bundle,
+        bundle: &Encoded,
         targets: &[Target],
         priority: i32,
         tile_size: u32,

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use tokio::sync::{oneshot, watch};
 use tokio::task::JoinHandle;
 use trevi_coordinator::{Farm, FarmConfig};
-use trevi_core::{Bundle, Scene, SceneDesc};
+use trevi_core::{Scene, SceneDesc};
 use trevi_worker::{Preloaded, WorkerConfig};
 
 /// The scene of a local render, built (BVHs included) from the description
@@ -23,9 +23,9 @@ pub struct Built {
 }
 
 impl Built {
-    /// Builds `desc`, the parsed scene of `bundle`, off the async threads.
-    pub async fn new(bundle: &Bundle, desc: SceneDesc) -> Result<Built> {
-        let hash = bundle.hash();
+    /// Builds `desc`, the parsed scene of the bundle whose hash is `hash`,
+    /// off the async threads.
+    pub async fn new(hash: String, desc: SceneDesc) -> Result<Built> {
         let scene = tokio::task::spawn_blocking(move || Scene::build(desc))
             .await
             .context("building the scene")?;

@@ -190,6 +190,8 @@ fn run(args: Args) -> Result<()> {
     let trevi_core::ParsedBundle { bundle, desc } =
         trevi_core::ParsedBundle::from_scene_file(&scene_path)
             .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
+    // Encoded and hashed once, for the upload and the embedded worker.
+    let bundle = client::Encoded::new(&bundle);
     let cameras: Vec<usize> = match &args.camera {
         Some(id) => vec![desc
             .cameras
@@ -255,7 +257,7 @@ fn run(args: Args) -> Result<()> {
             None => {
                 let data = data.as_ref().expect("made for a local render");
                 let signals = signals.as_mut().expect("caught for a local render");
-                let scene = local::Built::new(&bundle, desc).await?;
+                let scene = local::Built::new(bundle.hash.clone(), desc).await?;
                 let farm = local::Embedded::start(
                     args.threads.unwrap_or(0),
                     args.tile,
