@@ -97,6 +97,19 @@ pub struct Hit {
     pub front: bool,
 }
 
+/// A hit's place in the tie rule after its distance: (object, triangle).
+/// Objects are numbered models first (document order), then spheres, then
+/// planes; the triangle is its index in the mesh as loaded (0 for spheres
+/// and planes).
+type TieKey = (u32, u32);
+
+/// The smallest f32 above `t` (for `t > 0` finite): `t' < above(t)` is
+/// `t' <= t`. (`f32::next_up` needs Rust 1.86.)
+#[inline]
+fn above(t: f32) -> f32 {
+    f32::from_bits(t.to_bits() + 1)
+}
+
 /// The local geometry at a hit.
 #[derive(Debug, Clone, Copy)]
 pub struct SurfacePoint<'a> {
@@ -131,6 +144,10 @@ impl SurfacePoint<'_> {
 pub struct Scene {
     pub desc: SceneDesc,
     blas: Vec<Bvh>,
+    /// Per mesh, the triangle's index as loaded for each triangle as stored
+    /// (the build renumbers meshes): the tie rule ([`View::precedes`]) is
+    /// stated in the numbering the scene file gives.
+    loaded_index: Vec<Vec<u32>>,
     /// The world from each distinct camera position, built when first asked
     /// for: building every camera's up front would cost cameras × objects (a
     /// scene of 5,000 cameras and 5,000 spheres would build 25 million
@@ -193,7 +210,6 @@ impl Scene {
                     .collect();
             }
         }
-        drop(orders);
         let mut eyes: Vec<DVec3> = Vec::new();
         let mut index_of_eye: HashMap<[u64; 3], usize> = HashMap::new();
         let mut camera_eye = Vec::with_capacity(desc.cameras.len());
@@ -229,6 +245,7 @@ impl Scene {
         Scene {
             desc,
             blas,
+            loaded_index: orders,
             from_eyes,
             eyes,
             camera_eye,
@@ -475,14 +492,46 @@ impl<'a> View<'a> {
         (t_max, hit)
     }
 
-    /// The nearest hit along the ray within `(0, t_max)`.
+    /// The closest-hit order, a total order on a ray's hits, so that the
+    /// answer of [`View::intersect`] cannot depend on the order in which the
+    /// traversal meets them: the smaller `t` wins; at equal `t` (two
+    /// triangles sharing an edge or coincident, two instances of one mesh in
+    /// the same place) the smaller [`TieKey`] wins: the earlier model
+    /// (models, then spheres, then planes, each in document order), then
+    /// the earlier triangle of the mesh as loaded. See docs/performance.md.
+    #[inline]
+    pub fn precedes(&self, a: &Hit, b: &Hit) -> bool {
+        a.t < b.t || (a.t == b.t && self.tie_key(a.kind) < self.tie_key(b.kind))
+    }
+
+    /// The hit's key in the tie rule ([`View::precedes`]).
+    fn tie_key(&self, kind: HitKind) -> TieKey {
+        let n_inst = self.world.instances.len() as u32;
+        match kind {
+            HitKind::Triangle {
+                instance, triangle, ..
+            } => {
+                let mesh = self.world.instances[instance as usize].mesh as usize;
+                (instance, self.scene.loaded_index[mesh][triangle as usize])
+            }
+            HitKind::Sphere(i) => (n_inst + i, 0),
+            HitKind::Plane(i) => (n_inst + self.scene.desc.spheres.len() as u32 + i, 0),
+        }
+    }
+
+    /// The nearest hit along the ray within `(0, t_max)`; of several at the
+    /// same distance, the first in the tie rule ([`View::precedes`]).
     pub fn intersect(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         self.for_each_hit(origin, dir, t_max, |h| {
-            if best.is_none_or(|b| h.t < b.t) {
-                best = Some(h);
-            }
-            Visit::Hit(h.t)
+            let b = match best {
+                Some(b) if !self.precedes(&h, &b) => b,
+                _ => h,
+            };
+            best = Some(b);
+            // Hits at exactly `b.t` must still be offered: the bound passed
+            // on is the next float above it.
+            Visit::Hit(above(b.t))
         });
         best
     }

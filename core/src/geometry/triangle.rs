@@ -61,7 +61,11 @@ pub struct TriangleHit {
     pub front: bool,
 }
 
-/// Intersects the ray with triangle `a b c` for `t` in `(0, t_max)`.
+/// Margin of the early out in [`intersect`] (1 + 2⁻²⁰).
+const T_MARGIN: f32 = 1.0 + 1.0 / (1 << 20) as f32;
+
+/// Intersects the ray with triangle `a b c` for `t` in `(0, t_max)`: a hit
+/// is reported exactly when its computed `t` satisfies `0 < t < t_max`.
 /// Zero-area triangles and rays in the triangle's plane never hit.
 #[inline(always)]
 pub fn intersect(r: &ShearedRay, a: Vec3, b: Vec3, c: Vec3, t_max: f32) -> Option<TriangleHit> {
@@ -100,17 +104,23 @@ pub fn intersect(r: &ShearedRay, a: Vec3, b: Vec3, c: Vec3, t_max: f32) -> Optio
     let bz = r.sz * bb[kz];
     let cz = r.sz * cc[kz];
     let t_scaled = u * az + v * bz + w * cz;
-    // Compare before dividing, with the determinant's sign folded in.
+    // Early out before dividing, with the determinant's sign folded in and
+    // a margin (2⁻²⁰, far above the two roundings of `t_scaled · (1/det)`)
+    // so that it never rejects a hit whose computed `t` is below `t_max`:
+    // whether a triangle is hit must depend on its computed `t` alone, not
+    // on how the bound was reached, or a closest-hit query's tie rule
+    // (`world::View::precedes`) would depend on the visit order.
     if det > 0.0 {
-        if t_scaled <= 0.0 || t_scaled >= t_max * det {
+        if t_scaled <= 0.0 || t_scaled > t_max * det * T_MARGIN {
             return None;
         }
-    } else if t_scaled >= 0.0 || t_scaled <= t_max * det {
+    } else if t_scaled >= 0.0 || t_scaled < t_max * det * T_MARGIN {
         return None;
     }
     let inv = 1.0 / det;
     let t = t_scaled * inv;
-    if !(t > 0.0) {
+    // The exact test, on the computed `t`.
+    if !(t > 0.0 && t < t_max) {
         return None;
     }
     Some(TriangleHit {
@@ -230,6 +240,30 @@ mod tests {
             let h1 = intersect(&r, p0, p1, p2, f32::INFINITY);
             let h2 = intersect(&r, p0, p2, p3, f32::INFINITY);
             assert!(h1.is_some() || h2.is_some(), "leak at s = {s}");
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(20000))]
+        /// A hit is reported exactly when its computed `t` is below `t_max`,
+        /// whatever the bound: with `t_max` the next float above `t` it is
+        /// found with the same `t` and barycentrics, with `t_max = t` it is
+        /// not. (The closest-hit tie rule relies on this.)
+        #[test]
+        fn the_bound_decides_on_the_computed_t_alone(
+            o in proptest::array::uniform3(-10.0f32..10.0),
+            d in proptest::array::uniform3(-1.0f32..1.0),
+            a in proptest::array::uniform3(-5.0f32..5.0),
+            b in proptest::array::uniform3(-5.0f32..5.0),
+            c in proptest::array::uniform3(-5.0f32..5.0),
+        ) {
+            let r = ShearedRay::new(Vec3::from(o), Vec3::from(d));
+            let (a, b, c) = (Vec3::from(a), Vec3::from(b), Vec3::from(c));
+            if let Some(h) = intersect(&r, a, b, c, f32::INFINITY) {
+                let above = f32::from_bits(h.t.to_bits() + 1);
+                proptest::prop_assert_eq!(intersect(&r, a, b, c, above), Some(h));
+                proptest::prop_assert_eq!(intersect(&r, a, b, c, h.t), None);
+            }
         }
     }
 
