@@ -64,47 +64,43 @@ impl Bvh {
         let mut bins = vec![0u8; n];
         let mut pairs = Vec::with_capacity(n / 2 + 1);
         let root = build_node(&input, &mut prims, &mut bins, 0, 0, bounds, cb, &mut pairs);
-        pairs.shrink_to_fit();
-        let finite = bounds.min.is_finite()
-            && bounds.max.is_finite()
-            && pairs.iter().all(|p| {
-                p.min_xy
-                    .iter()
-                    .chain(&p.max_xy)
-                    .chain(&p.z)
-                    .all(|c| c.is_finite())
-            });
+        let sah = sah_cost(&pairs, root, bounds);
+        let (nodes, root) = super::wide::collapse(&pairs, root);
+        drop(pairs);
         Bvh {
-            pairs,
+            nodes,
             len: n as u32,
             prims,
             root,
             root_box: bounds,
-            finite,
+            sah,
         }
     }
 
-    /// The tree's SAH cost (traversal 1, intersection 1), relative to the
-    /// root's area: the usual measure of tree quality.
+    /// The SAH cost (traversal 1, intersection 1), relative to the root's
+    /// area, of the binary tree the wide one was collapsed from: the usual
+    /// measure of tree quality, comparable with other binary builders'.
     pub fn sah_cost(&self) -> f32 {
-        if self.len == 0 {
-            return 0.0;
-        }
-        let root_area = self.root_box.half_area().max(f32::MIN_POSITIVE) as f64;
-        let cost = |b: Aabb, r: Ref| -> f64 {
-            let a = b.half_area() as f64 / root_area;
-            if r.count > 0 {
-                a * (INTERSECT_COST * r.count as f32) as f64
-            } else {
-                a * TRAVERSAL_COST as f64
-            }
-        };
-        let mut sum = cost(self.root_box, self.root);
-        for p in &self.pairs {
-            sum += cost(p.child_box(0), p.child[0]) + cost(p.child_box(1), p.child[1]);
-        }
-        sum as f32
+        self.sah
     }
+}
+
+/// [`Bvh::sah_cost`] of a binary tree.
+fn sah_cost(pairs: &[Pair], root: Ref, root_box: Aabb) -> f32 {
+    let root_area = root_box.half_area().max(f32::MIN_POSITIVE) as f64;
+    let cost = |b: Aabb, r: Ref| -> f64 {
+        let a = b.half_area() as f64 / root_area;
+        if r.count > 0 {
+            a * (INTERSECT_COST * r.count as f32) as f64
+        } else {
+            a * TRAVERSAL_COST as f64
+        }
+    };
+    let mut sum = cost(root_box, root);
+    for p in pairs {
+        sum += cost(p.child_box(0), p.child[0]) + cost(p.child_box(1), p.child[1]);
+    }
+    sum as f32
 }
 
 /// Builds the subtree over `prims` (which start at `offset` in the whole

@@ -1,4 +1,5 @@
-//! Bounding volume hierarchy: a binned-SAH binary tree over primitive boxes.
+//! Bounding volume hierarchy: a binned-SAH tree over primitive boxes,
+//! collapsed into a 4-wide tree.
 //!
 //! One builder serves both levels of the acceleration structure: the bottom
 //! level (triangles of one mesh, in object space) and the top level (model
@@ -6,36 +7,31 @@
 //! caller's closure intersects the primitives, so traversal is generic and
 //! statically dispatched.
 //!
-//! This file holds the tree's layout; `build.rs` makes it and `traverse.rs`
-//! walks it.
+//! `build.rs` makes a binary tree by binned SAH, `wide.rs` collapses it into
+//! nodes of up to four children (the largest child opened first, as
+//! Embree's BVH4 does), `traverse.rs` walks that, nearest child first, and
+//! `simd.rs` (the only `unsafe` code) tests a node's four boxes at once.
 //!
-//! Layout: an interior node is stored as the *pair* of its children's boxes
-//! (64 bytes, one cache line, laid out so that SSE tests both boxes at once)
-//! plus the two child references; the root's box is kept apart. That is the
-//! same 32 bytes per node as a node-per-box layout, but one load serves both
-//! children and the box of a node popped from the stack need not be tested
-//! again (its entry distance is kept on the stack).
+//! Layout: a [`Node`] holds its four children's boxes plane by plane (one
+//! SSE register per plane: 96 bytes) and their references, 128 bytes, two
+//! cache lines. The binary tree is dropped once collapsed.
 //!
-//! Exactness: the closest-hit query keeps the *first* of several hits at the
-//! same distance (two triangles sharing an edge), and translucent shadow rays
-//! multiply their factors in visit order, so the order in which primitives
-//! are visited is part of the rendered image. Build and traversal visit
-//! exactly the primitives, in exactly the order, of the plain
-//! one-node-per-box tree in `reference.rs` (test builds only; the tests
-//! compare the two on random scenes): the same splits and in-place
-//! partition, children visited nearest entry first with ties to the left,
-//! popped nodes culled on the same condition, the same fallback past 64
-//! levels. The SIMD box test is used only for rays whose arithmetic cannot
-//! produce a NaN (finite origin, finite non-zero direction components,
-//! finite boxes), where it computes bit-for-bit the values of the scalar
-//! [`ray_box`](crate::geometry::ray_box); other rays take the scalar path.
+//! Visit order is not part of the image: the closest-hit query answers by a
+//! total order on hits (`world::View::precedes`), and any-hit queries do not
+//! depend on the order. The order is still a pure function of the ray and
+//! the tree, the same on every code path (see `simd.rs`), so translucent
+//! shadows, which multiply factors in visit order, are deterministic too.
 
 mod build;
 #[cfg(test)]
 mod reference;
+pub mod simd;
 #[cfg(test)]
 mod tests;
 mod traverse;
+mod wide;
+
+pub use simd::Simd;
 
 use crate::geometry::Aabb;
 use glam::Vec3;
@@ -50,16 +46,64 @@ pub enum Visit {
     Stop,
 }
 
-/// A child reference: `count == 0`: the interior node `pairs[first]`;
-/// `count > 0`: the leaf `prims[first..first + count]`.
+/// A child reference: `count == 0`: the interior node `pairs[first]` of
+/// the binary tree, or `nodes[first]` of the wide one; `count > 0`: the leaf
+/// `prims[first..first + count]`; [`Ref::NONE`]: an empty slot of a node.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct Ref {
     first: u32,
     count: u32,
 }
 
-/// The two children of an interior node: their boxes, lane-interleaved
-/// (left, right) so one SSE register holds the same coordinate of both.
+impl Ref {
+    const NONE: Ref = Ref {
+        first: u32::MAX,
+        count: 0,
+    };
+}
+
+/// A wide node: up to four children. `b[2·axis]` holds the four children's
+/// minima on that axis, `b[2·axis + 1]` their maxima; empty slots have
+/// [`Aabb::EMPTY`]'s planes and [`Ref::NONE`].
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(64))]
+struct Node {
+    b: [[f32; 4]; 6],
+    child: [Ref; 4],
+}
+
+impl Node {
+    const EMPTY: Node = Node {
+        b: [
+            [f32::INFINITY; 4],
+            [f32::NEG_INFINITY; 4],
+            [f32::INFINITY; 4],
+            [f32::NEG_INFINITY; 4],
+            [f32::INFINITY; 4],
+            [f32::NEG_INFINITY; 4],
+        ],
+        child: [Ref::NONE; 4],
+    };
+
+    fn set(&mut self, i: usize, b: Aabb, r: Ref) {
+        for a in 0..3 {
+            self.b[2 * a][i] = b.min[a];
+            self.b[2 * a + 1][i] = b.max[a];
+        }
+        self.child[i] = r;
+    }
+
+    #[cfg(test)]
+    fn child_box(&self, i: usize) -> Aabb {
+        Aabb {
+            min: Vec3::new(self.b[0][i], self.b[2][i], self.b[4][i]),
+            max: Vec3::new(self.b[1][i], self.b[3][i], self.b[5][i]),
+        }
+    }
+}
+
+/// The two children of an interior node of the binary tree (the build's
+/// intermediate form): their boxes and references.
 #[derive(Debug, Clone, Copy, Default)]
 #[repr(C, align(64))]
 struct Pair {
@@ -82,12 +126,10 @@ impl Pair {
         }
     }
 
-    #[inline(always)]
     fn child_min(&self, i: usize) -> Vec3 {
         Vec3::new(self.min_xy[i], self.min_xy[2 + i], self.z[i])
     }
 
-    #[inline(always)]
     fn child_max(&self, i: usize) -> Vec3 {
         Vec3::new(self.max_xy[i], self.max_xy[2 + i], self.z[2 + i])
     }
@@ -103,7 +145,7 @@ impl Pair {
 /// A built tree (see the module doc for its layout).
 #[derive(Debug, Clone)]
 pub struct Bvh {
-    pairs: Vec<Pair>,
+    nodes: Vec<Node>,
     /// Primitive indices in leaf order; empty once the caller has taken
     /// them ([`Bvh::take_leaf_order`]) and numbered its primitives so.
     prims: Vec<u32>,
@@ -111,20 +153,20 @@ pub struct Bvh {
     len: u32,
     root: Ref,
     root_box: Aabb,
-    /// Every box is finite: the SIMD box test may be used.
-    finite: bool,
+    /// The binary tree's SAH cost ([`Bvh::sah_cost`]).
+    sah: f32,
 }
 
 impl Default for Bvh {
     /// The empty tree.
     fn default() -> Bvh {
         Bvh {
-            pairs: Vec::new(),
+            nodes: Vec::new(),
             prims: Vec::new(),
             len: 0,
             root: Ref::default(),
             root_box: Aabb::EMPTY,
-            finite: false,
+            sah: 0.0,
         }
     }
 }
@@ -136,10 +178,10 @@ impl Bvh {
     }
 
     /// Hands over the primitive order of the leaves: `order[k]` is the
-    /// primitive the traversal visits as number `k`. The caller renumbers
-    /// its primitives so that primitive `k` is `order[k]` (leaf neighbours
-    /// become memory neighbours), and the tree reports `k` from then on,
-    /// without keeping an index array. The tree and its visits are unchanged.
+    /// primitive in leaf position `k`. The caller renumbers its primitives
+    /// so that primitive `k` is `order[k]` (leaf neighbours become memory
+    /// neighbours), and the tree reports `k` from then on, without keeping
+    /// an index array. The tree is unchanged.
     pub fn take_leaf_order(&mut self) -> Vec<u32> {
         std::mem::take(&mut self.prims)
     }
@@ -154,7 +196,13 @@ impl Bvh {
         }
     }
 
+    /// Heap bytes of the tree (nodes and primitive indices).
+    pub fn heap_bytes(&self) -> usize {
+        self.nodes.capacity() * std::mem::size_of::<Node>() + self.prims.capacity() * 4
+    }
+
     /// The leaves in the order of the tree's layout, for tests: (box, prims).
+    /// Checks on the way that every child box lies inside its parent's.
     #[cfg(test)]
     fn leaves(&self) -> Vec<(Aabb, &[u32])> {
         let mut out = Vec::new();
@@ -165,12 +213,16 @@ impl Bvh {
                     b,
                     &self.prims[r.first as usize..(r.first + r.count) as usize],
                 ));
-            } else {
-                let p = &self.pairs[r.first as usize];
-                assert!(p.child_min(0).cmpge(b.min).all() && p.child_max(0).cmple(b.max).all());
-                assert!(p.child_min(1).cmpge(b.min).all() && p.child_max(1).cmple(b.max).all());
-                stack.push((p.child[1], p.child_box(1)));
-                stack.push((p.child[0], p.child_box(0)));
+            } else if self.len > 0 {
+                let n = &self.nodes[r.first as usize];
+                for i in (0..4).rev() {
+                    if n.child[i] == Ref::NONE {
+                        continue;
+                    }
+                    let c = n.child_box(i);
+                    assert!(c.min.cmpge(b.min).all() && c.max.cmple(b.max).all());
+                    stack.push((n.child[i], c));
+                }
             }
         }
         out

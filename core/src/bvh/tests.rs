@@ -125,8 +125,33 @@ fn rays(seed: u64, n: usize, boxes: &[Aabb]) -> Vec<(Vec3, Vec3, f32)> {
     out
 }
 
+fn sorted(mut v: Vec<u32>) -> Vec<u32> {
+    v.sort_unstable();
+    v
+}
+
+/// The scalar and SSE node tests give the same visits, in the same order,
+/// with the same `t_max` at each (the bits of the image on every machine).
+fn same_on_every_path(
+    bvh: &Bvh,
+    boxes: &[Aabb],
+    o: Vec3,
+    d: Vec3,
+    t_max: f32,
+    mode: Mode,
+) -> Trace {
+    let mut traces = Simd::available()
+        .iter()
+        .map(|&p| run(boxes, o, d, mode, |f| bvh.traverse_on(p, o, d, t_max, f)));
+    let first = traces.next().expect("the scalar path");
+    for t in traces {
+        assert_eq!(t, first, "paths differ: {o} {d} {t_max} {mode:?}");
+    }
+    first
+}
+
 #[test]
-fn build_and_traversal_match_the_reference_visit_for_visit() {
+fn build_matches_the_reference_and_traversal_finds_what_it_finds() {
     let scenes = [
         (random_boxes(3000, 7), 4),
         (random_boxes(500, 8), 2),
@@ -148,6 +173,7 @@ fn build_and_traversal_match_the_reference_visit_for_visit() {
     for (k, (boxes, max_leaf)) in scenes.iter().enumerate() {
         let new = Bvh::build(boxes, *max_leaf);
         let old = reference::RefBvh::build(boxes, *max_leaf);
+        // Collapsing keeps the binary tree's leaves, in its order.
         let leaves: Vec<Vec<u32>> = new.leaves().iter().map(|l| l.1.to_vec()).collect();
         assert_eq!(leaves, ref_leaves(&old), "scene {k}: leaves");
         assert_eq!(new.bounds(), old.bounds(), "scene {k}");
@@ -157,11 +183,27 @@ fn build_and_traversal_match_the_reference_visit_for_visit() {
             "scene {k}"
         );
         for (i, &(o, d, t_max)) in rays(k as u64 + 1, 400, boxes).iter().enumerate() {
-            for mode in [Mode::Closest, Mode::Gather, Mode::StopAfter(i % 4)] {
-                let a = run(boxes, o, d, mode, |f| new.traverse(o, d, t_max, f));
-                let b = run(boxes, o, d, mode, |f| old.traverse(o, d, t_max, f));
-                assert_eq!(a, b, "scene {k}, ray {i} {o} {d}, {mode:?}");
+            let what = format!("scene {k}, ray {i} {o} {d}");
+            // Every primitive the reference visits, each once (the wide
+            // tree skips some of the binary tree's boxes, so it may visit
+            // more), on every path alike.
+            let (seen, ..) = same_on_every_path(&new, boxes, o, d, t_max, Mode::Gather);
+            let seen = sorted(seen.iter().map(|s| s.0).collect());
+            let mut unique = seen.clone();
+            unique.dedup();
+            assert_eq!(seen, unique, "{what}: visited twice");
+            let (want, ..) = run(boxes, o, d, Mode::Gather, |f| old.traverse(o, d, t_max, f));
+            for (p, _) in want {
+                assert!(seen.binary_search(&p).is_ok(), "{what}: missed {p}");
             }
+            // The same closest distance and the same answer to any-hit.
+            let (_, t_new, h_new) = same_on_every_path(&new, boxes, o, d, t_max, Mode::Closest);
+            let (_, t_old, h_old) =
+                run(boxes, o, d, Mode::Closest, |f| old.traverse(o, d, t_max, f));
+            assert_eq!((t_new, h_new), (t_old, h_old), "{what}: closest");
+            let (_, _, h_new) = same_on_every_path(&new, boxes, o, d, t_max, Mode::StopAfter(0));
+            assert_eq!(h_new, h_old, "{what}: any hit");
+            same_on_every_path(&new, boxes, o, d, t_max, Mode::StopAfter(i % 4));
         }
     }
 }

@@ -1,0 +1,281 @@
+//! The one module of the tree with `unsafe` code: the SSE test of a wide
+//! node's four boxes, its scalar twin, the choice between them, and the
+//! traversal stack.
+//!
+//! **Bit-identical paths.** The scalar test performs, lane by lane, exactly
+//! the operations of the SSE test, in the same order: `(plane − o) · inv`
+//! (a subtraction then a multiplication, never fused: Rust does not
+//! contract, and no path uses FMA), then `maxps`/`minps`, whose semantics
+//! (`a > b ? a : b`, `a < b ? a : b`: the second operand when either is NaN)
+//! [`max_ps`] and [`min_ps`] spell out. So every entry distance, every mask
+//! bit, and with them the walk's visit order, are the same bits on every
+//! path and every machine; `core/tests/simd.rs` renders scenes through each
+//! path and compares the bytes.
+//!
+//! **NaN.** A ray with a zero direction component has an infinite `inv`;
+//! a box plane through the origin then gives `0 · ∞ = NaN`. Each slab value
+//! enters the min/max chains as the *first* operand, whose NaN is dropped,
+//! so that slab is treated as unbounded: conservative, never a missed box.
+
+use super::{Node, Ref};
+use std::mem::MaybeUninit;
+use std::sync::atomic::{AtomicU8, Ordering};
+
+/// The factor by which a box's exit distance is stretched before comparing
+/// it with the entry, so that rounding never culls a box the ray grazes
+/// (Ize, "Robust BVH Ray Traversal", 2013). The same as
+/// [`ray_box`](crate::geometry::ray_box)'s.
+pub(super) const SLACK: f32 = 1.000_000_4;
+
+/// A code path of the node test.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Simd {
+    /// Plain Rust, every target.
+    Scalar,
+    /// SSE2 (the x86_64 baseline).
+    Sse,
+}
+
+impl Simd {
+    /// Every path this machine can run, scalar first.
+    pub fn available() -> &'static [Simd] {
+        if cfg!(target_arch = "x86_64") {
+            &[Simd::Scalar, Simd::Sse]
+        } else {
+            &[Simd::Scalar]
+        }
+    }
+
+    /// The best path this machine can run.
+    pub fn best() -> Simd {
+        *Simd::available().last().unwrap_or(&Simd::Scalar)
+    }
+
+    /// Parses a `TREVI_SIMD` value.
+    pub fn parse(s: &str) -> Option<Simd> {
+        match s {
+            "scalar" => Some(Simd::Scalar),
+            "sse" => Some(Simd::Sse),
+            _ => None,
+        }
+    }
+
+    fn code(self) -> u8 {
+        match self {
+            Simd::Scalar => 1,
+            Simd::Sse => 2,
+        }
+    }
+}
+
+/// 0: not chosen yet; otherwise [`Simd::code`].
+static PATH: AtomicU8 = AtomicU8::new(0);
+
+/// The environment variable that forces a path (`scalar` or `sse`).
+pub const SIMD_ENV: &str = "TREVI_SIMD";
+
+/// The path every traversal of this process takes: the one forced by
+/// [`force`], else by `TREVI_SIMD` (read once), else [`Simd::best`]. An
+/// unknown value, or a path this machine cannot run, falls back to the best
+/// one with a warning on stderr (the image is the same on every path).
+#[inline]
+pub fn current() -> Simd {
+    match PATH.load(Ordering::Relaxed) {
+        1 => Simd::Scalar,
+        2 => Simd::Sse,
+        _ => init_from_env(),
+    }
+}
+
+#[cold]
+fn init_from_env() -> Simd {
+    let chosen = match std::env::var(SIMD_ENV) {
+        Ok(v) => match Simd::parse(&v) {
+            Some(s) if Simd::available().contains(&s) => s,
+            _ => {
+                eprintln!(
+                    "trevi: {SIMD_ENV}={v:?} is not one of {:?} on this machine; using {:?}",
+                    Simd::available(),
+                    Simd::best()
+                );
+                Simd::best()
+            }
+        },
+        Err(_) => Simd::best(),
+    };
+    // A racing `force` wins; otherwise this choice sticks.
+    let _ = PATH.compare_exchange(0, chosen.code(), Ordering::Relaxed, Ordering::Relaxed);
+    current()
+}
+
+/// Forces the path for the rest of the process (tests and the bench);
+/// false, and no change, if this machine cannot run it.
+pub fn force(s: Simd) -> bool {
+    if Simd::available().contains(&s) {
+        PATH.store(s.code(), Ordering::Relaxed);
+        true
+    } else {
+        false
+    }
+}
+
+/// A ray as the node test needs it: origin, `1/dir`, and per axis which of
+/// a node's two planes the ray meets first (index into [`Node::b`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct NodeRay {
+    pub o: [f32; 3],
+    pub inv: [f32; 3],
+    pub near: [usize; 3],
+    pub far: [usize; 3],
+}
+
+impl NodeRay {
+    pub fn new(o: glam::Vec3, dir: glam::Vec3) -> NodeRay {
+        let inv = dir.recip().to_array();
+        let mut near = [0; 3];
+        let mut far = [0; 3];
+        for a in 0..3 {
+            // Negative (−0 included: its inverse is −∞): the max plane first.
+            let neg = usize::from(inv[a] < 0.0);
+            near[a] = 2 * a + neg;
+            far[a] = 2 * a + 1 - neg;
+        }
+        NodeRay {
+            o: o.to_array(),
+            inv,
+            near,
+            far,
+        }
+    }
+}
+
+/// `maxps`: `a > b ? a : b`.
+#[inline(always)]
+fn max_ps(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `minps`: `a < b ? a : b`.
+#[inline(always)]
+fn min_ps(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// Entry distance of lane `i` of boxes `b` (laid out as [`Node::b`]) and
+/// whether the ray enters it within `(0, t_max)`: the scalar path.
+#[inline(always)]
+pub(super) fn lane(b: &[[f32; 4]; 6], r: &NodeRay, t_max: f32, i: usize) -> (f32, bool) {
+    let n = |a: usize| (b[r.near[a]][i] - r.o[a]) * r.inv[a];
+    let f = |a: usize| (b[r.far[a]][i] - r.o[a]) * r.inv[a];
+    let enter = max_ps(n(0), max_ps(n(1), max_ps(n(2), 0.0)));
+    let exit = min_ps(f(0), min_ps(f(1), min_ps(f(2), t_max)));
+    (enter, enter <= exit * SLACK)
+}
+
+/// The four lanes of `node`: entry distances and the mask of boxes entered.
+#[inline(always)]
+pub(super) fn test_scalar(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) {
+    let mut enter = [0.0; 4];
+    let mut mask = 0;
+    for (i, e) in enter.iter_mut().enumerate() {
+        let (t, hit) = lane(&node.b, r, t_max, i);
+        *e = t;
+        mask |= u32::from(hit) << i;
+    }
+    (enter, mask)
+}
+
+/// [`test_scalar`] in SSE: the same operations on all four lanes at once.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(super) fn test_sse(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) {
+    use std::arch::x86_64::*;
+    // SAFETY: the only obligations are that SSE/SSE2 exist, which the
+    // x86_64 baseline guarantees (this is compiled for x86_64 only), and
+    // that each unaligned load reads 16 valid bytes: each pointer comes from
+    // a `&[f32; 4]` (16 bytes) of `node`, and `enter` is a `[f32; 4]`. The
+    // indices `r.near[a]`, `r.far[a]` are below 6 by construction
+    // (`NodeRay::new`) and are bounds-checked anyway.
+    unsafe {
+        let slab = |a: usize, plane: usize| {
+            _mm_mul_ps(
+                _mm_sub_ps(_mm_loadu_ps(node.b[plane].as_ptr()), _mm_set1_ps(r.o[a])),
+                _mm_set1_ps(r.inv[a]),
+            )
+        };
+        let enter = _mm_max_ps(
+            slab(0, r.near[0]),
+            _mm_max_ps(
+                slab(1, r.near[1]),
+                _mm_max_ps(slab(2, r.near[2]), _mm_setzero_ps()),
+            ),
+        );
+        let exit = _mm_min_ps(
+            slab(0, r.far[0]),
+            _mm_min_ps(
+                slab(1, r.far[1]),
+                _mm_min_ps(slab(2, r.far[2]), _mm_set1_ps(t_max)),
+            ),
+        );
+        let mask = _mm_movemask_ps(_mm_cmple_ps(enter, _mm_mul_ps(exit, _mm_set1_ps(SLACK))));
+        let mut e = [0.0f32; 4];
+        _mm_storeu_ps(e.as_mut_ptr(), enter);
+        (e, mask as u32)
+    }
+}
+
+/// Depth of the traversal stack. A node pushes at most 3 children, so a
+/// tree of depth `d` needs at most `3·d` slots; a walk that would need more
+/// goes on recursively from the child it cannot push (tests use a shallow
+/// stack so that this is exercised).
+pub(super) const STACK: usize = if cfg!(test) { 5 } else { 96 };
+
+/// The traversal stack of (child, its entry distance), left uninitialised:
+/// zeroing it on every walk of every tree (twice per ray) was measurable.
+pub(super) struct Stack {
+    slots: [MaybeUninit<(Ref, f32)>; STACK],
+    len: usize,
+}
+
+impl Stack {
+    #[inline(always)]
+    pub fn new() -> Stack {
+        Stack {
+            slots: [const { MaybeUninit::uninit() }; STACK],
+            len: 0,
+        }
+    }
+
+    /// Pushes, or returns false when full.
+    #[inline(always)]
+    pub fn push(&mut self, v: (Ref, f32)) -> bool {
+        if self.len < STACK {
+            // SAFETY: `len < STACK`, so the slot is in range.
+            unsafe { *self.slots.get_unchecked_mut(self.len) = MaybeUninit::new(v) };
+            self.len += 1;
+            true
+        } else {
+            false
+        }
+    }
+
+    #[inline(always)]
+    pub fn pop(&mut self) -> Option<(Ref, f32)> {
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        // SAFETY: `len < STACK` (it was at most STACK and was decremented),
+        // and every slot below the old `len` was written by `push` (slots
+        // are only ever written at `len`, which then grows past them).
+        Some(unsafe { self.slots.get_unchecked(self.len).assume_init() })
+    }
+}
