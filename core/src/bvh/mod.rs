@@ -196,11 +196,6 @@ impl Bvh {
         }
     }
 
-    /// Heap bytes of the tree (nodes and primitive indices).
-    pub fn heap_bytes(&self) -> usize {
-        self.nodes.capacity() * std::mem::size_of::<Node>() + self.prims.capacity() * 4
-    }
-
     /// The leaves in the order of the tree's layout, for tests: (box, prims).
     /// Checks on the way that every child box lies inside its parent's.
     #[cfg(test)]
