@@ -30,6 +30,11 @@ pub const MAX_TEXTURE_SIDE: u32 = 16_384;
 /// The most texels (width × height) of a texture image: 4096 × 4096. At 12
 /// bytes a texel plus a third for the MIP chain, 256 MiB.
 pub const MAX_TEXTURE_TEXELS: u64 = 1 << 24;
+/// The most texels of all the textures of one scene together (level 0):
+/// 4 × [`MAX_TEXTURE_TEXELS`], 1 GiB with the MIP chains. The compressed
+/// files are bounded by the bundle's size, but a small PNG can decode to a
+/// large image; this bounds what a worker holds.
+pub const MAX_SCENE_TEXELS: u64 = 4 * MAX_TEXTURE_TEXELS;
 
 #[derive(Debug, Error, PartialEq, Eq)]
 pub enum TextureError {
@@ -37,6 +42,8 @@ pub enum TextureError {
     Format,
     #[error("texture is {width} x {height} (expected each side at most {MAX_TEXTURE_SIDE} and at most {MAX_TEXTURE_TEXELS} texels)")]
     TooLarge { width: u64, height: u64 },
+    #[error("texture is {width} x {height}, more than the {left} texels left of the scene's {MAX_SCENE_TEXELS} for all its textures")]
+    OverBudget { width: u64, height: u64, left: u64 },
     #[error("texture has no pixels ({width} x {height})")]
     Empty { width: u64, height: u64 },
     #[error("cannot decode the texture: {0}")]
@@ -91,8 +98,14 @@ impl Texture {
 
     /// Decodes `bytes` (PNG, JPEG or OpenEXR, recognised by content).
     pub fn decode(bytes: &[u8]) -> Result<Texture, TextureError> {
+        Self::decode_within(bytes, MAX_TEXTURE_TEXELS)
+    }
+
+    /// [`Texture::decode`], refusing (from the header, before decoding) an
+    /// image of more than `budget` texels.
+    pub fn decode_within(bytes: &[u8], budget: u64) -> Result<Texture, TextureError> {
         if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
-            return decode_exr(bytes);
+            return decode_exr(bytes, budget);
         }
         let reader = image::io::Reader::new(Cursor::new(bytes))
             .with_guessed_format()
@@ -110,7 +123,7 @@ impl Texture {
                 .into_dimensions()
                 .map_err(|e| TextureError::Decode(e.to_string()))?,
         };
-        check_size(u64::from(w), u64::from(h))?;
+        check_size(u64::from(w), u64::from(h), budget)?;
         let mut reader = image::io::Reader::new(Cursor::new(bytes));
         if let Some(f) = format {
             reader.set_format(f);
@@ -156,7 +169,7 @@ fn png_size(b: &[u8]) -> Option<(u32, u32)> {
     Some((be(16), be(20)))
 }
 
-fn check_size(width: u64, height: u64) -> Result<(), TextureError> {
+fn check_size(width: u64, height: u64, budget: u64) -> Result<(), TextureError> {
     if width == 0 || height == 0 {
         return Err(TextureError::Empty { width, height });
     }
@@ -165,6 +178,13 @@ fn check_size(width: u64, height: u64) -> Result<(), TextureError> {
         || width * height > MAX_TEXTURE_TEXELS
     {
         return Err(TextureError::TooLarge { width, height });
+    }
+    if width * height > budget {
+        return Err(TextureError::OverBudget {
+            width,
+            height,
+            left: budget,
+        });
     }
     Ok(())
 }
@@ -224,7 +244,7 @@ fn span(k: u32, n: u32, src: u32) -> std::ops::Range<u32> {
     2 * k..end
 }
 
-fn decode_exr(bytes: &[u8]) -> Result<Texture, TextureError> {
+fn decode_exr(bytes: &[u8], budget: u64) -> Result<Texture, TextureError> {
     use exr::prelude::*;
     let err = |e: exr::error::Error| TextureError::Decode(e.to_string());
     // The header first: its size is checked before any pixel is allocated.
@@ -233,7 +253,7 @@ fn decode_exr(bytes: &[u8]) -> Result<Texture, TextureError> {
         return Err(TextureError::Decode("the file has no layer".into()));
     };
     let size = header.layer_size;
-    check_size(size.width() as u64, size.height() as u64)?;
+    check_size(size.width() as u64, size.height() as u64, budget)?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -254,7 +274,7 @@ fn decode_exr(bytes: &[u8]) -> Result<Texture, TextureError> {
         .map_err(err)?;
     let layer = image.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
-    check_size(w as u64, h as u64)?;
+    check_size(w as u64, h as u64, budget)?;
     Ok(Texture::from_texels(
         w as u32,
         h as u32,
@@ -263,4 +283,4 @@ fn decode_exr(bytes: &[u8]) -> Result<Texture, TextureError> {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -79,6 +79,14 @@ fn huge_header_is_refused_before_decoding() {
         Texture::decode(&png_header_only(16_384, 2_000)),
         Err(TextureError::TooLarge { .. })
     ));
+    assert_eq!(
+        Texture::decode_within(&png_header_only(4, 4), 15),
+        Err(TextureError::OverBudget {
+            width: 4,
+            height: 4,
+            left: 15
+        })
+    );
     // A size that passes the bound but a file cut after its header.
     assert!(matches!(
         Texture::decode(&png_header_only(4, 4)),
