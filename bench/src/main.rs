@@ -143,6 +143,7 @@ fn procedural_torus(nu: u32, nv: u32) -> Mesh {
     let mut m = Mesh {
         positions,
         normals: Vec::new(),
+        uvs: Vec::new(),
         triangles,
     };
     m.compute_smooth_normals();

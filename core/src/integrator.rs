@@ -70,6 +70,11 @@ pub struct Integrator<'a, O: RayObserver = ()> {
     ambient: Vec3,
     background: Vec3,
     sampler: SamplerKind,
+    /// The scene has textures: ray cones are tracked and hits looked up.
+    textured: bool,
+    /// A camera sample's ray cone spread angle (radians): a pixel's angle
+    /// over the samples per side (see [`Integrator::apply_texture`]).
+    spread: f32,
 }
 
 /// Per-pixel state: the sampler, the current camera sample, a ray count,
@@ -170,6 +175,8 @@ struct Branch {
     node: u64,
     /// The factor its colour gets in the pixel.
     weight: f32,
+    /// The width of its ray cone at `origin` (textured scenes only).
+    cone: f32,
 }
 
 /// Which child of a [`Pending`] node is being traced.
@@ -221,6 +228,29 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             ambient: scene.desc.settings.ambient,
             background: scene.desc.settings.background,
             sampler: options.sampler,
+            textured: !scene.desc.textures.is_empty(),
+            spread: pixel_spread(&scene.desc.cameras[camera]),
+        }
+    }
+
+    /// In a textured scene: the ray cone's width at the hit `sp` of a ray
+    /// from a cone of width `cone` and spread `spread` (both at the ray's
+    /// origin; `dir` need not be unit), and the texture looked up with it.
+    /// Reflected and refracted rays keep the camera's spread from the
+    /// width at their origin (surfaces are taken as flat: curvature does
+    /// not widen or narrow the cone).
+    #[inline(always)]
+    fn apply_texture(
+        &self,
+        sp: &mut SurfacePoint<'a>,
+        hit: &Hit,
+        dir: Vec3,
+        cone: f32,
+        spread: f32,
+    ) {
+        if self.textured {
+            sp.cone = cone + spread * hit.t * dir.length();
+            self.view.apply_texture(sp, hit, dir);
         }
     }
 
@@ -345,6 +375,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             dir,
             node: 0,
             weight: 1.0,
+            cone: 0.0,
         };
         let mut depth = 0u32;
         let color = 'descend: loop {
@@ -394,11 +425,13 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             dir,
             node,
             weight,
+            cone,
         } = ray;
         let Some(hit) = self.trace(ctx, origin, dir, f32::INFINITY) else {
             return Shaded::Leaf(self.background);
         };
-        let sp = self.view.surface_point(origin, dir, &hit);
+        let mut sp = self.view.surface_point(origin, dir, &hit);
+        self.apply_texture(&mut sp, &hit, dir, cone, self.spread);
         let v = -dir.normalize();
         let surf = sp.surface;
         let c = saturate(self.local(ctx, &sp, v, node));
@@ -415,6 +448,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                     dir: t,
                     node: hash2(node, TAG_REFRACT),
                     weight: w_refract,
+                    cone: sp.cone,
                 }
             });
         let w_reflect = weight * surf.reflectivity;
@@ -435,6 +469,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                     dir: r,
                     node: hash2(node, TAG_REFLECT),
                     weight: w_reflect,
+                    cone: sp.cone,
                 }
             });
         let pending = |reflect, awaiting| Pending {
@@ -454,10 +489,9 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
 
     /// `local` of the spec at a hit of the Whitted tree.
     fn local(&self, ctx: &mut PixelContext, sp: &SurfacePoint, v: Vec3, node: u64) -> Vec3 {
-        let surf = sp.surface;
         let r = &self.desc.render;
         let mut c = Vec3::ZERO;
-        let ka_ambient = saturate(surf.ambient * self.ambient);
+        let ka_ambient = saturate(sp.ka * self.ambient);
         if ka_ambient != Vec3::ZERO {
             let a = if r.ao_samples > 0 {
                 self.ambient_occlusion(ctx, sp, hash2(node, TAG_AO))
@@ -473,7 +507,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             hash2(node, TAG_SHADOW),
             u64::from(ctx.sample),
         );
-        if r.diffuse_samples > 0 && surf.diffuse != Vec3::ZERO {
+        if r.diffuse_samples > 0 && sp.kd != Vec3::ZERO {
             let g = self.gather(
                 ctx,
                 sp,
@@ -482,7 +516,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                 hash2(node, TAG_GATHER),
                 u64::from(ctx.sample),
             );
-            c += surf.diffuse * g;
+            c += sp.kd * g;
         }
         saturate(c)
     }
@@ -503,7 +537,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
     ) -> Vec3 {
         let surf = sp.surface;
         let specular = v.is_some() && surf.specular != Vec3::ZERO;
-        if surf.diffuse == Vec3::ZERO && !specular {
+        if sp.kd == Vec3::ZERO && !specular {
             return Vec3::ZERO;
         }
         let mut total = Vec3::ZERO;
@@ -538,7 +572,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                 if vis <= 0.0 {
                     continue;
                 }
-                let mut term = surf.diffuse * n_dot_l;
+                let mut term = sp.kd * n_dot_l;
                 if specular {
                     if let Some(v) = v {
                         let refl = reflect(-inc.l, sp.ns);
@@ -634,8 +668,19 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         if f <= 0.0 {
             return None;
         }
-        let q = self.view.surface_point(o, d, &hit);
-        if q.surface.diffuse == Vec3::ZERO {
+        let mut q = self.view.surface_point(o, d, &hit);
+        if self.textured {
+            // The cone of one of `count` directions over the hemisphere: the
+            // side of a patch of solid angle 2π/count.
+            let count = if level == 1 {
+                self.desc.render.diffuse_samples
+            } else {
+                1
+            };
+            let spread = (std::f32::consts::TAU / count.max(1) as f32).sqrt();
+            self.apply_texture(&mut q, &hit, d, sp.cone, spread);
+        }
+        if q.kd == Vec3::ZERO {
             return None;
         }
         let shadow_stream = hash2(hash2(stream, TAG_GATHER_SHADOW), level as u64);
@@ -644,7 +689,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         Some((
             Link {
                 direct,
-                kd: q.surface.diffuse,
+                kd: q.kd,
                 f,
             },
             q,
@@ -689,6 +734,20 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         ctx.links = links;
         g
     }
+}
+
+/// The angle (radians) one camera sample subtends: a pixel's width on the
+/// view plane (1/width at distance s = ½/tan(fov/2), as in camera.rs) over
+/// the samples per side (the supersample grid; 1 with adaptive sampling).
+fn pixel_spread(desc: &CameraDesc) -> f32 {
+    let r = &desc.render;
+    let s = 0.5 / (desc.fov.to_radians() * 0.5).tan();
+    let per_side = if r.adaptive.is_some() {
+        1
+    } else {
+        r.supersample.max(1)
+    };
+    1.0 / (s * r.width as f32 * per_side as f32)
 }
 
 /// What shading one ray of the Whitted tree gives: a final color, or a node

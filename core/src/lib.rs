@@ -37,6 +37,7 @@ pub mod sampling;
 pub mod scene;
 #[cfg(test)]
 mod testing;
+pub mod texture;
 pub mod tile;
 pub mod world;
 

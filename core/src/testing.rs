@@ -34,6 +34,8 @@ pub fn assert_error_at<T: std::fmt::Debug>(
 pub fn check_mesh_invariants(m: &Mesh) {
     assert!(!m.triangles.is_empty());
     assert!(m.normals.is_empty() || m.normals.len() == m.positions.len());
+    assert!(m.uvs.is_empty() || m.uvs.len() == m.positions.len());
+    assert!(m.uvs.iter().all(|uv| uv.is_finite()));
     for t in &m.triangles {
         for &i in t {
             assert!((i as usize) < m.positions.len());

@@ -120,6 +120,13 @@ pub struct SurfacePoint<'a> {
     pub ns: Vec3,
     pub front: bool,
     pub surface: &'a Surface,
+    /// The diffuse and ambient colours here: the surface's, times its
+    /// texture once [`View::apply_texture`] has looked it up.
+    pub kd: Vec3,
+    pub ka: Vec3,
+    /// The width of the ray cone at `p` (0 until the integrator sets it,
+    /// which it does only in scenes with textures).
+    pub cone: f32,
     /// Magnitude of the coordinates `p` was computed from (its rounding
     /// error is a few ULPs of this); scales the ray-origin offset.
     pub scale: f32,
@@ -613,9 +620,96 @@ impl<'a> View<'a> {
             ns,
             front: hit.front,
             surface,
+            kd: surface.diffuse,
+            ka: surface.ambient,
+            cone: 0.0,
             scale,
         }
     }
+
+    /// Multiplies `sp.kd` and `sp.ka` by the surface's texture, if it has
+    /// one, at the hit's texture coordinates. `dir` is the ray's direction
+    /// and `sp.cone` the width of its ray cone at the hit (see
+    /// [`texture_lod`]). One branch and nothing else for an untextured
+    /// surface.
+    #[inline]
+    pub fn apply_texture(&self, sp: &mut SurfacePoint<'a>, hit: &Hit, dir: Vec3) {
+        let Some(tm) = sp.surface.texture else {
+            return;
+        };
+        let HitKind::Triangle {
+            instance,
+            triangle,
+            bary,
+        } = hit.kind
+        else {
+            return;
+        };
+        let inst = &self.world.instances[instance as usize];
+        let mesh = &self.scene.desc.meshes[inst.mesh as usize];
+        if mesh.uvs.is_empty() {
+            return;
+        }
+        let [i0, i1, i2] = mesh.triangles[triangle as usize].map(|i| i as usize);
+        let [t0, t1, t2] = [i0, i1, i2].map(|i| mesh.uvs[i] * tm.scale);
+        let uv = t0 * bary[0] + t1 * bary[1] + t2 * bary[2];
+        let texture = &self.scene.desc.textures[tm.texture as usize];
+        let l0 = &texture.levels[0];
+        // Twice the triangle's area in texels and in the view's space.
+        let texel_area = ((t1 - t0).perp_dot(t2 - t0) * (l0.width as f32 * l0.height as f32)).abs();
+        let (a, b, c) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+        let world_area = inst
+            .to_world
+            .transform_vector3(b - a)
+            .cross(inst.to_world.transform_vector3(c - a))
+            .length();
+        let cos = sp.ng.dot(dir).abs() / dir.length();
+        let lod = texture_lod(texel_area, world_area, sp.cone, cos);
+        let t = texture.sample(uv, lod, tm.wrap);
+        sp.kd *= t;
+        sp.ka *= t;
+    }
+}
+
+/// The texture's level of detail for a ray cone of width `width` meeting a
+/// triangle at cosine `cos` (Akenine-Möller et al., "Texture Level of
+/// Detail Strategies for Real-Time Ray Tracing", Ray Tracing Gems, 2019,
+/// ch. 20): λ = ½·log₂(texel area / world area) + log₂(width / cos), the
+/// areas being the triangle's in texels and in world units. A degenerate
+/// triangle or a grazing ray gets level 0 or the coarsest (the lookup
+/// clamps). The logarithm is [`log2`], plain arithmetic, so that every
+/// worker computes the same level.
+pub fn texture_lod(texel_area: f32, world_area: f32, width: f32, cos: f32) -> f32 {
+    if !(texel_area > 0.0 && world_area > 0.0 && width > 0.0) {
+        return 0.0;
+    }
+    let cos = cos.max(1e-6);
+    0.5 * log2(texel_area / world_area) + log2(width / cos)
+}
+
+/// log₂ of a positive finite `x` to within 0.008 from its exponent and a
+/// cubic in the mantissa (no libm: its `log2f` may differ between the
+/// machines of a farm in the last bit). Non-positive or non-finite `x` give
+/// ∓ a large number.
+pub fn log2(x: f32) -> f32 {
+    if !(x > 0.0) {
+        return -1e30;
+    }
+    if !x.is_finite() {
+        return 1e30;
+    }
+    // Subnormals: scale into the normal range first.
+    let (x, bias) = if x < f32::MIN_POSITIVE {
+        (x * 16_777_216.0, 24.0)
+    } else {
+        (x, 0.0)
+    };
+    let bits = x.to_bits();
+    let e = ((bits >> 23) & 0xff) as i32 - 127;
+    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000) - 1.0;
+    // log₂(1 + m) on [0, 1): a cubic through 0 and 1 fitted to it.
+    let p = m * (std::f32::consts::LOG2_E + m * (-0.680_347 + m * 0.237_652));
+    e as f32 + p - bias
 }
 
 /// The world seen from `eye`: instance transforms composed with the shift

@@ -137,6 +137,7 @@ fn finish(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Mesh {
     let mut m = Mesh {
         positions,
         normals: vec![],
+        uvs: vec![],
         triangles,
     };
     m.compute_smooth_normals();

@@ -8,14 +8,18 @@ pub mod obj;
 pub mod ply;
 mod read;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 /// An indexed triangle mesh. `normals` always has one entry per position once
-/// the mesh is finished (computed when the source had none).
+/// the mesh is finished (computed when the source had none). `uvs` (texture
+/// coordinates, `v = 0` at the image's bottom row as in OBJ) has one entry
+/// per position when the source gave every corner one, and is empty
+/// otherwise: an untextured mesh pays no memory for them.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Mesh {
     pub positions: Vec<Vec3>,
     pub normals: Vec<Vec3>,
+    pub uvs: Vec<Vec2>,
     pub triangles: Vec<[u32; 3]>,
 }
 
@@ -81,6 +85,9 @@ impl Mesh {
                 .map(|&v| self.normals[v as usize])
                 .collect();
         }
+        if !self.uvs.is_empty() {
+            self.uvs = old_of_new.iter().map(|&v| self.uvs[v as usize]).collect();
+        }
     }
 
     /// `invert="true"`: reverse every triangle's winding and negate every normal.
@@ -105,15 +112,21 @@ mod tests {
         let old = Mesh {
             positions: (0..7).map(p).collect(),
             normals: (0..7).map(|i| p(i).normalize()).collect(),
+            uvs: (0..7).map(|i| Vec2::new(i as f32, 0.5)).collect(),
             triangles: vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]],
         };
         let order = [2u32, 0, 3, 1];
         let mut m = old.clone();
         m.reorder_triangles(&order);
         for (k, &t) in order.iter().enumerate() {
-            let new_tri = m.triangles[k].map(|v| (m.positions[v as usize], m.normals[v as usize]));
-            let old_tri = old.triangles[t as usize]
-                .map(|v| (old.positions[v as usize], old.normals[v as usize]));
+            let new_tri = m.triangles[k].map(|v| {
+                let v = v as usize;
+                (m.positions[v], m.normals[v], m.uvs[v])
+            });
+            let old_tri = old.triangles[t as usize].map(|v| {
+                let v = v as usize;
+                (old.positions[v], old.normals[v], old.uvs[v])
+            });
             assert_eq!(new_tri, old_tri, "triangle {k}");
         }
         // Vertices numbered by first use: old triangle 2 = [0, 3, 4] first.
@@ -137,6 +150,7 @@ mod tests {
                 Vec3::new(0.0, 1.0, 0.0),
             ],
             normals: vec![],
+            uvs: vec![],
             triangles: vec![[0, 1, 2], [0, 3, 4]],
         };
         m.compute_smooth_normals();

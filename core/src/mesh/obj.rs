@@ -1,16 +1,16 @@
 //! Wavefront OBJ loader.
 //!
 //! What is read: `v x y z [w]` (also the common `v x y z r g b` vertex-colour
-//! extension; `w` and colours are ignored), `vn x y z` and `f` with corners
+//! extension; `w` and colours are ignored), `vn x y z`, `vt u [v [w]]` (`v`
+//! defaults to 0, `w` is ignored) and `f` with corners
 //! `v`, `v/vt`, `v//vn`, `v/vt/vn` (an empty `vt` or `vn` field counts as
 //! absent), positive and negative (relative) indices. Polygons are
 //! fan-triangulated: `v0 v1 v2 v3 …` becomes `(v0,v1,v2), (v0,v2,v3), …`, and
 //! triangles are numbered in file order.
 //!
-//! Everything else (`vt` values, `vp`, `o`, `g`, `s`, `usemtl`, `mtllib`,
-//! `l`, `p`, unknown statements, comments from `#` to the end of the physical
-//! line, blank lines) is ignored. `vt` statements are counted so that a
-//! texture index out of range is still reported. Lines may end in `\r\n`, and
+//! Everything else (`vp`, `o`, `g`, `s`, `usemtl`, `mtllib`, `l`, `p`,
+//! unknown statements, comments from `#` to the end of the physical line,
+//! blank lines) is ignored here. Lines may end in `\r\n`, and
 //! a backslash at the very end of a line continues the statement on the next.
 //!
 //! Indices must refer to elements defined earlier in the file (that is what
@@ -21,10 +21,16 @@
 //! after the original positions so that vertex `i` of the file stays vertex
 //! `i`. When any corner lacks a `vn`, or a used `vn` has zero length, the mesh
 //! has no normals (the caller computes smooth ones).
+//!
+//! Texture coordinates: when every face corner names a `vt`, every vertex
+//! gets one, split like normals (a position used with different `vt`s, a UV
+//! seam, is copied); when any corner lacks one the mesh has none. A mesh
+//! with texture coordinates but without normals gets its smooth normals
+//! here, before the split, so that a seam does not show in the shading.
 
 use std::collections::HashMap;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use super::read::{parse_token, show, unit_normal, MeshFile};
 use super::Mesh;
@@ -39,10 +45,12 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {
         file: MeshFile { name: file, bytes },
         positions: Vec::new(),
         normals: Vec::new(),
-        texcoords: 0,
+        texcoords: Vec::new(),
         triangles: Vec::new(),
         tri_normals: Vec::new(),
         all_normals: true,
+        tri_uvs: Vec::new(),
+        all_uvs: true,
     }
     .run()
 }
@@ -123,18 +131,22 @@ struct Parser<'a> {
     positions: Vec<Vec3>,
     /// Raw `vn` values, as written.
     normals: Vec<Vec3>,
-    /// Number of `vt` statements so far.
-    texcoords: usize,
+    /// `vt` values (u, v).
+    texcoords: Vec<Vec2>,
     triangles: Vec<[u32; 3]>,
     /// `vn` index of each triangle corner, kept while `all_normals` holds.
     tri_normals: Vec<[u32; 3]>,
     all_normals: bool,
+    /// `vt` index of each triangle corner, kept while `all_uvs` holds.
+    tri_uvs: Vec<[u32; 3]>,
+    all_uvs: bool,
 }
 
-/// One face corner: position index and `vn` index (or [`NONE`]).
+/// One face corner: position, `vt` and `vn` index (or [`NONE`]).
 #[derive(Clone, Copy)]
 struct Corner {
     v: u32,
+    t: u32,
     n: u32,
 }
 
@@ -153,7 +165,7 @@ impl Parser<'_> {
                 match keyword {
                     b"v" => self.vertex(&mut lx, at)?,
                     b"vn" => self.normal(&mut lx, at)?,
-                    b"vt" => self.texcoords += 1,
+                    b"vt" => self.texcoord(&mut lx, at)?,
                     b"f" => self.face(&mut lx, at)?,
                     _ => {}
                 }
@@ -234,6 +246,19 @@ impl Parser<'_> {
         Ok(())
     }
 
+    fn texcoord(&mut self, lx: &mut Lexer<'_>, at: usize) -> Result<(), SceneError> {
+        let mut xs = [0f32; 3];
+        let n = self.numbers(lx, "vt", "u [v [w]]", &mut xs)?;
+        if n == 0 {
+            return Err(self.err(at, "expected u [v [w]] after \"vt\", found no numbers"));
+        }
+        if self.texcoords.len() >= NONE as usize {
+            return Err(self.err(at, "too many texture coordinates"));
+        }
+        self.texcoords.push(Vec2::new(xs[0], xs[1]));
+        Ok(())
+    }
+
     /// Resolves a 1-based or negative (relative) index against the `count`
     /// elements defined so far into a 0-based one.
     fn index(&self, at: usize, tok: &[u8], count: usize, what: &str) -> Result<u32, SceneError> {
@@ -290,20 +315,26 @@ impl Parser<'_> {
         }
         let v = self.index(v_at, v, self.positions.len(), "vertex")?;
         let (t_at, t) = fields[1];
-        if !t.is_empty() {
-            self.index(t_at, t, self.texcoords, "texture coordinate")?;
-        }
+        let t = if t.is_empty() {
+            NONE
+        } else {
+            self.index(t_at, t, self.texcoords.len(), "texture coordinate")?
+        };
         let (n_at, nf) = fields[2];
         let n = if nf.is_empty() {
             NONE
         } else {
             self.index(n_at, nf, self.normals.len(), "normal")?
         };
-        Ok(Corner { v, n })
+        Ok(Corner { v, t, n })
     }
 
     fn face(&mut self, lx: &mut Lexer<'_>, at: usize) -> Result<(), SceneError> {
-        let mut first = Corner { v: 0, n: NONE };
+        let mut first = Corner {
+            v: 0,
+            t: NONE,
+            n: NONE,
+        };
         let mut prev = first;
         let mut count = 0usize;
         while let Some((c_at, tok)) = lx.token() {
@@ -335,6 +366,14 @@ impl Parser<'_> {
                 self.tri_normals = Vec::new();
             }
         }
+        if self.all_uvs {
+            if t.iter().all(|c| c.t != NONE) {
+                self.tri_uvs.push(t.map(|c| c.t));
+            } else {
+                self.all_uvs = false;
+                self.tri_uvs = Vec::new();
+            }
+        }
     }
 
     fn finish(self) -> Result<Mesh, SceneError> {
@@ -345,45 +384,94 @@ impl Parser<'_> {
         let mut mesh = Mesh {
             positions: self.positions,
             normals: Vec::new(),
+            uvs: Vec::new(),
             triangles: self.triangles,
         };
-        if !self.all_normals {
+        let corner_normals = if self.all_normals {
+            let unit: Vec<Option<Vec3>> = self.normals.iter().map(|&n| unit_normal(n)).collect();
+            // A zero-length normal: no normals for the whole mesh.
+            self.tri_normals
+                .iter()
+                .map(|t| match t.map(|i| unit[i as usize]) {
+                    [Some(a), Some(b), Some(c)] => Some([a, b, c]),
+                    _ => None,
+                })
+                .collect::<Option<Vec<[Vec3; 3]>>>()
+        } else {
+            None
+        };
+        let corner_uvs = self.all_uvs.then(|| {
+            self.tri_uvs
+                .iter()
+                .map(|t| t.map(|i| self.texcoords[i as usize]))
+                .collect::<Vec<[Vec2; 3]>>()
+        });
+        if corner_uvs.is_none() && corner_normals.is_none() {
             return Ok(mesh);
         }
-        let unit: Vec<Option<Vec3>> = self.normals.iter().map(|&n| unit_normal(n)).collect();
-        let mut corner_normals = Vec::with_capacity(self.tri_normals.len());
-        for t in &self.tri_normals {
-            match t.map(|i| unit[i as usize]) {
-                [Some(a), Some(b), Some(c)] => corner_normals.push([a, b, c]),
-                // A zero-length normal: no normals for the whole mesh.
-                _ => return Ok(mesh),
+        // Texture coordinates without normals: the smooth normals are made
+        // now, before seams are split, so that a seam's copies share their
+        // original's normal and the shading does not show the seam.
+        let smooth;
+        let corner_normals = match corner_normals {
+            Some(c) => Some(c),
+            None => {
+                mesh.compute_smooth_normals();
+                smooth = mesh
+                    .triangles
+                    .iter()
+                    .map(|t| t.map(|i| mesh.normals[i as usize]))
+                    .collect::<Vec<[Vec3; 3]>>();
+                Some(smooth)
             }
-        }
-        if let Err(at) = split_by_normal(&mut mesh, &corner_normals) {
-            return Err(file.error_at(at, "too many vertices after splitting by normal"));
+        };
+        if let Err(at) = split_corners(&mut mesh, corner_normals.as_deref(), corner_uvs.as_deref())
+        {
+            return Err(file.error_at(
+                at,
+                "too many vertices after splitting by normal and texture coordinate",
+            ));
         }
         Ok(mesh)
     }
 }
 
-/// Gives `mesh` one normal per vertex from the per-corner normals, splitting a
-/// position used with different normals. Original positions keep their
-/// indices (with the first normal they are used with; unused ones get `+y`);
-/// the copies are appended. `Err(0)` if the vertex count would overflow u32.
-fn split_by_normal(mesh: &mut Mesh, corner_normals: &[[Vec3; 3]]) -> Result<(), usize> {
+/// A corner's attributes as bits, for comparing them exactly: normal, uv.
+type CornerKey = ([u32; 3], [u32; 2]);
+
+/// Gives `mesh` one normal and/or uv per vertex from the per-corner ones
+/// (whichever are given), splitting a position used with different ones.
+/// Original positions keep their indices (with the first attributes they
+/// are used with; unused ones get `+y` and uv `0 0`); the copies are
+/// appended. `Err(0)` if the vertex count would overflow u32.
+fn split_corners(
+    mesh: &mut Mesh,
+    corner_normals: Option<&[[Vec3; 3]]>,
+    corner_uvs: Option<&[[Vec2; 3]]>,
+) -> Result<(), usize> {
     let original = mesh.positions.len();
-    let mut assigned: Vec<Option<Vec3>> = vec![None; original];
-    let mut extra_normals: Vec<Vec3> = Vec::new();
-    let mut copies: HashMap<(u32, [u32; 3]), u32> = HashMap::new();
-    for (t, ns) in mesh.triangles.iter_mut().zip(corner_normals) {
-        for (v, &n) in t.iter_mut().zip(ns) {
+    let mut assigned: Vec<Option<(Vec3, Vec2)>> = vec![None; original];
+    let mut extra: Vec<(Vec3, Vec2)> = Vec::new();
+    let mut copies: HashMap<(u32, CornerKey), u32> = HashMap::new();
+    let key = |(n, uv): (Vec3, Vec2)| -> CornerKey {
+        (
+            n.to_array().map(f32::to_bits),
+            uv.to_array().map(f32::to_bits),
+        )
+    };
+    for (k, t) in mesh.triangles.iter_mut().enumerate() {
+        for (j, v) in t.iter_mut().enumerate() {
+            let attrs = (
+                corner_normals.map_or(Vec3::Y, |c| c[k][j]),
+                corner_uvs.map_or(Vec2::ZERO, |c| c[k][j]),
+            );
             let slot = &mut assigned[*v as usize];
             match slot {
-                None => *slot = Some(n),
-                Some(m) if m.to_array().map(f32::to_bits) == n.to_array().map(f32::to_bits) => {}
+                None => *slot = Some(attrs),
+                Some(m) if key(*m) == key(attrs) => {}
                 Some(_) => {
-                    let key = (*v, n.to_array().map(f32::to_bits));
-                    *v = match copies.get(&key) {
+                    let ck = (*v, key(attrs));
+                    *v = match copies.get(&ck) {
                         Some(&i) => i,
                         None => {
                             let i = mesh.positions.len();
@@ -391,8 +479,8 @@ fn split_by_normal(mesh: &mut Mesh, corner_normals: &[[Vec3; 3]]) -> Result<(), 
                                 return Err(0);
                             }
                             mesh.positions.push(mesh.positions[*v as usize]);
-                            extra_normals.push(n);
-                            copies.insert(key, i as u32);
+                            extra.push(attrs);
+                            copies.insert(ck, i as u32);
                             i as u32
                         }
                     };
@@ -400,11 +488,17 @@ fn split_by_normal(mesh: &mut Mesh, corner_normals: &[[Vec3; 3]]) -> Result<(), 
             }
         }
     }
-    mesh.normals = assigned
+    let all = assigned
         .into_iter()
-        .map(|n| n.unwrap_or(Vec3::Y))
-        .chain(extra_normals)
-        .collect();
+        .map(|a| a.unwrap_or((Vec3::Y, Vec2::ZERO)))
+        .chain(extra);
+    if corner_normals.is_some() && corner_uvs.is_some() {
+        (mesh.normals, mesh.uvs) = all.unzip();
+    } else if corner_normals.is_some() {
+        mesh.normals = all.map(|a| a.0).collect();
+    } else {
+        mesh.uvs = all.map(|a| a.1).collect();
+    }
     Ok(())
 }
 
@@ -632,13 +726,65 @@ f 1//3 2//3 3//3
         );
         fails("v 0 0 0\nv 1 0 0\nv 0 1 0\n", 4, 1, "mesh has no triangles");
         fails("", 1, 1, "mesh has no triangles");
+        fails("vt\n", 1, 1, "expected u [v [w]] after \"vt\"");
+        fails("vt 1 2 3 4\n", 1, 10, "too many numbers after \"vt\"");
+        fails("vt 1 x\n", 1, 6, "malformed number");
+        fails(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/2 3/1\n",
+            5,
+            9,
+            "texture coordinate index 2 out of range (1 defined so far)",
+        );
+    }
+
+    /// Two triangles sharing an edge whose second uses other `vt`s at the
+    /// shared corners (a UV seam): the shared positions are copied with the
+    /// second triangle's uvs, every corner sees the uv its face named, and
+    /// `v` defaults to 0 when a `vt` gives only `u`.
+    #[test]
+    fn texture_coordinates_follow_their_corners_and_split_seams() {
+        let src = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n\
+                   vt 0 0\nvt 1 0\nvt 0 1\nvt 0.5 0.25 7\nvt 0.75\n\
+                   f 1/1 2/2 3/3\nf 2/4 4/-1 3/3\n";
+        let m = ok(src);
+        check_mesh_invariants(&m);
+        assert_eq!(m.uvs.len(), m.positions.len());
+        let corner = |t: usize, j: usize| {
+            let i = m.triangles[t][j] as usize;
+            (m.positions[i], m.uvs[i])
+        };
+        assert_eq!(corner(0, 0), (Vec3::ZERO, Vec2::new(0.0, 0.0)));
+        assert_eq!(corner(0, 1), (Vec3::X, Vec2::new(1.0, 0.0)));
+        assert_eq!(corner(1, 0), (Vec3::X, Vec2::new(0.5, 0.25)));
+        assert_eq!(
+            corner(1, 1),
+            (Vec3::new(1.0, 1.0, 0.0), Vec2::new(0.75, 0.0))
+        );
+        assert_eq!(corner(1, 2), (Vec3::Y, Vec2::new(0.0, 1.0)));
+        // Vertex 2 (1 0 0) is split; vertex 3 (0 1 0) is shared unchanged.
+        assert_eq!(m.positions.len(), 5);
+        assert_eq!(m.triangles[1][2], 2);
+        // With normals too, both split together.
+        let m = ok(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 1\nvn 0 0 1\nvn 0 1 0\n\
+                    f 1/1/1 2/1/1 3/1/1\nf 1/2/1 3/1/2 2/1/1\n",
+        );
+        check_mesh_invariants(&m);
+        assert_eq!(m.positions.len(), 5);
+        assert_eq!(m.normals.len(), 5);
+        // One corner without a vt: no uvs at all (normals kept).
+        let m = ok("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3//1\n");
+        assert!(m.uvs.is_empty());
+        assert_eq!(m.normals.len(), 3);
     }
 
     #[test]
     fn shared_meshes_have_the_documented_counts() {
         let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/meshes/");
+        // Spot has texture coordinates with seams: its 2,930 positions
+        // become 3,225 vertices, one per distinct (position, vt).
         for (name, vertices, triangles) in [
-            ("spot.obj", 2_930, 5_856),
+            ("spot.obj", 3_225, 5_856),
             ("teapot.obj", 3_644, 6_320),
             ("nefertiti.obj", 49_971, 99_938),
         ] {
@@ -657,7 +803,8 @@ f 1//3 2//3 3//3
             eprintln!("{name}: loaded in {:?}", start.elapsed());
             assert_eq!(m.positions.len(), vertices, "{name}");
             assert_eq!(m.triangles.len(), triangles, "{name}");
-            assert!(m.normals.is_empty(), "{name} has no vn");
+            // No vn: normals only where the loader made them (with uvs).
+            assert_eq!(m.normals.is_empty(), m.uvs.is_empty(), "{name}");
             check_mesh_invariants(&m);
         }
     }

@@ -37,6 +37,7 @@ mod settings;
 mod sphere;
 mod surface;
 pub mod table;
+mod texture;
 mod transform;
 mod values;
 mod xml;
@@ -118,6 +119,8 @@ pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Resu
         light_ids: HashMap::new(),
         camera_ids: HashMap::new(),
         outputs: HashMap::new(),
+        texture_ids: HashMap::new(),
+        texels: 0,
     };
     r.scene(&root)?;
     let mut desc = r.desc;
@@ -145,6 +148,10 @@ struct Resolver<'a> {
     camera_ids: HashMap<String, Claim>,
     /// Output path → offset of the `<render>` that writes it.
     outputs: HashMap<String, usize>,
+    /// Texture file (bundle path) → index in `desc.textures`.
+    texture_ids: HashMap<String, u32>,
+    /// Texels (level 0) of the textures decoded so far.
+    texels: u64,
 }
 
 impl<'a> Resolver<'a> {

@@ -11,7 +11,8 @@ pub mod aisxml;
 pub mod source;
 
 use crate::mesh::Mesh;
-use glam::{DMat4, DVec3, Vec3};
+use crate::texture::{Texture, Wrap};
+use glam::{DMat4, DVec3, Vec2, Vec3};
 
 /// `<settings>`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -50,6 +51,17 @@ pub struct Surface {
     pub ior: f32,
     pub smooth: bool,
     pub sided: Sided,
+    /// `diffuse-texture`: multiplies `diffuse` (and `ambient`) at each hit.
+    pub texture: Option<TextureMap>,
+}
+
+/// A surface's image texture: which of [`SceneDesc::textures`], how it
+/// wraps, and the factors `uv` is multiplied by before the lookup.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TextureMap {
+    pub texture: u32,
+    pub wrap: Wrap,
+    pub scale: Vec2,
 }
 
 impl Default for Surface {
@@ -66,6 +78,7 @@ impl Default for Surface {
             ior: 1.5,
             smooth: true,
             sided: Sided::Two,
+            texture: None,
         }
     }
 }
@@ -233,6 +246,8 @@ pub struct SceneDesc {
     pub planes: Vec<Plane>,
     pub lights: Vec<Light>,
     pub cameras: Vec<CameraDesc>,
+    /// The decoded image textures surfaces refer to (each file once).
+    pub textures: Vec<Texture>,
     /// Bundle-relative paths of every file the scene references, sorted.
     pub files: Vec<String>,
 }

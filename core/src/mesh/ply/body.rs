@@ -3,7 +3,7 @@
 //! (fan-triangulated) and triangle strips; every other property is read
 //! and dropped, so it is still checked for being well-formed and complete.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use super::header::{Header, Kind, Role, Scalar, Use};
 use crate::error::SceneError;
@@ -45,6 +45,7 @@ pub(super) fn read_body(src: &mut impl Body, h: &Header) -> Result<Mesh, SceneEr
     // Both capacities are bounded by the body size (checked in the header).
     let mut positions: Vec<Vec3> = Vec::with_capacity(nv as usize);
     let mut normals: Vec<Vec3> = Vec::with_capacity(if h.has_normals { nv as usize } else { 0 });
+    let mut uvs: Vec<Vec2> = Vec::with_capacity(if h.has_uvs { nv as usize } else { 0 });
     let face_count = h
         .elements
         .iter()
@@ -58,7 +59,7 @@ pub(super) fn read_body(src: &mut impl Body, h: &Header) -> Result<Mesh, SceneEr
             continue; // nothing to read, whatever the count
         }
         for index in 0..el.count {
-            let mut v = [0f64; 6];
+            let mut v = [0f64; 8];
             for p in &el.props {
                 let ctx = Ctx {
                     element: &el.name,
@@ -103,6 +104,9 @@ pub(super) fn read_body(src: &mut impl Body, h: &Header) -> Result<Mesh, SceneEr
                         None => zero_normal = true,
                     }
                 }
+                if h.has_uvs {
+                    uvs.push(Vec2::new(v[6] as f32, v[7] as f32));
+                }
             }
         }
     }
@@ -121,6 +125,7 @@ pub(super) fn read_body(src: &mut impl Body, h: &Header) -> Result<Mesh, SceneEr
     Ok(Mesh {
         positions,
         normals,
+        uvs,
         triangles,
     })
 }

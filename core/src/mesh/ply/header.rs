@@ -94,7 +94,8 @@ pub(super) enum Kind {
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 pub(super) enum Role {
     Skip,
-    /// Component 0..3 = x y z, 3..6 = nx ny nz.
+    /// Component 0..3 = x y z, 3..6 = nx ny nz, 6..8 = u v (also named
+    /// `s t` or `texture_u texture_v`).
     Vertex(usize),
     Indices,
 }
@@ -134,6 +135,7 @@ pub(super) struct Header {
     pub body_line: u32,
     pub vertex_count: u32,
     pub has_normals: bool,
+    pub has_uvs: bool,
 }
 
 /// One header line: its whitespace-separated tokens with their byte
@@ -392,7 +394,12 @@ impl<'a> Reader<'a> {
     ) -> Result<Role, SceneError> {
         let tokens = &line.tokens;
         Ok(match (el.used, name, kind) {
-            (Use::Vertex, b"x" | b"y" | b"z" | b"nx" | b"ny" | b"nz", Kind::List { .. }) => {
+            (
+                Use::Vertex,
+                b"x" | b"y" | b"z" | b"nx" | b"ny" | b"nz" | b"u" | b"v" | b"s" | b"t"
+                | b"texture_u" | b"texture_v",
+                Kind::List { .. },
+            ) => {
                 return Err(self.err(
                     name_at,
                     format!(
@@ -407,6 +414,8 @@ impl<'a> Reader<'a> {
             (Use::Vertex, b"nx", _) => Role::Vertex(3),
             (Use::Vertex, b"ny", _) => Role::Vertex(4),
             (Use::Vertex, b"nz", _) => Role::Vertex(5),
+            (Use::Vertex, b"u" | b"s" | b"texture_u", _) => Role::Vertex(6),
+            (Use::Vertex, b"v" | b"t" | b"texture_v", _) => Role::Vertex(7),
             (Use::Face | Use::Strips, b"vertex_indices" | b"vertex_index", Kind::Scalar(_)) => {
                 return Err(self.err(
                     name_at,
@@ -451,7 +460,7 @@ impl<'a> Reader<'a> {
         let Some(format) = self.format else {
             return Err(self.err(end_header_at, "PLY header has no format line"));
         };
-        let (vi, has_normals) = self.vertex_element(end_header_at)?;
+        let (vi, has_normals, has_uvs) = self.vertex_element(end_header_at)?;
         self.check_polygon_elements(end_header_at)?;
         self.check_counts(format, body_start)?;
         let vertex_count = u32::try_from(self.elements[vi].count)
@@ -465,17 +474,20 @@ impl<'a> Reader<'a> {
             body_line,
             vertex_count,
             has_normals,
+            has_uvs,
         })
     }
 
-    /// The vertex element: its index, and whether it has normals. `x y z`
-    /// are required; normals are used only if all of `nx ny nz` are there
-    /// (otherwise those present are skipped like any other property).
-    fn vertex_element(&mut self, end_header_at: usize) -> Result<(usize, bool), SceneError> {
+    /// The vertex element: its index, and whether it has normals and
+    /// texture coordinates. `x y z` are required; normals are used only if
+    /// all of `nx ny nz` are there, texture coordinates only if both `u v`
+    /// (or `s t`, `texture_u texture_v`) are (otherwise those present are
+    /// skipped like any other property).
+    fn vertex_element(&mut self, end_header_at: usize) -> Result<(usize, bool, bool), SceneError> {
         let Some(vi) = self.elements.iter().position(|e| e.used == Use::Vertex) else {
             return Err(self.err(end_header_at, "PLY header declares no vertex element"));
         };
-        let mut has = [false; 6];
+        let mut has = [false; 8];
         for p in &self.elements[vi].props {
             if let Role::Vertex(k) = p.role {
                 has[k] = true;
@@ -487,15 +499,16 @@ impl<'a> Reader<'a> {
                 format!("vertex element has no \"{}\" property", ["x", "y", "z"][k]),
             ));
         }
-        let has_normals = has[3..].iter().all(|&h| h);
-        if !has_normals {
-            for p in &mut self.elements[vi].props {
-                if matches!(p.role, Role::Vertex(3..)) {
-                    p.role = Role::Skip;
-                }
+        let has_normals = has[3..6].iter().all(|&h| h);
+        let has_uvs = has[6..].iter().all(|&h| h);
+        for p in &mut self.elements[vi].props {
+            if (!has_normals && matches!(p.role, Role::Vertex(3..6)))
+                || (!has_uvs && matches!(p.role, Role::Vertex(6..)))
+            {
+                p.role = Role::Skip;
             }
         }
-        Ok((vi, has_normals))
+        Ok((vi, has_normals, has_uvs))
     }
 
     /// Faces or triangle strips (or both), each with a vertex index list,

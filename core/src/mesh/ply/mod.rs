@@ -70,7 +70,7 @@ mod tests {
     use super::test_files::*;
     use super::*;
     use crate::testing::{apply_edits, check_mesh_invariants, Edit};
-    use glam::Vec3;
+    use glam::{Vec2, Vec3};
     use proptest::prelude::*;
 
     #[test]
@@ -121,6 +121,62 @@ mod tests {
                 );
                 assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]], "{what}");
                 assert!(m.normals.is_empty(), "{what}");
+            }
+        }
+    }
+
+    /// Per-vertex texture coordinates under each of their three names, in
+    /// every format, and in any property order; only one of the pair is
+    /// skipped like any other property.
+    #[test]
+    fn vertex_texture_coordinates_under_each_name() {
+        for (u, v) in [("u", "v"), ("s", "t"), ("texture_u", "texture_v")] {
+            let header = format!(
+                "element vertex 3\nproperty float {v}\nproperty float x\nproperty float y\n\
+                 property float z\nproperty double {u}\n\
+                 element face 1\nproperty list uchar uint vertex_indices\n"
+            );
+            let rows = vec![
+                vec![
+                    V::F32(0.25),
+                    V::F32(0.0),
+                    V::F32(0.0),
+                    V::F32(0.0),
+                    V::F64(0.5),
+                ],
+                vec![
+                    V::F32(0.0),
+                    V::F32(1.0),
+                    V::F32(0.0),
+                    V::F32(0.0),
+                    V::F64(1.0),
+                ],
+                vec![
+                    V::F32(1.0),
+                    V::F32(0.0),
+                    V::F32(1.0),
+                    V::F32(0.0),
+                    V::F64(-2.0),
+                ],
+                vec![V::U8(3), V::U32(0), V::U32(1), V::U32(2)],
+            ];
+            for format in FORMATS {
+                let m = ok(&ply(format, &header, &rows));
+                assert_eq!(
+                    m.uvs,
+                    vec![
+                        Vec2::new(0.5, 0.25),
+                        Vec2::new(1.0, 0.0),
+                        Vec2::new(-2.0, 1.0)
+                    ],
+                    "{u} {v} {format}"
+                );
+                assert_eq!(m.positions[2], Vec3::new(0.0, 1.0, 0.0));
+            }
+            let half = header.replace(&format!("property float {v}\n"), "property float w\n");
+            for format in FORMATS {
+                let m = ok(&ply(format, &half, &rows));
+                assert!(m.uvs.is_empty(), "{u} alone {format}");
             }
         }
     }

@@ -126,6 +126,7 @@ pub(super) fn pyramid() -> Mesh {
             Vec3::new(0.0, 0.6, -0.8),
             Vec3::new(0.0, 1.0, 0.0),
         ],
+        uvs: vec![],
         // The base quad fans into two; then the four sides.
         triangles: vec![
             [0, 1, 2],

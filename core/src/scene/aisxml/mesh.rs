@@ -9,7 +9,7 @@ use crate::error::{read_error_kind, SceneErrorKind};
 use crate::mesh::Mesh;
 use crate::scene::source::normalize_rel_path;
 use crate::scene::MAX_MESH_ELEMENTS;
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 
 /// The attributes of `<mesh>`.
 pub(super) const MESH: &[Attribute] = &[
@@ -188,14 +188,16 @@ fn recentre(points: impl Iterator<Item = DVec3>) -> DVec3 {
     }
 }
 
-/// An inline mesh: `<vertices>`, optional `<normals>`, `<triangles>`; and
+/// An inline mesh: `<vertices>`, optional `<normals>` and `<uvs>` (two
+/// numbers, u v, per vertex), `<triangles>`; and
 /// the offset its vertices were stored relative to (see [`recentre`]).
 fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
-    let mut parts: [Option<&Elem>; 3] = [None, None, None];
+    let mut parts: [Option<&Elem>; 4] = [None, None, None, None];
     for c in &el.e.children {
         let slot = match c.name.as_str() {
             "vertices" => 0,
             "normals" => 1,
+            "uvs" => 3,
             _ => 2,
         };
         if let Some(first) = parts[slot] {
@@ -217,7 +219,7 @@ fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
     for c in parts.iter().flatten() {
         El::new(el.src, c).check_attrs(&[])?;
     }
-    let [Some(ve), ne, Some(te)] = parts else {
+    let [Some(ve), ne, Some(te), ue] = parts else {
         return Err(el
             .err(format!(
                 "<mesh> \"{}\" has no {} (expected file= or inline <vertices> and <triangles>)",
@@ -263,6 +265,25 @@ fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
             to_vecs(&n, DVec3::ZERO)
         }
     };
+    let uvs = match ue {
+        None => Vec::new(),
+        Some(ue) => {
+            let uel = El::new(el.src, ue);
+            let t = uel.text_reals()?;
+            if t.len() != 2 * positions.len() {
+                return Err(uel.err(format!(
+                    "<uvs> of mesh \"{}\": expected one u v pair per vertex ({} numbers for {} vertices), found {} numbers",
+                    excerpt(id),
+                    2 * positions.len(),
+                    positions.len(),
+                    t.len()
+                )));
+            }
+            t.chunks_exact(2)
+                .map(|c| Vec2::new(c[0] as f32, c[1] as f32))
+                .collect()
+        }
+    };
     let tel = El::new(el.src, te);
     let nv = positions.len();
     let mut idx: Vec<u32> = Vec::new();
@@ -304,6 +325,7 @@ fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
         Mesh {
             positions,
             normals,
+            uvs,
             triangles: idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
         },
         offset,

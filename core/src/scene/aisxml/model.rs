@@ -46,6 +46,11 @@ impl<'a> Resolver<'a> {
                 .with_kind(SceneErrorKind::Reference));
         };
         let tri_count = self.desc.meshes.get(mesh).map_or(0, |m| m.triangles.len());
+        let has_uvs = self
+            .desc
+            .meshes
+            .get(mesh)
+            .is_some_and(|m| !m.uvs.is_empty());
 
         let mut transform: Option<DMat4> = None;
         let mut default: Option<(Surface, usize)> = None;
@@ -66,7 +71,8 @@ impl<'a> Resolver<'a> {
                 }
                 _ => {
                     let cl = self.el(c);
-                    let surface = surface(&cl, true)?;
+                    let mut surface = surface(&cl, true)?;
+                    surface.texture = self.surface_texture(&cl, has_uvs)?;
                     if cl.get("triangles").is_some() {
                         named.push((surface, c));
                     } else if let Some((_, first)) = default {

@@ -2,7 +2,7 @@
 //! model (where `triangles=` names the triangles it covers), a sphere or a
 //! plane.
 
-use super::table::{attr, Attribute};
+use super::table::{attr, extension, Attribute};
 use super::values::El;
 use super::xml::Elem;
 use super::{Resolver, Result};
@@ -41,6 +41,24 @@ pub(super) const SURFACE: &[Attribute] = &[
         "two",
         "hit from both sides, or only from the side its winding faces",
     ),
+    extension(
+        "diffuse-texture",
+        "path",
+        "none",
+        "a PNG, JPEG or OpenEXR image multiplying diffuse (and ambient) at each hit, by the mesh's texture coordinates",
+    ),
+    extension(
+        "texture-wrap",
+        "repeat | clamp",
+        "repeat",
+        "outside [0, 1] the image repeats, or its edge texels extend",
+    ),
+    extension(
+        "texture-scale",
+        "2 reals",
+        "1 1",
+        "su sv: texture coordinates are multiplied by these before the lookup",
+    ),
     attr(
         "triangles",
         "indices and ranges",
@@ -51,7 +69,7 @@ pub(super) const SURFACE: &[Attribute] = &[
 
 impl<'a> Resolver<'a> {
     /// The optional single `<surface>` of a sphere or plane.
-    pub(super) fn single_surface(&self, e: &'a Elem) -> Result<Surface> {
+    pub(super) fn single_surface(&mut self, e: &'a Elem) -> Result<Surface> {
         let mut out: Option<(Surface, usize)> = None;
         for c in &e.children {
             if let Some((_, first)) = out {
@@ -67,7 +85,10 @@ impl<'a> Resolver<'a> {
                     )
                     .with_kind(SceneErrorKind::UnknownElement));
             }
-            out = Some((surface(&self.el(c), false)?, c.pos));
+            let cl = self.el(c);
+            let mut s = surface(&cl, false)?;
+            s.texture = self.surface_texture(&cl, false)?;
+            out = Some((s, c.pos));
         }
         Ok(out.map_or_else(Surface::default, |(s, _)| s))
     }
@@ -106,5 +127,7 @@ pub(super) fn surface(el: &El, allow_triangles: bool) -> Result<Surface> {
         sided: el
             .keyword("sided", &[("two", Sided::Two), ("front", Sided::Front)])?
             .unwrap_or(d.sided),
+        // Read by the resolver, which loads the file.
+        texture: None,
     })
 }

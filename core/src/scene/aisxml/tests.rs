@@ -679,6 +679,42 @@ fn normals_count_differs_from_vertices() {
 }
 
 #[test]
+fn inline_uvs_one_pair_per_vertex() {
+    let d = parse(&doc(
+        r#"<mesh id="q"><vertices>0 0 0 1 0 0 0 1 0</vertices><uvs>0 0  1 0.5  0 1</uvs><triangles>0 1 2</triangles></mesh>"#,
+    ))
+    .unwrap();
+    assert_eq!(
+        d.meshes[0].uvs,
+        vec![
+            glam::Vec2::new(0.0, 0.0),
+            glam::Vec2::new(1.0, 0.5),
+            glam::Vec2::new(0.0, 1.0)
+        ]
+    );
+    check(
+        &doc(
+            r#"<mesh id="q"><vertices>0 0 0 1 0 0 0 1 0</vertices><uvs>0 0 1 1</uvs><triangles>0 1 2</triangles></mesh>"#,
+        ),
+        2,
+        52,
+        &[
+            "<uvs> of mesh \"q\"",
+            "one u v pair per vertex (6 numbers for 3 vertices)",
+            "found 4",
+        ],
+    );
+    check(
+        &doc(
+            r#"<mesh id="q"><vertices>0 0 0 1 0 0 0 1 0</vertices><uvs>0 0 1 1 0 1e300</uvs><triangles>0 1 2</triangles></mesh>"#,
+        ),
+        2,
+        67,
+        &["<uvs>", "expected a finite number, found \"1e300\""],
+    );
+}
+
+#[test]
 fn mesh_file_references() {
     check(
         &doc(r#"<mesh id="q" file="/etc/x.obj"/>"#),

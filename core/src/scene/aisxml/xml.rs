@@ -109,7 +109,7 @@ fn allowed_children(parent: &str) -> &'static [&'static str] {
         "scene" => &[
             "settings", "mesh", "model", "sphere", "plane", "light", "camera",
         ],
-        "mesh" => &["vertices", "normals", "triangles"],
+        "mesh" => &["vertices", "normals", "uvs", "triangles"],
         "model" => &["transform", "surface"],
         "transform" => &["translate", "rotate", "scale", "matrix"],
         "sphere" | "plane" => &["surface"],
@@ -120,7 +120,7 @@ fn allowed_children(parent: &str) -> &'static [&'static str] {
 
 /// Elements whose content is text (whitespace-separated numbers).
 pub(super) fn takes_text(name: &str) -> bool {
-    matches!(name, "vertices" | "normals" | "triangles")
+    matches!(name, "vertices" | "normals" | "uvs" | "triangles")
 }
 
 /// XML whitespace (the only characters that separate numbers).

@@ -1,0 +1,204 @@
+//! Textured renders checked against closed forms computed here, in f64,
+//! independently of the renderer's texture code: a quad facing the camera,
+//! lit by the ambient light alone (ka = diffuse = 1, ambient 1, no AO), so
+//! each pixel is the texture's value where its ray meets the quad.
+
+mod common;
+use common::*;
+use std::collections::BTreeMap;
+use trevi_core::{Bundle, Scene};
+
+const W: u32 = 48;
+
+/// A PNG of `side × side` grey texels, rows from the top.
+fn grey_png(side: u32, value: impl Fn(u32, u32) -> u8) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, side, side);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().unwrap();
+    let data: Vec<u8> = (0..side * side)
+        .flat_map(|k| [value(k % side, k / side); 3])
+        .collect();
+    w.write_image_data(&data).unwrap();
+    w.finish().unwrap();
+    out
+}
+
+/// The quad [-1, 1]² in z = 0 with uv = (x+1)/2, (y+1)/2, seen head on from
+/// z = 2, textured with `tex.png` under `surface_attrs`.
+fn quad_scene(surface_attrs: &str, render_attrs: &str) -> String {
+    format!(
+        r#"<scene version="1">
+  <settings background="0 0 0" ambient="1 1 1"/>
+  <mesh id="q"><vertices>-1 -1 0  1 -1 0  1 1 0  -1 1 0</vertices>
+    <uvs>0 0  1 0  1 1  0 1</uvs><triangles>0 1 2  0 2 3</triangles></mesh>
+  <model id="m" mesh="q"><surface diffuse="1 1 1" diffuse-texture="tex.png" {surface_attrs}/></model>
+  <camera id="c" position="0 0 2" direction="0 0 -1" up="0 1 0" fov="60">
+    <render width="{W}" height="{W}" {render_attrs}/>
+  </camera>
+</scene>"#
+    )
+}
+
+fn textured_scene(xml: &str, png: Vec<u8>) -> Scene {
+    let mut files = BTreeMap::new();
+    files.insert("scene.xml".to_string(), xml.as_bytes().to_vec());
+    files.insert("tex.png".to_string(), png);
+    let b = Bundle {
+        scene: "scene.xml".into(),
+        files,
+    };
+    Scene::from_bundle(&b).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn srgb(code: u8) -> f64 {
+    let c = code as f64 / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Where pixel (i, r)'s centre ray meets the quad's plane, as uv; `None`
+/// off the quad or within `margin` of its edge.
+fn pixel_uv(cam: &SpecCamera, i: u32, r: u32, margin: f64) -> Option<(f64, f64)> {
+    let d = cam.dir(i, r);
+    let t = -2.0 / d[2];
+    let (x, y) = (d[0] * t, d[1] * t);
+    let lim = 1.0 - margin;
+    (x.abs() < lim && y.abs() < lim).then(|| ((x + 1.0) / 2.0, (y + 1.0) / 2.0))
+}
+
+fn camera() -> SpecCamera {
+    SpecCamera::new(
+        [0.0, 0.0, 2.0],
+        [0.0, 0.0, -1.0],
+        [0.0, 1.0, 0.0],
+        60.0,
+        W,
+        W,
+    )
+}
+
+#[test]
+fn magnified_texture_is_the_bilinear_value_of_its_texel_grid() {
+    // 4 × 4 texels of distinct grey codes; the quad spans ~41 pixels, so
+    // each texel covers ~10 pixels (magnification: level 0 only).
+    const N: u32 = 4;
+    let code = |i: u32, j: u32| (17 + 37 * i + 59 * j) as u8;
+    for wrap in ["repeat", "clamp"] {
+        let scene = textured_scene(
+            &quad_scene(&format!("texture-wrap=\"{wrap}\""), ""),
+            grey_png(N, code),
+        );
+        let px = render(&scene, 0);
+        let cam = camera();
+        let texel = |i: i64, j: i64| {
+            let n = N as i64;
+            let (i, j) = if wrap == "repeat" {
+                (i.rem_euclid(n), j.rem_euclid(n))
+            } else {
+                (i.clamp(0, n - 1), j.clamp(0, n - 1))
+            };
+            srgb(code(i as u32, j as u32))
+        };
+        let mut checked = 0;
+        for r in 0..W {
+            for i in 0..W {
+                let Some((u, v)) = pixel_uv(&cam, i, r, 1e-3) else {
+                    continue;
+                };
+                // Texel centres at (k + ½)/N; rows from the top (v = 1).
+                let x = u * N as f64 - 0.5;
+                let y = (1.0 - v) * N as f64 - 0.5;
+                let (x0, y0) = (x.floor(), y.floor());
+                let (fx, fy) = (x - x0, y - y0);
+                let (x0, y0) = (x0 as i64, y0 as i64);
+                let top = texel(x0, y0) * (1.0 - fx) + texel(x0 + 1, y0) * fx;
+                let bottom = texel(x0, y0 + 1) * (1.0 - fx) + texel(x0 + 1, y0 + 1) * fx;
+                let want = top * (1.0 - fy) + bottom * fy;
+                let got = px[(r * W + i) as usize];
+                for c in got {
+                    assert!(
+                        (c as f64 - want).abs() < 2e-4,
+                        "{wrap} pixel ({i}, {r}) uv ({u:.4}, {v:.4}): got {c}, want {want}"
+                    );
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked > 1500, "{checked} pixels on the quad");
+    }
+}
+
+/// Every pixel of the quad and their mean, for a one-texel black and white
+/// checker repeated `repeats` times across it.
+fn minified(repeats: u32, supersample: u32) -> (Vec<f64>, f64) {
+    let scene = textured_scene(
+        &quad_scene(
+            &format!("texture-scale=\"{repeats} {repeats}\""),
+            &format!("supersample=\"{supersample}\""),
+        ),
+        grey_png(64, |i, j| if (i + j) % 2 == 0 { 0 } else { 255 }),
+    );
+    let px = render(&scene, 0);
+    let cam = camera();
+    let mut on = Vec::new();
+    for r in 0..W {
+        for i in 0..W {
+            // Whole pixels only: one pixel across from the edge.
+            if pixel_uv(&cam, i, r, 0.1).is_some() {
+                on.push(px[(r * W + i) as usize][0] as f64);
+            }
+        }
+    }
+    let mean = on.iter().sum::<f64>() / on.len() as f64;
+    (on, mean)
+}
+
+#[test]
+fn minified_texture_converges_to_its_mean_without_aliasing() {
+    // The texture's mean: half its texels are 0, half 1 (linear).
+    let want = 0.5;
+    // 64 × 64 texels repeated 32 times: ~2048 texels across ~41 pixels,
+    // 50 texels a pixel. Point sampling would give 0 or 1 per pixel.
+    for supersample in [1, 3] {
+        let (px, mean) = minified(32, supersample);
+        assert!(
+            (mean - want).abs() < 0.01,
+            "supersample {supersample}: mean {mean}, want {want}"
+        );
+        let worst = px.iter().map(|p| (p - want).abs()).fold(0.0, f64::max);
+        assert!(
+            worst < 0.02,
+            "supersample {supersample}: a pixel {worst} from the mean"
+        );
+    }
+}
+
+#[test]
+fn the_level_of_detail_logarithm_is_close_to_log2_everywhere() {
+    use trevi_core::world::{log2, texture_lod};
+    let mut x = 1e-40f32;
+    while x < 1e38 {
+        let err = (log2(x) as f64 - (x as f64).log2()).abs();
+        assert!(err < 0.008, "log2({x}) = {}, error {err}", log2(x));
+        x *= 1.37;
+    }
+    assert_eq!(log2(1.0), 0.0);
+    assert_eq!(log2(8.0), 3.0);
+    assert!(log2(0.0) < -1e29 && log2(-1.0) < -1e29 && log2(f32::NAN) < -1e29);
+    assert!(log2(f32::INFINITY) > 1e29);
+    // λ = ½·log₂(ta/pa) + log₂(w/cos): 4·4 texels on 1 unit², a cone 1/4
+    // wide head on: each texel is 1/4 wide, so level 0.
+    assert!(texture_lod(16.0, 1.0, 0.25, 1.0).abs() < 0.01);
+    // Twice as wide, or at 60°: one level up.
+    assert!((texture_lod(16.0, 1.0, 0.5, 1.0) - 1.0).abs() < 0.01);
+    assert!((texture_lod(16.0, 1.0, 0.25, 0.5) - 1.0).abs() < 0.01);
+    // Degenerate inputs: level 0.
+    assert_eq!(texture_lod(0.0, 1.0, 1.0, 1.0), 0.0);
+    assert_eq!(texture_lod(1.0, 0.0, 1.0, 1.0), 0.0);
+    assert_eq!(texture_lod(1.0, 1.0, 0.0, 1.0), 0.0);
+}
