@@ -2,7 +2,7 @@
 //! model (where `triangles=` names the triangles it covers), a sphere or a
 //! plane.
 
-use super::table::{attr, Attribute};
+use super::table::{attr, extension, Attribute};
 use super::values::El;
 use super::xml::Elem;
 use super::{Resolver, Result};
@@ -40,6 +40,12 @@ pub(super) const SURFACE: &[Attribute] = &[
         "two | front",
         "two",
         "hit from both sides, or only from the side its winding faces",
+    ),
+    extension(
+        "emission",
+        "color",
+        "0 0 0",
+        "emitted radiance, on the sides the surface can be hit from (an area light)",
     ),
     attr(
         "triangles",
@@ -106,5 +112,6 @@ pub(super) fn surface(el: &El, allow_triangles: bool) -> Result<Surface> {
         sided: el
             .keyword("sided", &[("two", Sided::Two), ("front", Sided::Front)])?
             .unwrap_or(d.sided),
+        emission: el.color("emission")?.unwrap_or(d.emission),
     })
 }
