@@ -108,7 +108,7 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{AoDistance, RenderSettings};
+    use crate::scene::{AoDistance, IntegratorKind, RenderSettings, DEFAULT_MAX_BOUNCES};
 
     pub(crate) fn desc(fov: f32, w: u32, h: u32) -> CameraDesc {
         CameraDesc {
@@ -134,6 +134,8 @@ mod tests {
                 seed: 0,
                 output: "c.png".into(),
                 adaptive: None,
+                integrator: IntegratorKind::Whitted,
+                max_bounces: DEFAULT_MAX_BOUNCES,
             },
         }
     }

@@ -13,10 +13,12 @@
 //! the ray tree they are used at (see `sampling`), so a pixel is a pure
 //! function of its coordinates.
 
+mod path;
+
 use crate::camera::Camera;
 use crate::lights::{incident, jittered_position};
 use crate::sampling::{cosine_hemisphere, hash2, pixel_seed, PixelSampler, SamplerKind};
-use crate::scene::CameraDesc;
+use crate::scene::{CameraDesc, IntegratorKind};
 use crate::world::{Hit, Scene, SurfacePoint, View};
 use glam::Vec3;
 
@@ -348,7 +350,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             [0.5, 0.5]
         };
         let ray = self.camera.ray(x, y, sx, sy, lens);
-        self.radiance(ctx, ray.origin, ray.dir)
+        match self.desc.render.integrator {
+            IntegratorKind::Whitted => self.radiance(ctx, ray.origin, ray.dir),
+            IntegratorKind::Path => self.path_radiance(ctx, ray.origin, ray.dir),
+        }
     }
 
     /// The color seen along a camera ray: the Whitted tree below it, walked

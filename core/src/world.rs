@@ -19,6 +19,7 @@
 //! queries [`Scene::intersect`] and friends use a view whose origin is the
 //! world's. See docs/numerics.md.
 
+use crate::area_lights::AreaLights;
 use crate::bundle::{Bundle, FileSource};
 use crate::bvh::{Bvh, Visit};
 use crate::camera::Camera;
@@ -64,6 +65,8 @@ struct WorldFromEye {
     /// describe it, so the plane is as precise as the view allows).
     plane_points: Vec<Vec3>,
     light_positions: Vec<Vec3>,
+    /// The emitting triangles and spheres (empty without `emission=`).
+    area_lights: AreaLights,
     /// Bounds of the finite geometry (planes excluded).
     bounds: Aabb,
 }
@@ -359,6 +362,12 @@ impl<'a> View<'a> {
     #[inline]
     pub fn light_position(&self, i: usize) -> Vec3 {
         self.world.light_positions[i]
+    }
+
+    /// The emitting triangles and spheres in this view's coordinates.
+    #[inline]
+    pub fn area_lights(&self) -> &'a AreaLights {
+        &self.world.area_lights
     }
 
     fn surface_of(&self, kind: HitKind) -> &'a Surface {
@@ -773,6 +782,7 @@ fn build_world_from_eye(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> WorldFrom
         .iter()
         .map(|l| (l.position - eye).as_vec3())
         .collect();
+    let area_lights = build_area_lights(desc, &instances, &sphere_centers);
     WorldFromEye {
         eye,
         instances,
@@ -780,8 +790,48 @@ fn build_world_from_eye(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> WorldFrom
         sphere_centers,
         plane_points,
         light_positions,
+        area_lights,
         bounds,
     }
+}
+
+/// Every triangle and sphere whose surface emits, in the view's coordinates.
+fn build_area_lights(
+    desc: &SceneDesc,
+    instances: &[Instance],
+    sphere_centers: &[Vec3],
+) -> AreaLights {
+    let mut lights = AreaLights::new();
+    for inst in instances {
+        let model = &desc.models[inst.model as usize];
+        if model.surfaces.iter().all(|s| s.emission == Vec3::ZERO) {
+            continue;
+        }
+        let mesh = &desc.meshes[inst.mesh as usize];
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            let s = if model.triangle_surface.is_empty() {
+                0
+            } else {
+                model.triangle_surface[t] as usize
+            };
+            let surf = &model.surfaces[s];
+            if surf.emission != Vec3::ZERO {
+                let v = tri.map(|i| inst.to_world.transform_point3(mesh.positions[i as usize]));
+                lights.triangle(v, surf.emission, surf.sided == Sided::Two);
+            }
+        }
+    }
+    for (s, &c) in desc.spheres.iter().zip(sphere_centers) {
+        if s.surface.emission != Vec3::ZERO {
+            lights.sphere(
+                c,
+                s.radius,
+                s.surface.emission,
+                s.surface.sided == Sided::Two,
+            );
+        }
+    }
+    lights
 }
 
 /// A camera position as a hash key: positions equal as numbers (0 and −0

@@ -53,6 +53,9 @@ pub struct Surface {
     pub sided: Sided,
     /// `diffuse-texture`: multiplies `diffuse` (and `ambient`) at each hit.
     pub texture: Option<TextureMap>,
+    /// Emitted radiance (Trevi's area lights, `emission=`), on the sides the
+    /// surface can be hit from; zero for a surface that does not glow.
+    pub emission: Vec3,
 }
 
 /// A surface's image texture: which of [`SceneDesc::textures`], how it
@@ -79,6 +82,7 @@ impl Default for Surface {
             smooth: true,
             sided: Sided::Two,
             texture: None,
+            emission: Vec3::ZERO,
         }
     }
 }
@@ -217,7 +221,24 @@ pub struct RenderSettings {
     /// Bundle-relative output path (`<camera id>.png` by default).
     pub output: String,
     pub adaptive: Option<Adaptive>,
+    /// `integrator=`: the spec's Whitted model or Trevi's path tracer.
+    pub integrator: IntegratorKind,
+    /// `max-bounces=`: scattering events along a path (path mode only).
+    pub max_bounces: u32,
 }
+
+/// `<render integrator>`: which light transport a camera renders with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum IntegratorKind {
+    /// The spec's lighting model (the default).
+    #[default]
+    Whitted,
+    /// Physically based path tracing (docs/aisxml-extensions.md).
+    Path,
+}
+
+/// The default of `max-bounces`.
+pub const DEFAULT_MAX_BOUNCES: u32 = 16;
 
 /// `<camera>` with its `<render>`.
 #[derive(Debug, Clone, PartialEq)]

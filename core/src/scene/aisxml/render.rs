@@ -8,8 +8,8 @@ use super::{Resolver, Result};
 use crate::error::SceneErrorKind;
 use crate::scene::source::normalize_rel_path;
 use crate::scene::{
-    Adaptive, AoDistance, RenderSettings, MAX_ADAPTIVE_SAMPLES, MAX_DEPTH, MAX_IMAGE_SIDE,
-    MAX_RAY_SAMPLES, MAX_SUPERSAMPLE,
+    Adaptive, AoDistance, IntegratorKind, RenderSettings, DEFAULT_MAX_BOUNCES,
+    MAX_ADAPTIVE_SAMPLES, MAX_DEPTH, MAX_IMAGE_SIDE, MAX_RAY_SAMPLES, MAX_SUPERSAMPLE,
 };
 
 /// The attributes of `<render>`.
@@ -98,6 +98,18 @@ pub(super) const RENDER: &[Attribute] = &[
         "integer ≥ min-samples",
         "256",
         "camera samples after which a pixel stops",
+    ),
+    extension(
+        "integrator",
+        "whitted | path",
+        "whitted",
+        "the spec's Whitted model, or physically based path tracing",
+    ),
+    extension(
+        "max-bounces",
+        "integer in [0, 10000]",
+        "16",
+        "path mode: scattering events along a path (0: emitters and background only)",
     ),
 ];
 
@@ -220,6 +232,18 @@ impl<'a> Resolver<'a> {
                 })
             }
         };
+        let integrator = el
+            .keyword(
+                "integrator",
+                &[
+                    ("whitted", IntegratorKind::Whitted),
+                    ("path", IntegratorKind::Path),
+                ],
+            )?
+            .unwrap_or_default();
+        let max_bounces = el
+            .u32_in("max-bounces", 0, MAX_DEPTH)?
+            .unwrap_or(DEFAULT_MAX_BOUNCES);
         Ok(RenderSettings {
             width,
             height,
@@ -234,6 +258,8 @@ impl<'a> Resolver<'a> {
             seed,
             output,
             adaptive,
+            integrator,
+            max_bounces,
         })
     }
 }

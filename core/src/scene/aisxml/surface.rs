@@ -59,6 +59,12 @@ pub(super) const SURFACE: &[Attribute] = &[
         "1 1",
         "su sv: texture coordinates are multiplied by these before the lookup",
     ),
+    extension(
+        "emission",
+        "color",
+        "0 0 0",
+        "emitted radiance, on the sides the surface can be hit from (an area light)",
+    ),
     attr(
         "triangles",
         "indices and ranges",
@@ -129,5 +135,6 @@ pub(super) fn surface(el: &El, allow_triangles: bool) -> Result<Surface> {
             .unwrap_or(d.sided),
         // Read by the resolver, which loads the file.
         texture: None,
+        emission: el.color("emission")?.unwrap_or(d.emission),
     })
 }

@@ -202,6 +202,8 @@ fn full_scene_resolves_with_defaults() {
             seed: 0,
             output: "main.png".into(),
             adaptive: None,
+            integrator: IntegratorKind::Whitted,
+            max_bounces: DEFAULT_MAX_BOUNCES,
         }
     );
     let dof = &s.cameras[1];
