@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs the parsers' fuzz targets with libFuzzer (docs/numerics.md, "Fuzzing").
 #
-#   fuzz/run.sh [SECONDS] [TARGET...]     # default: 60 s each of aisxml obj ply bundle
+#   fuzz/run.sh [SECONDS] [TARGET...]     # default: 60 s each of aisxml obj mtl ply bundle
 #
 # Installs cargo-fuzz if it is missing. Works on a stable toolchain
 # (RUSTC_BOOTSTRAP=1, no sanitizer). Seeds each corpus with the project's own
@@ -12,7 +12,7 @@ cd "$(dirname "$0")"
 secs=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj ply bundle)
+[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle)
 
 if ! cargo fuzz --version >/dev/null 2>&1; then
     echo "== cargo install cargo-fuzz --locked"
@@ -31,6 +31,7 @@ seed() {
 }
 seed aisxml '*.xml'
 seed obj '*.obj'
+seed mtl '*.mtl'
 seed ply '*.ply'
 mkdir -p corpus/bundle
 

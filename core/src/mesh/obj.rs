@@ -8,9 +8,10 @@
 //! fan-triangulated: `v0 v1 v2 v3 …` becomes `(v0,v1,v2), (v0,v2,v3), …`, and
 //! triangles are numbered in file order.
 //!
-//! Everything else (`vp`, `o`, `g`, `s`, `usemtl`, `mtllib`, `l`, `p`,
-//! unknown statements, comments from `#` to the end of the physical line,
-//! blank lines) is ignored here. Lines may end in `\r\n`, and
+//! `mtllib` and `usemtl` are kept by [`parse_with_materials`] (the scene
+//! reader loads the `.mtl` files, see `mtl.rs`). Everything else (`vp`,
+//! `o`, `g`, `s`, `l`, `p`, unknown statements, comments from `#` to the end
+//! of the physical line, blank lines) is ignored. Lines may end in `\r\n`, and
 //! a backslash at the very end of a line continues the statement on the next.
 //!
 //! Indices must refer to elements defined earlier in the file (that is what
@@ -41,7 +42,29 @@ const NONE: u32 = u32::MAX;
 
 /// Parses a OBJ file's bytes. `file` is the bundle-relative name used in errors.
 pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {
-    Parser {
+    parse_with_materials(file, bytes).map(|(m, _)| m)
+}
+
+/// What an OBJ says about materials: the `.mtl` files of its `mtllib`
+/// statements and the names of its `usemtl` statements (each with the byte
+/// offset of the name, for errors), and per triangle the index in `names`
+/// of the material it uses ([`NO_MATERIAL`] before any `usemtl`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ObjMaterials {
+    pub libs: Vec<(String, usize)>,
+    pub names: Vec<(String, usize)>,
+    pub triangle_material: Vec<u32>,
+}
+
+/// A triangle no `usemtl` applies to.
+pub const NO_MATERIAL: u32 = u32::MAX;
+
+/// [`parse`], keeping the material statements. Triangles are in file order
+/// (as in the mesh), and a position split by the loader keeps its triangles.
+pub fn parse_with_materials(file: &str, bytes: &[u8]) -> Result<(Mesh, ObjMaterials), SceneError> {
+    let mut materials = ObjMaterials::default();
+    let mut current = NO_MATERIAL;
+    let mut p = Parser {
         file: MeshFile { name: file, bytes },
         positions: Vec::new(),
         normals: Vec::new(),
@@ -51,8 +74,52 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {
         all_normals: true,
         tri_uvs: Vec::new(),
         all_uvs: true,
+    };
+    let mut lx = Lexer { b: bytes, pos: 0 };
+    while lx.pos < bytes.len() {
+        if let Some((at, keyword)) = lx.token() {
+            match keyword {
+                b"mtllib" => {
+                    // Names may not contain blanks (each token is a file).
+                    while let Some((at, name)) = lx.token() {
+                        materials
+                            .libs
+                            .push((String::from_utf8_lossy(name).into_owned(), at));
+                    }
+                }
+                b"usemtl" => {
+                    let Some((at, name)) = lx.token() else {
+                        return Err(p.err(at, "expected a material name after \"usemtl\""));
+                    };
+                    let name = String::from_utf8_lossy(name).into_owned();
+                    current = match materials.names.iter().position(|(n, _)| *n == name) {
+                        Some(i) => i as u32,
+                        None => {
+                            materials.names.push((name, at));
+                            (materials.names.len() - 1) as u32
+                        }
+                    };
+                }
+                _ => {
+                    let before = p.triangles.len();
+                    p.statement(&mut lx, at, keyword)?;
+                    if !materials.names.is_empty() {
+                        materials.triangle_material.resize(before, NO_MATERIAL);
+                        materials
+                            .triangle_material
+                            .resize(p.triangles.len(), current);
+                    }
+                }
+            }
+        }
+        lx.finish_statement();
     }
-    .run()
+    if !materials.names.is_empty() {
+        materials
+            .triangle_material
+            .resize(p.triangles.len(), NO_MATERIAL);
+    }
+    Ok((p.finish()?, materials))
 }
 
 /// Blanks separating tokens inside a statement.
@@ -155,24 +222,19 @@ impl Parser<'_> {
         self.file.error_at(at, msg)
     }
 
-    fn run(mut self) -> Result<Mesh, SceneError> {
-        let mut lx = Lexer {
-            b: self.file.bytes,
-            pos: 0,
-        };
-        while lx.pos < self.file.bytes.len() {
-            if let Some((at, keyword)) = lx.token() {
-                match keyword {
-                    b"v" => self.vertex(&mut lx, at)?,
-                    b"vn" => self.normal(&mut lx, at)?,
-                    b"vt" => self.texcoord(&mut lx, at)?,
-                    b"f" => self.face(&mut lx, at)?,
-                    _ => {}
-                }
-            }
-            lx.finish_statement();
+    fn statement(
+        &mut self,
+        lx: &mut Lexer<'_>,
+        at: usize,
+        keyword: &[u8],
+    ) -> Result<(), SceneError> {
+        match keyword {
+            b"v" => self.vertex(lx, at),
+            b"vn" => self.normal(lx, at),
+            b"vt" => self.texcoord(lx, at),
+            b"f" => self.face(lx, at),
+            _ => Ok(()),
         }
-        self.finish()
     }
 
     fn number(&self, at: usize, tok: &[u8]) -> Result<f32, SceneError> {

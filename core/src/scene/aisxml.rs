@@ -29,6 +29,7 @@
 
 mod camera;
 mod light;
+mod materials;
 mod mesh;
 mod model;
 mod plane;
@@ -115,6 +116,7 @@ pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Resu
         files: BTreeSet::new(),
         mesh_ids: HashMap::new(),
         mesh_offsets: Vec::new(),
+        mesh_materials: Vec::new(),
         object_ids: HashMap::new(),
         light_ids: HashMap::new(),
         camera_ids: HashMap::new(),
@@ -142,6 +144,8 @@ struct Resolver<'a> {
     /// Per mesh, where its object-space origin was moved to (see
     /// [`mesh::recentre`]).
     mesh_offsets: Vec<DVec3>,
+    /// Per mesh, the surfaces its OBJ materials give (see `materials.rs`).
+    mesh_materials: Vec<Option<materials::MeshMaterials>>,
     /// Models, spheres and planes share one namespace.
     object_ids: HashMap<String, Claim>,
     light_ids: HashMap<String, Claim>,

@@ -60,7 +60,8 @@ impl<'a> Resolver<'a> {
                         ),
                     ).with_kind(SceneErrorKind::UnknownElement));
                 }
-                let mut mesh = self.mesh_file(&el, f)?;
+                let (mut mesh, materials) = self.mesh_file(&el, f)?;
+                self.mesh_materials.push(materials);
                 let offset = recentre(mesh.positions.iter().map(|p| p.as_dvec3()));
                 if offset != DVec3::ZERO {
                     for p in &mut mesh.positions {
@@ -69,7 +70,10 @@ impl<'a> Resolver<'a> {
                 }
                 (mesh, offset)
             }
-            None => inline_mesh(&el, &id)?,
+            None => {
+                self.mesh_materials.push(None);
+                inline_mesh(&el, &id)?
+            }
         };
         for (n, what) in [
             (mesh.positions.len(), "vertices"),
@@ -96,7 +100,11 @@ impl<'a> Resolver<'a> {
         Ok(())
     }
 
-    fn mesh_file(&mut self, el: &El<'a>, f: &'a Attr) -> Result<Mesh> {
+    fn mesh_file(
+        &mut self,
+        el: &El<'a>,
+        f: &'a Attr,
+    ) -> Result<(Mesh, Option<super::materials::MeshMaterials>)> {
         let rel = normalize_rel_path(&f.value).map_err(|m| {
             el.attr_err(
                 f,
@@ -119,10 +127,12 @@ impl<'a> Resolver<'a> {
             )
             .with_kind(read_error_kind(&e))
         })?;
-        let mesh = if is_obj {
-            crate::mesh::obj::parse(&path, &bytes)?
+        let (mesh, materials) = if is_obj {
+            let (mesh, m) = crate::mesh::obj::parse_with_materials(&path, &bytes)?;
+            let materials = self.obj_materials(&path, &bytes, &mesh, &m)?;
+            (mesh, materials)
         } else {
-            crate::mesh::ply::parse(&path, &bytes)?
+            (crate::mesh::ply::parse(&path, &bytes)?, None)
         };
         // The loaders promise these; check anyway so that nothing downstream
         // (smooth normals, the BVH) can index out of bounds.
@@ -160,7 +170,7 @@ impl<'a> Resolver<'a> {
             ));
         }
         self.files.insert(path);
-        Ok(mesh)
+        Ok((mesh, materials))
     }
 }
 

@@ -88,6 +88,13 @@ impl<'a> Resolver<'a> {
         }
         let mut surfaces = vec![default.map_or_else(Surface::default, |(s, _)| s)];
         let mut triangle_surface: Vec<u16> = Vec::new();
+        // No <surface> of its own: the OBJ's materials, if it has any.
+        if default.is_none() && named.is_empty() {
+            if let Some(Some(m)) = self.mesh_materials.get(mesh) {
+                surfaces = m.surfaces.clone();
+                triangle_surface = m.triangle_surface.clone();
+            }
+        }
         if !named.is_empty() {
             triangle_surface = vec![0; tri_count];
             let mut owners: Vec<usize> = Vec::new();

@@ -1,0 +1,258 @@
+//! OBJ materials: the `.mtl` files an OBJ names become surfaces of the
+//! models that instance it (unless the model has `<surface>` children of
+//! its own, which then replace them all).
+//!
+//! Mapping (docs/aisxml-extensions.md, "OBJ materials"): `Kd` → diffuse,
+//! `Ka` → ambient (absent: = diffuse, as in AISXML), `Ks` → specular (not
+//! for nvdiffrec's `bsdf` materials, whose `Ks` packs PBR parameters),
+//! `Ns` → shininess, `d`/`Tr` → opacity, `Ni` → ior, `map_Kd` →
+//! diffuse-texture; `illum` 3, 5 and 8 (ray-traced reflection) make a mirror
+//! with reflectivity = the largest `Ks` component, 4, 6, 7 and 9 (glass) the
+//! same plus refraction by `d` and `Ni`; 0-2 and absent are plain Phong.
+
+use super::{Resolver, Result};
+use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
+use crate::mesh::mtl::{self, Material};
+use crate::mesh::obj::{ObjMaterials, NO_MATERIAL};
+use crate::mesh::Mesh;
+use crate::scene::{Surface, TextureMap};
+use crate::texture::Wrap;
+
+/// The surfaces an OBJ's materials give its triangles: `surfaces[0]` is the
+/// default (for triangles without a known material), and
+/// `triangle_surface[t]` the surface of triangle `t`.
+#[derive(Debug, Clone, Default)]
+pub(super) struct MeshMaterials {
+    pub surfaces: Vec<Surface>,
+    pub triangle_surface: Vec<u16>,
+}
+
+impl Resolver<'_> {
+    /// Loads the `.mtl` files of the OBJ `obj_path` (its bytes `obj`) and
+    /// turns its materials into surfaces. `None` when it names no `.mtl`
+    /// (a `usemtl` without an `mtllib` is ignored, as before).
+    pub(super) fn obj_materials(
+        &mut self,
+        obj_path: &str,
+        obj: &[u8],
+        mesh: &Mesh,
+        m: &ObjMaterials,
+    ) -> Result<Option<MeshMaterials>> {
+        if m.libs.is_empty() || m.names.is_empty() {
+            return Ok(None);
+        }
+        let dir = match obj_path.rfind('/') {
+            Some(i) => &obj_path[..=i],
+            None => "",
+        };
+        let mut lib: Vec<(Material, String, Vec<u8>)> = Vec::new();
+        for (name, at) in &m.libs {
+            let loc = || Location::at_offset(obj_path, obj, *at);
+            let rel = crate::scene::source::normalize_rel_path(name).map_err(|e| {
+                SceneError::of_kind(
+                    SceneErrorKind::Reference,
+                    loc(),
+                    format!("{e} (expected a relative path inside the scene's directory)"),
+                )
+            })?;
+            let path = format!("{dir}{rel}");
+            let bytes = self.source.read(&path).map_err(|e| {
+                SceneError::of_kind(
+                    read_error_kind(&e),
+                    loc(),
+                    format!("cannot read material library \"{path}\" ({e}); expected a file of the scene bundle"),
+                )
+            })?;
+            for mat in mtl::parse(&path, &bytes)? {
+                lib.push((mat, path.clone(), bytes.clone()));
+            }
+            self.files.insert(path);
+        }
+        if m.names.len() >= usize::from(u16::MAX) {
+            return Err(SceneError::of_kind(
+                SceneErrorKind::Limit,
+                Location::at_offset(obj_path, obj, m.names[0].1),
+                format!("more than {} materials in one mesh", u16::MAX - 1),
+            ));
+        }
+        let mut surfaces = vec![Surface::default()];
+        // Per usemtl name, its surface (0: unknown name, the default).
+        let mut of_name = Vec::with_capacity(m.names.len());
+        for (name, _) in &m.names {
+            let Some((mat, mtl_path, mtl_bytes)) = lib.iter().find(|(x, _, _)| x.name == *name)
+            else {
+                of_name.push(0u16);
+                continue;
+            };
+            let mut s = surface_of(mat);
+            if let Some(map) = &mat.map_kd {
+                let at = || Location::at_offset(mtl_path, mtl_bytes, map.at);
+                if mesh.uvs.is_empty() {
+                    return Err(SceneError::of_kind(
+                        SceneErrorKind::BadValue,
+                        at(),
+                        format!("map_Kd of material \"{name}\": the mesh \"{obj_path}\" has no texture coordinates (expected vt on every face corner)"),
+                    ));
+                }
+                let mdir = match mtl_path.rfind('/') {
+                    Some(i) => &mtl_path[..=i],
+                    None => "",
+                };
+                let rel = crate::scene::source::normalize_rel_path(&map.file).map_err(|e| {
+                    SceneError::of_kind(
+                        SceneErrorKind::Reference,
+                        at(),
+                        format!("{e} (expected a relative path inside the scene's directory)"),
+                    )
+                })?;
+                let path = format!("{mdir}{rel}");
+                let texture =
+                    self.load_texture(&path, |msg, kind| SceneError::of_kind(kind, at(), msg))?;
+                s.texture = Some(TextureMap {
+                    texture,
+                    wrap: if map.clamp { Wrap::Clamp } else { Wrap::Repeat },
+                    scale: map.scale,
+                });
+            }
+            of_name.push(surfaces.len() as u16);
+            surfaces.push(s);
+        }
+        let triangle_surface = m
+            .triangle_material
+            .iter()
+            .map(|&k| {
+                if k == NO_MATERIAL {
+                    0
+                } else {
+                    of_name[k as usize]
+                }
+            })
+            .collect();
+        Ok(Some(MeshMaterials {
+            surfaces,
+            triangle_surface,
+        }))
+    }
+}
+
+/// A material's surface (see the module's mapping).
+fn surface_of(m: &Material) -> Surface {
+    let d = Surface::default();
+    let diffuse = m.kd.unwrap_or(d.diffuse);
+    let specular = if m.bsdf {
+        d.specular
+    } else {
+        m.ks.unwrap_or(d.specular)
+            .clamp(glam::Vec3::ZERO, glam::Vec3::ONE)
+    };
+    let clamp01 = |x: f32| x.clamp(0.0, 1.0);
+    let mirror = specular.max_element();
+    let (reflectivity, opacity) = match m.illum {
+        Some(3 | 5 | 8) => (mirror, 1.0),
+        Some(4 | 6 | 7 | 9) => (mirror, clamp01(m.d.unwrap_or(1.0))),
+        _ => (0.0, clamp01(m.d.unwrap_or(1.0))),
+    };
+    Surface {
+        diffuse,
+        ambient: m.ka.unwrap_or(diffuse),
+        specular,
+        shininess: m.ns.map_or(d.shininess, |n| n.max(0.0)),
+        reflectivity,
+        opacity,
+        ior: m.ni.filter(|&n| n > 0.0).unwrap_or(d.ior),
+        ..d
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::bundle::Bundle;
+    use crate::error::SceneErrorKind;
+    use crate::scene::aisxml::parse_scene;
+    use glam::Vec3;
+    use std::collections::BTreeMap;
+
+    const OBJ: &str = "mtllib m/lib.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n\
+                       f 1/1 2/2 3/3\nusemtl glass\nf 1/1 3/3 2/2\nusemtl unknown\nf 1/1 2/2 3/3\n\
+                       usemtl tex\nf 1/1 2/2 3/3\n";
+    const MTL: &str = "newmtl glass\nKd 0.1 0.2 0.3\nKs 0.5\nillum 4\nd 0.25\nNi 1.4\n\
+                       newmtl tex\nbsdf pbr\nKs 0 0.25 0\nmap_Kd -clamp on t.png\n";
+
+    fn parse(model: &str, files: &[(&str, &[u8])]) -> super::Result<crate::scene::SceneDesc> {
+        let text = format!(
+            "<scene version=\"1\"><mesh id=\"o\" file=\"o.obj\"/>{model}\
+             <camera id=\"c\" position=\"0 0 5\" lookat=\"0 0 0\" fov=\"50\"><render width=\"4\" height=\"3\"/></camera></scene>"
+        );
+        let mut map = BTreeMap::new();
+        map.insert("s.xml".to_string(), text.into_bytes());
+        for (n, b) in files {
+            map.insert(n.to_string(), b.to_vec());
+        }
+        parse_scene(
+            "s.xml",
+            &Bundle {
+                scene: "s.xml".into(),
+                files: map,
+            },
+        )
+    }
+
+    #[test]
+    fn materials_become_surfaces_unless_the_model_has_its_own() {
+        let png = crate::texture::tests::png_rgb8(1, 1, &[255, 0, 0]);
+        let files: [(&str, &[u8]); 3] = [
+            ("o.obj", OBJ.as_bytes()),
+            ("m/lib.mtl", MTL.as_bytes()),
+            ("m/t.png", &png),
+        ];
+        let d = parse(r#"<model id="a" mesh="o"/>"#, &files).unwrap();
+        let m = &d.models[0];
+        // Default, glass, tex; the unknown name and the first triangle use 0.
+        assert_eq!(m.triangle_surface, vec![0, 1, 0, 2]);
+        let glass = &m.surfaces[1];
+        assert_eq!(glass.diffuse, Vec3::new(0.1, 0.2, 0.3));
+        assert_eq!(glass.ambient, glass.diffuse);
+        assert_eq!(
+            (glass.reflectivity, glass.opacity, glass.ior),
+            (0.5, 0.25, 1.4)
+        );
+        let tex = &m.surfaces[2];
+        assert_eq!(tex.specular, Vec3::ZERO, "bsdf pbr: Ks is not a colour");
+        let t = tex.texture.unwrap();
+        assert_eq!(t.wrap, crate::texture::Wrap::Clamp);
+        assert_eq!(d.textures.len(), 1);
+        assert!(d.files.contains(&"m/lib.mtl".to_string()));
+        assert!(d.files.contains(&"m/t.png".to_string()));
+        // A <surface> of the model replaces them all.
+        let d = parse(
+            r#"<model id="a" mesh="o"><surface diffuse="1 0 0"/></model>"#,
+            &files,
+        )
+        .unwrap();
+        assert_eq!(d.models[0].surfaces.len(), 1);
+        assert!(d.models[0].triangle_surface.is_empty());
+    }
+
+    #[test]
+    fn a_missing_library_or_texture_is_located_where_it_is_named() {
+        let e = parse(r#"<model id="a" mesh="o"/>"#, &[("o.obj", OBJ.as_bytes())]).unwrap_err();
+        assert_eq!(e.kind, SceneErrorKind::MissingFile, "{e}");
+        assert_eq!(
+            (e.location.file.as_str(), e.location.line, e.location.column),
+            ("o.obj", 1, 8),
+            "{e}"
+        );
+        let e = parse(
+            r#"<model id="a" mesh="o"/>"#,
+            &[("o.obj", OBJ.as_bytes()), ("m/lib.mtl", MTL.as_bytes())],
+        )
+        .unwrap_err();
+        assert_eq!(e.kind, SceneErrorKind::MissingFile, "{e}");
+        assert_eq!(
+            (e.location.file.as_str(), e.location.line, e.location.column),
+            ("m/lib.mtl", 10, 18),
+            "{e}"
+        );
+        assert!(e.message.contains("m/t.png"), "{e}");
+    }
+}
