@@ -134,6 +134,8 @@ mod tests {
                 seed: 0,
                 output: "c.png".into(),
                 adaptive: None,
+                frames: None,
+                fps: 24.0,
             },
         }
     }

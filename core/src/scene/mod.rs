@@ -8,6 +8,7 @@
 //! and precomputed camera frames.
 
 pub mod aisxml;
+pub mod animation;
 pub mod source;
 
 use crate::mesh::Mesh;
@@ -204,6 +205,11 @@ pub struct RenderSettings {
     /// Bundle-relative output path (`<camera id>.png` by default).
     pub output: String,
     pub adaptive: Option<Adaptive>,
+    /// `frames=` (a Trevi extension): the frames a sequence renders; `None`
+    /// for a still.
+    pub frames: Option<animation::Frames>,
+    /// `fps=`: frame `n` is the scene at `n / fps` seconds.
+    pub fps: f64,
 }
 
 /// `<camera>` with its `<render>`.
@@ -235,4 +241,7 @@ pub struct SceneDesc {
     pub cameras: Vec<CameraDesc>,
     /// Bundle-relative paths of every file the scene references, sorted.
     pub files: Vec<String>,
+    /// The keyed channels (`<animate>`); the models, cameras and lights
+    /// above hold their values at t = 0.
+    pub animation: animation::Animation,
 }

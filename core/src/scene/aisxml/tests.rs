@@ -202,6 +202,8 @@ fn full_scene_resolves_with_defaults() {
             seed: 0,
             output: "main.png".into(),
             adaptive: None,
+            frames: None,
+            fps: 24.0,
         }
     );
     let dof = &s.cameras[1];
