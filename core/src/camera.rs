@@ -136,6 +136,8 @@ mod tests {
                 adaptive: None,
                 integrator: IntegratorKind::Whitted,
                 max_bounces: DEFAULT_MAX_BOUNCES,
+                frames: None,
+                fps: 24.0,
             },
         }
     }

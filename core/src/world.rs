@@ -25,11 +25,13 @@ use crate::bvh::{Bvh, Visit};
 use crate::camera::Camera;
 use crate::error::SceneError;
 use crate::geometry::{offset_from_surface, plane, sphere, triangle, Aabb};
-use crate::sampling::hash_str;
+use crate::sampling::{hash2, hash_str};
 use crate::scene::{aisxml, AoDistance, SceneDesc, Sided, Surface};
 use glam::{Affine3A, DMat4, DVec3, Mat3, Vec3};
 use std::collections::HashMap;
 use std::sync::OnceLock;
+
+mod frame;
 
 /// A model instance as the traversal sees it.
 #[derive(Debug, Clone)]
@@ -220,6 +222,38 @@ impl Scene {
                     .collect();
             }
         }
+        let has_translucency = desc
+            .models
+            .iter()
+            .flat_map(|m| m.surfaces.iter())
+            .chain(desc.spheres.iter().map(|s| &s.surface))
+            .chain(desc.planes.iter().map(|p| &p.surface))
+            .any(|s| s.opacity < 1.0);
+        let mut scene = Scene {
+            desc,
+            blas,
+            loaded_index: orders,
+            from_eyes: Vec::new(),
+            eyes: Vec::new(),
+            camera_eye: Vec::new(),
+            from_origin: OnceLock::new(),
+            bounds: Aabb::EMPTY,
+            has_translucency,
+            cameras: Vec::new(),
+            camera_hashes: Vec::new(),
+        };
+        scene.place(None);
+        scene
+    }
+
+    /// Computes everything that follows where the models, cameras and
+    /// lights are (all but the meshes and their BVHs): the distinct camera
+    /// positions and their (not yet built) views, the bounds, the cameras'
+    /// frames and sample hashes. `frame` is the sequence's frame number,
+    /// which enters every camera's hash (`None` for a still: the hash of a
+    /// scene without frames is what it always was).
+    fn place(&mut self, frame: Option<u32>) {
+        let desc = &self.desc;
         let mut eyes: Vec<DVec3> = Vec::new();
         let mut index_of_eye: HashMap<[u64; 3], usize> = HashMap::new();
         let mut camera_eye = Vec::with_capacity(desc.cameras.len());
@@ -230,10 +264,11 @@ impl Scene {
             });
             camera_eye.push(i);
         }
-        let from_eyes = eyes.iter().map(|_| OnceLock::new()).collect();
+        self.from_eyes = eyes.iter().map(|_| OnceLock::new()).collect();
+        self.from_origin = OnceLock::new();
         let mut bounds = Aabb::EMPTY;
         for model in &desc.models {
-            let b = world_box(blas[model.mesh].bounds(), &model.transform);
+            let b = world_box(self.blas[model.mesh].bounds(), &model.transform);
             bounds = bounds.union(b);
         }
         for s in &desc.spheres {
@@ -243,28 +278,18 @@ impl Scene {
                 max: (s.center + r).as_vec3(),
             });
         }
-        let has_translucency = desc
-            .models
+        self.bounds = bounds;
+        self.eyes = eyes;
+        self.camera_eye = camera_eye;
+        self.cameras = desc.cameras.iter().map(Camera::new).collect();
+        self.camera_hashes = desc
+            .cameras
             .iter()
-            .flat_map(|m| m.surfaces.iter())
-            .chain(desc.spheres.iter().map(|s| &s.surface))
-            .chain(desc.planes.iter().map(|p| &p.surface))
-            .any(|s| s.opacity < 1.0);
-        let cameras = desc.cameras.iter().map(Camera::new).collect();
-        let camera_hashes = desc.cameras.iter().map(|c| hash_str(&c.id)).collect();
-        Scene {
-            desc,
-            blas,
-            loaded_index: orders,
-            from_eyes,
-            eyes,
-            camera_eye,
-            from_origin: OnceLock::new(),
-            bounds,
-            has_translucency,
-            cameras,
-            camera_hashes,
-        }
+            .map(|c| match frame {
+                None => hash_str(&c.id),
+                Some(f) => hash2(hash_str(&c.id), u64::from(f)),
+            })
+            .collect();
     }
 
     /// The view camera `camera` renders with: the world relative to the

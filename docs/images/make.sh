@@ -13,6 +13,9 @@
 # monitor; the browser test takes one (tests/tests/monitor.rs; with
 # TREVI_ARTIFACTS_DIR=DIR it is written to DIR/monitor.png).
 #
+# A sequence's frame is listed as NAME.NN.png (frame NN of the camera's
+# sequence).
+#
 # tests/tests/repo.rs checks that this list and the README's image links agree.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -22,6 +25,10 @@ images=(
     "examples/cornell.xml front cornell-front.png"
     "examples/cornell.xml corner cornell-corner.png"
     "examples/instancing.xml main instancing.png"
+    "examples/turntable.xml turntable turntable.00.png"
+    "examples/turntable.xml turntable turntable.06.png"
+    "examples/turntable.xml turntable turntable.12.png"
+    "examples/turntable.xml turntable turntable.18.png"
 )
 
 submit=${TREVI_SUBMIT:-}
@@ -32,5 +39,14 @@ fi
 for line in "${images[@]}"; do
     read -r scene camera image <<<"$line"
     echo "== $scene, camera $camera -> docs/images/$image"
-    "$submit" "$scene" --camera "$camera" -o "docs/images/$image" --quiet
+    if [[ $image =~ ^(.*)\.([0-9]+)\.png$ ]]; then
+        # A frame of a sequence: NAME.NN.png is frame NN, written through
+        # the pattern NAME.##.png (as many # as digits).
+        digits=${BASH_REMATCH[2]}
+        pattern="${BASH_REMATCH[1]}.${digits//[0-9]/#}.png"
+        "$submit" "$scene" --camera "$camera" --frames "$((10#$digits))" \
+            -o "docs/images/$pattern" --quiet
+    else
+        "$submit" "$scene" --camera "$camera" -o "docs/images/$image" --quiet
+    fi
 done

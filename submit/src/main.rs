@@ -13,6 +13,7 @@
 
 mod client;
 mod local;
+mod sequence;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -59,6 +60,12 @@ struct Args {
     /// camera's `output`, relative to the scene's directory.
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,
+    /// Render these frames of the camera's sequence, `first-last` or one
+    /// frame (default: the scene's `frames=`, if any). Each frame goes to
+    /// its own file: the output's run of `#` replaced by the frame number.
+    /// On this machine only, for now.
+    #[arg(long, value_parser = sequence::parse_frames)]
+    frames: Option<trevi_core::scene::animation::Frames>,
     /// Worker threads on this machine (default: every core).
     #[arg(long, env = "TREVI_THREADS")]
     threads: Option<usize>,
@@ -223,6 +230,53 @@ fn run(args: Args) -> Result<()> {
     } else {
         client::Progress::Lines
     };
+    let is_sequence = args.frames.is_some()
+        || cameras
+            .iter()
+            .any(|&c| desc.cameras[c].render.frames.is_some());
+    if is_sequence {
+        if args.coordinator.is_some() {
+            bail!("a sequence (frames= or --frames) renders on this machine only for now: drop --coordinator, or render one frame at a time as a still");
+        }
+        let sequences = cameras
+            .iter()
+            .map(|&cam| {
+                let c = &desc.cameras[cam];
+                let frames = args.frames.or(c.render.frames).with_context(|| {
+                    format!(
+                        "camera \"{}\" has no frames= (give --frames or --camera)",
+                        c.id
+                    )
+                })?;
+                let pattern = match &args.output {
+                    Some(o) => o.clone(),
+                    None => scene_dir.join(&c.render.output),
+                };
+                sequence::Sequence::new(cam, c.id.clone(), frames, pattern)
+                    .with_context(|| format!("camera \"{}\"", c.id))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let signals = signals.as_mut().expect("caught for a local render");
+        let (threads, tile) = (args.threads.unwrap_or(0), args.tile);
+        return runtime.block_on(async {
+            let cancel = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            let scene = tokio::task::spawn_blocking(move || trevi_core::Scene::build(desc))
+                .await
+                .context("building the scene")?;
+            let flag = cancel.clone();
+            let mut task = tokio::task::spawn_blocking(move || {
+                sequence::render(scene, &sequences, threads, tile, progress, &flag)
+            });
+            tokio::select! {
+                r = &mut task => r.context("the render thread")?,
+                sig = signals.next() => {
+                    cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+                    let _ = task.await;
+                    Err(anyhow::Error::new(sig))
+                }
+            }
+        });
+    }
     // Every output is checked (format, not a device or directory) before
     // anything renders.
     let targets: Vec<client::Target> = cameras

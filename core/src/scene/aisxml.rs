@@ -27,6 +27,7 @@
 //! the scene's directory, which is empty when the scene is at the bundle's
 //! top, the usual case).
 
+mod animation;
 mod camera;
 mod light;
 mod materials;
@@ -43,6 +44,8 @@ mod transform;
 mod values;
 mod xml;
 
+#[cfg(test)]
+mod animation_tests;
 #[cfg(test)]
 mod doc_tests;
 #[cfg(test)]
@@ -77,6 +80,7 @@ pub const ATTRIBUTE_TABLES: &[(&str, &[Attribute])] = &[
     ("light", light::LIGHT),
     ("camera", camera::CAMERA),
     ("render", render::RENDER),
+    ("animate", animation::ANIMATE),
 ];
 
 /// Parses the scene file `scene` (bundle-relative) from `source`, loading the

@@ -8,6 +8,7 @@
 //! and precomputed camera frames.
 
 pub mod aisxml;
+pub mod animation;
 pub mod source;
 
 use crate::mesh::Mesh;
@@ -225,6 +226,11 @@ pub struct RenderSettings {
     pub integrator: IntegratorKind,
     /// `max-bounces=`: scattering events along a path (path mode only).
     pub max_bounces: u32,
+    /// `frames=` (a Trevi extension): the frames a sequence renders; `None`
+    /// for a still.
+    pub frames: Option<animation::Frames>,
+    /// `fps=`: frame `n` is the scene at `n / fps` seconds.
+    pub fps: f64,
 }
 
 /// `<render integrator>`: which light transport a camera renders with.
@@ -271,4 +277,7 @@ pub struct SceneDesc {
     pub textures: Vec<Texture>,
     /// Bundle-relative paths of every file the scene references, sorted.
     pub files: Vec<String>,
+    /// The keyed channels (`<animate>`); the models, cameras and lights
+    /// above hold their values at t = 0.
+    pub animation: animation::Animation,
 }

@@ -1,10 +1,12 @@
 //! `<camera>`: where the eye is, where it looks, its lens; with its one
 //! `<render>` child.
 
+use super::animation::{Keys, Kind};
 use super::table::{attr, Attribute, REQUIRED};
 use super::xml::{excerpt, Elem};
 use super::{req_vec3, Resolver, Result};
 use crate::error::SceneErrorKind;
+use crate::scene::animation::CameraAnimation;
 use crate::scene::{CameraDesc, Lens};
 use glam::{DVec3, Vec3};
 
@@ -54,6 +56,15 @@ pub(super) const CAMERA: &[Attribute] = &[
         "the distance of the focal plane (required with direction and aperture > 0)",
     ),
     attr("lens", "square | disk", "square", "the lens' shape"),
+];
+
+/// The channels of a `<camera>`'s `<animate>` (docs/aisxml-extensions.md).
+const CAMERA_CHANNELS: &[(&str, Kind)] = &[
+    ("position", Kind::Vector),
+    ("direction", Kind::Direction),
+    ("lookat", Kind::Vector),
+    ("fov", Kind::Fov),
+    ("focus", Kind::Positive),
 ];
 
 impl<'a> Resolver<'a> {
@@ -122,7 +133,7 @@ impl<'a> Resolver<'a> {
         };
 
         let mut render: Option<&'a Elem> = None;
-        for c in &e.children {
+        for c in e.children.iter().filter(|c| c.name == "render") {
             if let Some(first) = render {
                 return Err(self.src.err(
                     c.pos,
@@ -144,7 +155,7 @@ impl<'a> Resolver<'a> {
                 .with_kind(SceneErrorKind::Missing));
         };
         let render = self.render(render, &el, id_attr, &id)?;
-        self.desc.cameras.push(CameraDesc {
+        let camera = CameraDesc {
             id,
             position,
             direction: direction.as_vec3().normalize_or(Vec3::NEG_Z),
@@ -154,7 +165,62 @@ impl<'a> Resolver<'a> {
             focus: focus as f32,
             lens,
             render,
-        });
+        };
+        let keys = self.animates(e, CAMERA_CHANNELS)?;
+        if keys.is_empty() {
+            self.desc.cameras.push(camera);
+            return Ok(());
+        }
+        let lookat = match look_distance {
+            Some(_) => el.vec3("lookat")?,
+            None => None,
+        };
+        let find = |i: usize| keys.iter().find(|k| k.channel == i);
+        let wrong = match lookat {
+            Some(_) => find(1).map(|k| (k, "direction", "lookat")),
+            None => find(2).map(|k| (k, "lookat", "direction")),
+        };
+        if let Some((k, keyed, has)) = wrong {
+            return Err(self.src.err(
+                k.pos,
+                format!("<animate channel=\"{keyed}\"> on a <camera> with {has}= (expected the channel of the attribute the camera has, \"{has}\")"),
+            ).with_kind(SceneErrorKind::BadValue));
+        }
+        let anim = CameraAnimation {
+            camera: self.desc.cameras.len(),
+            base: camera,
+            lookat,
+            focus_given: el.get("focus").is_some(),
+            position: find(0).map(Keys::track),
+            direction: find(1).map(Keys::track),
+            lookat_keys: find(2).map(Keys::track),
+            fov: find(3).map(Keys::track),
+            focus: find(4).map(Keys::track),
+        };
+        // Every key's time must give a camera (the times between are checked
+        // when a frame is made).
+        let mut at_zero = None;
+        for k in &keys {
+            for &t in k.times.iter().chain([0.0].iter()) {
+                match anim.camera_at(t) {
+                    Ok(c) if t == 0.0 => at_zero = Some(c),
+                    Ok(_) => {}
+                    Err(problem) => {
+                        return Err(self
+                            .src
+                            .err(
+                                k.pos,
+                                format!("{problem} (expected keys that make a camera)"),
+                            )
+                            .with_kind(SceneErrorKind::BadValue))
+                    }
+                }
+            }
+        }
+        self.desc
+            .cameras
+            .push(at_zero.unwrap_or_else(|| anim.base.clone()));
+        self.desc.animation.cameras.push(anim);
         Ok(())
     }
 }

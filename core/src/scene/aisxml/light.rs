@@ -1,8 +1,10 @@
 //! `<light>`: a point or spot light.
 
+use super::animation::{Keys, Kind};
 use super::table::{attr, extension, Attribute, REQUIRED};
 use super::xml::Elem;
 use super::{req_vec3, Resolver, Result};
+use crate::scene::animation::LightAnimation;
 use crate::scene::{Light, LightKind};
 use glam::{DVec3, Vec3};
 
@@ -44,6 +46,10 @@ pub(super) const LIGHT: &[Attribute] = &[
         "a spot's cut-off half-angle, in degrees",
     ),
 ];
+
+/// The channels of a `<light>`'s `<animate>` (docs/aisxml-extensions.md).
+const LIGHT_CHANNELS: &[(&str, Kind)] =
+    &[("position", Kind::Vector), ("intensity", Kind::NonNegative)];
 
 impl<'a> Resolver<'a> {
     pub(super) fn light(&mut self, e: &'a Elem) -> Result<()> {
@@ -105,14 +111,28 @@ impl<'a> Resolver<'a> {
             el.real("outer")?;
             LightKind::Point
         };
-        self.desc.lights.push(Light {
+        let light = Light {
             kind,
             position,
             color,
             intensity: intensity as f32,
             radius: radius as f32,
             attenuation,
-        });
+        };
+        let keys = self.animates(e, LIGHT_CHANNELS)?;
+        if keys.is_empty() {
+            self.desc.lights.push(light);
+            return Ok(());
+        }
+        let find = |i: usize| keys.iter().find(|k| k.channel == i);
+        let anim = LightAnimation {
+            light: self.desc.lights.len(),
+            base: light,
+            position: find(0).map(Keys::track),
+            intensity: find(1).map(Keys::track),
+        };
+        self.desc.lights.push(anim.light_at(0.0));
+        self.desc.animation.lights.push(anim);
         Ok(())
     }
 }

@@ -1,11 +1,13 @@
 //! `<model>`: an instance of a mesh with its transform and surfaces.
 
+use super::animation::{Keys, Kind};
 use super::surface::surface;
 use super::table::{attr, Attribute, REQUIRED};
 use super::values::{parse_uint, tokens, El};
 use super::xml::{excerpt, is_xml_ws, Elem};
 use super::{Resolver, Result};
 use crate::error::SceneErrorKind;
+use crate::scene::animation::ModelAnimation;
 use crate::scene::{Model, Surface};
 use glam::{DMat4, DVec3};
 
@@ -23,6 +25,13 @@ pub(super) const MODEL: &[Attribute] = &[
         REQUIRED,
         "the id of the `<mesh>` it instances",
     ),
+];
+
+/// The channels of a `<model>`'s `<animate>` (docs/aisxml-extensions.md).
+const MODEL_CHANNELS: &[(&str, Kind)] = &[
+    ("translate", Kind::Vector),
+    ("rotate", Kind::Rotation),
+    ("scale", Kind::Scale),
 ];
 
 impl<'a> Resolver<'a> {
@@ -69,6 +78,7 @@ impl<'a> Resolver<'a> {
                     }
                     transform = Some(self.transform(c)?);
                 }
+                "animate" => {}
                 _ => {
                     let cl = self.el(c);
                     let mut surface = surface(&cl, true)?;
@@ -113,15 +123,30 @@ impl<'a> Resolver<'a> {
                 surfaces.push(surf);
             }
         }
+        let base = match self.mesh_offsets.get(mesh) {
+            Some(&o) if o != DVec3::ZERO => {
+                transform.unwrap_or(DMat4::IDENTITY) * DMat4::from_translation(o)
+            }
+            _ => transform.unwrap_or(DMat4::IDENTITY),
+        };
+        let keys = self.animates(e, MODEL_CHANNELS)?;
+        let mut transform = base;
+        if !keys.is_empty() {
+            let find = |i: usize| keys.iter().find(|k| k.channel == i);
+            let anim = ModelAnimation {
+                model: self.desc.models.len(),
+                base,
+                translate: find(0).map(Keys::track),
+                rotate: find(1).map(Keys::track),
+                scale: find(2).map(Keys::track),
+            };
+            transform = anim.transform(0.0);
+            self.desc.animation.models.push(anim);
+        }
         self.desc.models.push(Model {
             id,
             mesh,
-            transform: match self.mesh_offsets.get(mesh) {
-                Some(&o) if o != DVec3::ZERO => {
-                    transform.unwrap_or(DMat4::IDENTITY) * DMat4::from_translation(o)
-                }
-                _ => transform.unwrap_or(DMat4::IDENTITY),
-            },
+            transform,
             surfaces,
             triangle_surface,
         });

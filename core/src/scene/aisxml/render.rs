@@ -2,10 +2,11 @@
 //! including Trevi's adaptive sampling (docs/aisxml-extensions.md).
 
 use super::table::{attr, extension, Attribute, REQUIRED};
-use super::values::El;
+use super::values::{parse_uint, El};
 use super::xml::{excerpt, is_xml_ws, Attr, Elem};
 use super::{Resolver, Result};
 use crate::error::SceneErrorKind;
+use crate::scene::animation::{Frames, DEFAULT_FPS, MAX_FRAME};
 use crate::scene::source::normalize_rel_path;
 use crate::scene::{
     Adaptive, AoDistance, IntegratorKind, RenderSettings, DEFAULT_MAX_BOUNCES,
@@ -111,6 +112,13 @@ pub(super) const RENDER: &[Attribute] = &[
         "16",
         "path mode: scattering events along a path (0: emitters and background only)",
     ),
+    extension(
+        "frames",
+        "integer or range \"first-last\", in [0, 9999999]",
+        "none (a still)",
+        "the frames of a sequence, each at t = frame / fps",
+    ),
+    extension("fps", "real > 0", "24", "frames per second"),
 ];
 
 impl<'a> Resolver<'a> {
@@ -151,6 +159,10 @@ impl<'a> Resolver<'a> {
         let diffuse_depth = el.u32_in("diffuse-depth", 1, MAX_DEPTH)?.unwrap_or(1);
         let seed = el.uint("seed", 0, u64::MAX)?.unwrap_or(0);
 
+        let frames = self.frames(&el)?;
+        let fps = el
+            .real_in("fps", "a number > 0", |v| v > 0.0)?
+            .unwrap_or(DEFAULT_FPS);
         let output_attr = el.get("output");
         let output = match output_attr {
             Some(a) => {
@@ -164,10 +176,15 @@ impl<'a> Resolver<'a> {
                 if !has_image_extension(&rel) {
                     return Err(el.expected(a, "a file name ending in .png or .exr"));
                 }
+                check_pattern(&el, a, &rel, frames.is_some())?;
                 rel
             }
             None => {
-                let default = format!("{camera_id}.png");
+                let default = if frames.is_some() {
+                    format!("{camera_id}.####.png")
+                } else {
+                    format!("{camera_id}.png")
+                };
                 match normalize_rel_path(&default) {
                     Ok(rel) if has_image_extension(&rel) => rel,
                     _ => {
@@ -260,7 +277,63 @@ impl<'a> Resolver<'a> {
             adaptive,
             integrator,
             max_bounces,
+            frames,
+            fps,
         })
+    }
+
+    /// `frames="first-last"` (or one frame number).
+    fn frames(&self, el: &El<'a>) -> Result<Option<Frames>> {
+        let Some(a) = el.get("frames") else {
+            return Ok(None);
+        };
+        let expected = format!(
+            "a frame number or a range \"first-last\" of frame numbers in [0, {MAX_FRAME}]"
+        );
+        let v = a.value.trim_matches(is_xml_ws);
+        let (lo, hi) = match v.split_once('-') {
+            Some((l, h)) => (parse_uint(l), parse_uint(h)),
+            None => (parse_uint(v), parse_uint(v)),
+        };
+        let (Some(first), Some(last)) = (lo, hi) else {
+            return Err(el.expected(a, &expected));
+        };
+        if first > last || last > u64::from(MAX_FRAME) {
+            return Err(el.expected(a, &expected));
+        }
+        Ok(Some(Frames {
+            first: first as u32,
+            last: last as u32,
+        }))
+    }
+}
+
+/// An output with `#` is a sequence's pattern: one run of `#`, in the file
+/// name, and only with `frames=`; a sequence's output needs one.
+fn check_pattern(el: &El, a: &Attr, rel: &str, sequence: bool) -> Result<()> {
+    let name = rel.rsplit('/').next().unwrap_or(rel);
+    let runs = name
+        .as_bytes()
+        .split(|&b| b != b'#')
+        .filter(|r| !r.is_empty())
+        .count();
+    let in_dir = rel.len() != name.len() && rel[..rel.len() - name.len()].contains('#');
+    if in_dir || runs > 1 {
+        return Err(el.expected(
+            a,
+            "a file name with one run of # for the frame number (like \"shot.####.png\")",
+        ));
+    }
+    match (runs == 1, sequence) {
+        (true, false) => Err(el.attr_err(
+            a,
+            "a frame-number pattern (#) is only for a sequence (expected frames= on this <render>, or a name without #)",
+        )),
+        (false, true) => Err(el.expected(
+            a,
+            "a file name with a run of # for the frame number, like \"shot.####.png\" (this <render> has frames=)",
+        )),
+        _ => Ok(()),
     }
 }
 

@@ -204,6 +204,8 @@ fn full_scene_resolves_with_defaults() {
             adaptive: None,
             integrator: IntegratorKind::Whitted,
             max_bounces: DEFAULT_MAX_BOUNCES,
+            frames: None,
+            fps: 24.0,
         }
     );
     let dof = &s.cameras[1];

@@ -110,10 +110,11 @@ fn allowed_children(parent: &str) -> &'static [&'static str] {
             "settings", "mesh", "model", "sphere", "plane", "light", "camera",
         ],
         "mesh" => &["vertices", "normals", "uvs", "triangles"],
-        "model" => &["transform", "surface"],
+        "model" => &["transform", "surface", "animate"],
         "transform" => &["translate", "rotate", "scale", "matrix"],
         "sphere" | "plane" => &["surface"],
-        "camera" => &["render"],
+        "camera" => &["render", "animate"],
+        "light" => &["animate"],
         _ => &[],
     }
 }
