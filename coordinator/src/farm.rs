@@ -514,6 +514,13 @@ impl Farm {
             .heartbeat(worker, leases, Instant::now())?)
     }
 
+    /// Records why `worker` takes no tiles for now (`None`: it works); see
+    /// [`crate::workers::WorkerState::Paused`].
+    pub fn set_paused(&self, worker: WorkerId, why: Option<&str>) {
+        let mut st = lock(&self.state);
+        st.sched.set_paused(worker, why);
+    }
+
     /// Re-queues tiles whose leases ran out.
     pub fn expire(&self) -> usize {
         let (n, failed) = {

@@ -414,6 +414,8 @@ impl pb::workers_server::Workers for WorkersService {
         let r = req.into_inner();
         self.farm.check_session(r.worker_id, &r.session)?;
         let dropped = self.farm.heartbeat(r.worker_id, &r.lease_ids)?;
+        let paused = (!r.paused.is_empty()).then_some(r.paused.as_str());
+        self.farm.set_paused(r.worker_id, paused);
         Ok(Response::new(pb::HeartbeatResponse { dropped }))
     }
 

@@ -37,7 +37,7 @@
 use crate::auth::Tokens;
 use crate::farm::Farm;
 use crate::scheduler::{JobInfo, JobState};
-use crate::workers::WorkerInfo;
+use crate::workers::{WorkerInfo, WorkerState};
 use crate::FarmError;
 use axum::extract::{FromRequestParts, Path, State};
 use axum::http::request::Parts;
@@ -365,6 +365,9 @@ struct WorkerView {
     name: String,
     threads: u32,
     state: &'static str,
+    /// Why a paused worker is paused ("busy", "outside hours"); null
+    /// otherwise.
+    paused: Option<String>,
     silent_ms: u64,
     tiles: Vec<TileView>,
     tiles_done: u64,
@@ -380,6 +383,7 @@ impl From<&WorkerInfo> for WorkerView {
             name: w.name.clone(),
             threads: w.threads,
             state: w.state.name(),
+            paused: w.paused.clone().filter(|_| w.state == WorkerState::Paused),
             silent_ms: w.silent_for.as_millis() as u64,
             tiles: w
                 .leases

@@ -188,6 +188,38 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
         let n = s.workers.iter().filter(|w| w.state == st).count();
         let _ = writeln!(out, "trevi_workers{{state=\"{}\"}} {n}", st.name());
     }
+    family(
+        &mut out,
+        "trevi_workers_paused",
+        "gauge",
+        "Paused workers, by the reason they gave (busy, outside hours).",
+    );
+    let mut reasons = std::collections::BTreeMap::<&str, usize>::new();
+    for w in &s.workers {
+        if let (WorkerState::Paused, Some(r)) = (w.state, &w.paused) {
+            *reasons.entry(r.as_str()).or_default() += 1;
+        }
+    }
+    for (r, n) in reasons {
+        let _ = writeln!(out, "trevi_workers_paused{{reason=\"{}\"}} {n}", label(r));
+    }
+    family(
+        &mut out,
+        "trevi_worker_paused",
+        "gauge",
+        "1 for each worker that is paused, with its id, name and reason.",
+    );
+    for w in &s.workers {
+        if let (WorkerState::Paused, Some(r)) = (w.state, &w.paused) {
+            let _ = writeln!(
+                out,
+                "trevi_worker_paused{{worker=\"{}\",name=\"{}\",reason=\"{}\"}} 1",
+                w.id,
+                label(&w.name),
+                label(r)
+            );
+        }
+    }
 
     let name = "trevi_grpc_request_duration_seconds";
     family(

@@ -290,6 +290,11 @@ impl Scheduler {
         self.workers.describe(worker, name, threads);
     }
 
+    /// Records why `worker` takes no tiles for now (`None`: it works).
+    pub fn set_paused(&mut self, worker: WorkerId, why: Option<&str>) {
+        self.workers.set_paused(worker, why);
+    }
+
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
     pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
         let id = self.next_job;
@@ -370,6 +375,8 @@ impl Scheduler {
     /// The next tile for `worker`, if any job has one it may hand out now.
     pub fn lease(&mut self, worker: WorkerId, now: Instant) -> Result<Option<Lease>, SchedError> {
         self.touch(worker, now)?;
+        // Asking for work: no longer paused.
+        self.workers.set_paused(worker, None);
         self.expire(now);
         let max_fail = self.cfg.max_worker_failures.max(1);
         for &(_, id) in &self.queue {

@@ -60,17 +60,27 @@ pub enum WorkerState {
     Busy,
     /// Heard from within a lease's lifetime, holds no lease.
     Idle,
+    /// Heard from, holds no lease, and said it takes none for now (its
+    /// machine is busy, or it is outside its hours): see
+    /// [`WorkerEntry::paused`].
+    Paused,
     /// Silent for longer than a lease lives: crashed, cut off or stopped.
     Lost,
 }
 
 impl WorkerState {
-    pub const ALL: [WorkerState; 3] = [WorkerState::Busy, WorkerState::Idle, WorkerState::Lost];
+    pub const ALL: [WorkerState; 4] = [
+        WorkerState::Busy,
+        WorkerState::Idle,
+        WorkerState::Paused,
+        WorkerState::Lost,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
             WorkerState::Busy => "busy",
             WorkerState::Idle => "idle",
+            WorkerState::Paused => "paused",
             WorkerState::Lost => "lost",
         }
     }
@@ -88,6 +98,9 @@ pub struct WorkerEntry {
     /// The secret its registration was given, which every later call must
     /// present (none: registered in-process, not reachable over gRPC).
     pub session: Option<[u8; 32]>,
+    /// Why it said it takes no tiles for now ("busy", "outside hours"),
+    /// from its last heartbeat; none once it asks for a tile again.
+    pub paused: Option<String>,
 }
 
 impl WorkerEntry {
@@ -100,6 +113,7 @@ impl WorkerEntry {
             rays: 0,
             rate: Rate::default(),
             session: None,
+            paused: None,
         }
     }
 
@@ -125,6 +139,8 @@ impl WorkerEntry {
             WorkerState::Lost
         } else if leases > 0 {
             WorkerState::Busy
+        } else if self.paused.is_some() {
+            WorkerState::Paused
         } else {
             WorkerState::Idle
         }
@@ -138,6 +154,8 @@ pub struct WorkerInfo {
     pub name: String,
     pub threads: u32,
     pub state: WorkerState,
+    /// Why it is paused (see [`WorkerEntry::paused`]).
+    pub paused: Option<String>,
     /// Time since it was last heard from.
     pub silent_for: Duration,
     /// The tiles it holds leases on: (job, tile rectangle).
@@ -191,6 +209,14 @@ impl Workers {
             // Names come from the network: keep them short.
             w.name = name.chars().take(64).collect();
             w.threads = threads;
+        }
+    }
+
+    /// Records why `worker` takes no tiles for now (`None`: it works).
+    pub fn set_paused(&mut self, worker: WorkerId, why: Option<&str>) {
+        if let Some(w) = self.entries.get_mut(&worker) {
+            // Reasons come from the network: keep them short.
+            w.paused = why.map(|s| s.chars().take(32).collect());
         }
     }
 
@@ -253,6 +279,7 @@ impl Workers {
                     name: w.name.clone(),
                     threads: w.threads,
                     state: w.state(leases.len(), lease_ttl, now),
+                    paused: w.paused.clone(),
                     silent_for: now.saturating_duration_since(w.last_seen),
                     leases,
                     tiles_done: w.tiles_done,
@@ -353,6 +380,28 @@ mod tests {
             w.state(1, ttl, t0 + Duration::from_secs(11)),
             WorkerState::Lost
         );
+    }
+
+    #[test]
+    fn a_paused_worker_is_paused_until_lost_and_busy_while_it_holds_a_lease() {
+        let t0 = Instant::now();
+        let mut ws = Workers::new(1);
+        let a = ws.register(t0, None);
+        let ttl = Duration::from_secs(10);
+        ws.set_paused(a, Some(&"busy".repeat(20)));
+        let list = ws.list(HashMap::new(), ttl, t0);
+        assert_eq!(list[0].state, WorkerState::Paused);
+        assert_eq!(list[0].paused.as_deref().map(str::len), Some(32));
+        let mut held = HashMap::new();
+        held.insert(a, vec![(1, Rect::new(0, 0, 1, 1))]);
+        assert_eq!(ws.list(held, ttl, t0)[0].state, WorkerState::Busy);
+        let late = t0 + Duration::from_secs(11);
+        assert_eq!(
+            ws.list(HashMap::new(), ttl, late)[0].state,
+            WorkerState::Lost
+        );
+        ws.set_paused(a, None);
+        assert_eq!(ws.list(HashMap::new(), ttl, t0)[0].state, WorkerState::Idle);
     }
 
     #[test]

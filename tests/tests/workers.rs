@@ -278,6 +278,7 @@ fn a_worker_cannot_act_under_another_workers_id() {
                     worker_id: a.id,
                     lease_ids: vec![lease.lease_id],
                     session: session.clone(),
+                    ..Default::default()
                 })
                 .await
                 .unwrap_err();
@@ -311,6 +312,7 @@ fn a_worker_cannot_act_under_another_workers_id() {
                 worker_id: a.id,
                 lease_ids: vec![lease.lease_id],
                 session: a.session.clone(),
+                ..Default::default()
             })
             .await
             .unwrap()

@@ -20,7 +20,9 @@
 //! ([`priority`]): a worker on a spare desk takes only the CPU time its
 //! owner leaves unused.
 
+pub mod pause;
 pub mod priority;
+pub use pause::{Pause, PauseConfig};
 pub use priority::Priority;
 
 use std::num::NonZeroUsize;
@@ -64,6 +66,9 @@ pub struct WorkerConfig {
     /// The render threads' CPU priority ([`Priority::Idle`] by default: a
     /// worker on somebody's desk stays out of its owner's way).
     pub priority: Priority,
+    /// When to step aside: the machine is busy, or outside the active
+    /// hours (nothing watched by default; see [`pause`]).
+    pub pause: PauseConfig,
     /// Tests only: make the render of one tile fail (see [`TestFault`]).
     #[doc(hidden)]
     pub test_fault: Option<TestFault>,
@@ -160,6 +165,7 @@ impl Default for WorkerConfig {
             poll: POLL,
             preloaded: Vec::new(),
             priority: Priority::default(),
+            pause: PauseConfig::default(),
             test_fault: None,
         }
     }
@@ -284,6 +290,7 @@ pub async fn run(
         scenes.put(p.hash.clone(), p.scene.clone());
     }
     let cache = Arc::new(tokio::sync::Mutex::new(scenes));
+    let paused = watch_the_machine(&cfg.pause, shutdown.clone());
     let mut backoff = Duration::from_millis(100);
     loop {
         if *shutdown.borrow() {
@@ -303,6 +310,7 @@ pub async fn run(
                     pool: pool.clone(),
                     threads,
                     render: Arc::new(tokio::sync::Semaphore::new(1)),
+                    paused: paused.clone(),
                 };
                 s.serve(&cfg, &cache, &shutdown, &mut backoff).await
             }
@@ -356,6 +364,70 @@ struct Session {
     /// others send their results meanwhile but never hold a lease they are
     /// not working on.
     render: Arc<tokio::sync::Semaphore>,
+    /// Why the worker steps aside now (none: it works); see [`pause`].
+    paused: watch::Receiver<Option<Pause>>,
+}
+
+/// Starts watching the machine as `cfg` says; the receiver tells why the
+/// worker should step aside (never anything when nothing is watched).
+/// Every change is logged, with its reason.
+fn watch_the_machine(
+    cfg: &PauseConfig,
+    mut shutdown: watch::Receiver<bool>,
+) -> watch::Receiver<Option<Pause>> {
+    let (tx, rx) = watch::channel(None);
+    if !cfg.watches() {
+        // Nothing will change; the channel stays open until the end.
+        tokio::spawn(async move {
+            let _ = shutdown.wait_for(|&s| s).await;
+            drop(tx);
+        });
+        return rx;
+    }
+    let cores = std::fs::read_to_string("/proc/stat")
+        .map(|s| pause::count_cores(&s))
+        .unwrap_or(0)
+        .max(1);
+    if cfg.yield_when_busy && pause::sample_now().is_none() {
+        tracing::warn!("--yield-when-busy: cannot read /proc/stat and /proc/self/stat; the load is not watched");
+    }
+    let mut watcher = pause::Watcher::new(cfg.clone(), cores);
+    let (every, quiet, hours) = (cfg.sample, cfg.quiet_for, cfg.active_hours);
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(every);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {}
+                _ = shutdown.changed() => return,
+            }
+            let now = std::time::Instant::now();
+            let p = watcher.step(now, pause::sample_now(), pause::local_minute());
+            let was = *tx.borrow();
+            if was.map(|w| w.reason()) == p.map(|p| p.reason()) {
+                continue;
+            }
+            match (&was, &p) {
+                (_, Some(p)) => tracing::info!(
+                    reason = p.reason(),
+                    "paused ({p}): in-flight tiles handed back, no new ones until it ends"
+                ),
+                (Some(Pause::Busy { .. }), None) => tracing::info!(
+                    "resumed: the machine has been quiet for {} s",
+                    quiet.as_secs_f64()
+                ),
+                (Some(Pause::OutsideHours), None) => tracing::info!(
+                    "resumed: within the active hours {}",
+                    hours.map(|h| h.to_string()).unwrap_or_default()
+                ),
+                (None, None) => {}
+            }
+            if tx.send(p).is_err() {
+                return;
+            }
+        }
+    });
+    rx
 }
 
 /// Who the coordinator registered us as.
@@ -373,6 +445,8 @@ enum TileEnd {
     Dropped,
     /// `shutdown` turned true: the render was stopped.
     Stopped,
+    /// The worker stepped aside (see [`pause`]): the render was stopped.
+    Paused,
     /// The scene could not be loaded, or the render panicked.
     Failed(String),
 }
@@ -443,6 +517,11 @@ impl Session {
             let (poll, fault) = (cfg.poll, cfg.test_fault);
             slots.spawn(async move { slot.work(me, beat, poll, fault, cache, shutdown).await });
         }
+        {
+            let mut s = self.clone();
+            let (me, shutdown) = (me.clone(), shutdown.clone());
+            slots.spawn(async move { s.report_pauses(me, beat, shutdown).await });
+        }
         let mut end = End::Shutdown;
         while let Some(r) = slots.join_next().await {
             if let Ok(End::Reconnect(why)) = r {
@@ -454,6 +533,52 @@ impl Session {
             }
         }
         end
+    }
+
+    /// Tells the coordinator why the worker is paused, at once and then
+    /// every `beat` while it is (a paused worker leases nothing, so this
+    /// keeps it alive in the coordinator's list and shows the reason).
+    async fn report_pauses(
+        &mut self,
+        me: Me,
+        beat: Duration,
+        mut shutdown: watch::Receiver<bool>,
+    ) -> End {
+        let mut tick = tokio::time::interval(beat);
+        loop {
+            let reason = self.pause_reason();
+            if !reason.is_empty() {
+                let hb = self
+                    .workers
+                    .heartbeat(pb::HeartbeatRequest {
+                        worker_id: me.id,
+                        lease_ids: Vec::new(),
+                        session: me.session.clone(),
+                        paused: reason,
+                    })
+                    .await;
+                if let Err(s) = hb {
+                    tracing::warn!("heartbeat failed: {}", s.message());
+                }
+            }
+            tokio::select! {
+                _ = tick.tick() => {}
+                r = self.paused.changed() => if r.is_err() {
+                    // Nothing is watched (any more): nothing to report.
+                    let _ = shutdown.wait_for(|&s| s).await;
+                    return End::Shutdown;
+                },
+                r = shutdown.changed() => if r.is_err() || *shutdown.borrow() { return End::Shutdown },
+            }
+        }
+    }
+
+    /// The reason the coordinator is told (empty: working).
+    fn pause_reason(&self) -> String {
+        self.paused
+            .borrow()
+            .map(|p| p.reason().to_string())
+            .unwrap_or_default()
     }
 
     /// One lease → render → send loop.
@@ -469,6 +594,14 @@ impl Session {
         loop {
             if *shutdown.borrow() {
                 return End::Shutdown;
+            }
+            if self.paused.borrow_and_update().is_some() {
+                // Lease nothing until the pause ends.
+                tokio::select! {
+                    r = self.paused.changed() => if r.is_err() { return End::Shutdown },
+                    r = shutdown.changed() => if r.is_err() { return End::Shutdown },
+                }
+                continue;
             }
             let permit = tokio::select! {
                 p = self.render.clone().acquire_owned() => match p {
@@ -508,6 +641,8 @@ impl Session {
             };
             let end = if *shutdown.borrow() {
                 TileEnd::Stopped
+            } else if self.paused.borrow().is_some() {
+                TileEnd::Paused
             } else {
                 self.tile(&me, &lease, rect, beat, fault, &cache, &mut shutdown)
                     .await
@@ -542,6 +677,15 @@ impl Session {
                     );
                     self.give_back(&me, id, String::new()).await;
                     return End::Shutdown;
+                }
+                TileEnd::Paused => {
+                    tracing::info!(
+                        lease = id,
+                        x,
+                        y,
+                        "paused: render cancelled, lease given back"
+                    );
+                    self.give_back(&me, id, String::new()).await;
                 }
                 TileEnd::Failed(why) => {
                     tracing::error!(lease = id, job = lease.job_id, x, y, "tile failed: {why}");
@@ -627,7 +771,8 @@ impl Session {
             }
         };
         tokio::pin!(work);
-        let (mut dropped, mut stopping) = (false, false);
+        let (mut dropped, mut stopping, mut pausing) = (false, false, false);
+        let mut watched = true;
         let mut tick = tokio::time::interval(beat);
         tick.tick().await;
         loop {
@@ -635,6 +780,7 @@ impl Session {
                 end = &mut work => {
                     return match end {
                         _ if stopping => TileEnd::Stopped,
+                        TileEnd::Dropped if pausing => TileEnd::Paused,
                         TileEnd::Rendered(..) if dropped => TileEnd::Dropped,
                         end => end,
                     };
@@ -644,6 +790,7 @@ impl Session {
                         worker_id: me.id,
                         lease_ids: vec![lease.lease_id],
                         session: me.session.clone(),
+                        paused: String::new(),
                     }).await;
                     dropped = match hb {
                         Ok(r) => !r.into_inner().dropped.is_empty(),
@@ -657,6 +804,14 @@ impl Session {
                         cancel.store(true, Ordering::Relaxed);
                     }
                 }
+                r = self.paused.changed(), if !pausing && watched => match r {
+                    // The watcher stopped (the worker is stopping).
+                    Err(_) => watched = false,
+                    Ok(()) => if self.paused.borrow().is_some() {
+                        pausing = true;
+                        cancel.store(true, Ordering::Relaxed);
+                    }
+                },
                 r = shutdown.changed(), if !stopping => {
                     // A closed channel means the sender is gone: stop too.
                     if r.is_err() || *shutdown.borrow() {

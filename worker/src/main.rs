@@ -3,7 +3,8 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use std::num::{IntErrorKind, NonZeroU64, NonZeroUsize, ParseIntError};
-use trevi_worker::{Priority, WorkerConfig};
+use trevi_worker::pause::ActiveHours;
+use trevi_worker::{PauseConfig, Priority, WorkerConfig};
 
 #[derive(Parser, Debug)]
 #[command(name = "trevi-worker", version, about = "A Trevi render farm worker")]
@@ -51,6 +52,52 @@ struct Args {
     /// `normal` (for machines that do nothing but render).
     #[arg(long, env = "TREVI_PRIORITY", default_value_t = Priority::default())]
     priority: Priority,
+    /// Step aside while the machine is busy: when other programs keep more
+    /// than --busy-threshold cores busy for --busy-for-ms, stop the tiles in
+    /// hand, give their leases back and take none until the load has stayed
+    /// below the threshold for --quiet-for-ms (reads /proc; Linux only).
+    #[arg(long, env = "TREVI_YIELD_WHEN_BUSY")]
+    yield_when_busy: bool,
+    /// With --yield-when-busy: cores of CPU load from other programs (not
+    /// this worker) above which the machine is busy.
+    #[arg(long, env = "TREVI_BUSY_THRESHOLD", default_value_t = trevi_worker::pause::BUSY_THRESHOLD,
+          value_parser = positive_cores)]
+    busy_threshold: f64,
+    /// With --yield-when-busy: milliseconds the load must stay above the
+    /// threshold before the worker pauses.
+    #[arg(long, env = "TREVI_BUSY_FOR_MS", default_value_t = ms(trevi_worker::pause::BUSY_FOR))]
+    busy_for_ms: u64,
+    /// With --yield-when-busy: milliseconds the load must stay below the
+    /// threshold before a paused worker works again.
+    #[arg(long, env = "TREVI_QUIET_FOR_MS", default_value_t = ms(trevi_worker::pause::QUIET_FOR))]
+    quiet_for_ms: u64,
+    /// How often the load and the clock are checked, in milliseconds (at
+    /// least 1): a pause stops the tiles in hand within about this long.
+    #[arg(long, env = "TREVI_SAMPLE_MS", default_value_t = nonzero_ms(trevi_worker::pause::SAMPLE),
+          value_parser = at_least_one::<NonZeroU64>)]
+    sample_ms: NonZeroU64,
+    /// Work only within these hours of local time, like 19:00-07:00 (a
+    /// range that ends before it starts runs over midnight); outside them
+    /// the worker is paused ("outside hours").
+    #[arg(long, env = "TREVI_ACTIVE_HOURS")]
+    active_hours: Option<ActiveHours>,
+}
+
+/// `--busy-threshold`: a finite number of cores, not negative.
+fn positive_cores(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        Ok(_) => Err("must be a number of cores, 0 or more".to_string()),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+fn ms(d: std::time::Duration) -> u64 {
+    d.as_millis() as u64
+}
+
+fn nonzero_ms(d: std::time::Duration) -> NonZeroU64 {
+    NonZeroU64::new(ms(d)).expect("a default that is not zero")
 }
 
 /// A number that must be at least 1 (a `NonZero` integer): clap refuses 0,
@@ -83,6 +130,14 @@ async fn main() -> Result<()> {
     cfg.tiles_in_flight = args.tiles_in_flight;
     cfg.poll = std::time::Duration::from_millis(args.poll_ms.get());
     cfg.priority = args.priority;
+    cfg.pause = PauseConfig {
+        yield_when_busy: args.yield_when_busy,
+        busy_threshold: args.busy_threshold,
+        busy_for: std::time::Duration::from_millis(args.busy_for_ms),
+        quiet_for: std::time::Duration::from_millis(args.quiet_for_ms),
+        sample: std::time::Duration::from_millis(args.sample_ms.get()),
+        active_hours: args.active_hours,
+    };
     // Hooks for the end-to-end tests: a tile that crashes the renderer.
     cfg.test_fault = trevi_worker::TestFault::from_env("TREVI_TEST_ABORT_ON_TILE", true)
         .or_else(|| trevi_worker::TestFault::from_env("TREVI_TEST_PANIC_ON_TILE", false));

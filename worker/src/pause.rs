@@ -1,0 +1,498 @@
+//! When a worker on a spare machine steps aside: the machine's owner is
+//! using it (`--yield-when-busy`), or it is outside the hours the worker may
+//! work (`--active-hours`).
+//!
+//! Everything here is pure: the load sampler reads `/proc/stat` and
+//! `/proc/self/stat` *text* handed to it, and the watchers are fed the time,
+//! so the tests give them made-up numbers. [`crate::run`] reads the files
+//! once a [`PauseConfig::sample`] and publishes the [`Pause`] the watchers
+//! decide; the render loops stop their tiles and hand the leases back when
+//! it turns to paused, and lease nothing until it turns back.
+//!
+//! The load that is not ours is the machine's busy CPU time (every state of
+//! `/proc/stat`'s `cpu` line but idle and iowait) less this process's own
+//! (`utime + stime` of `/proc/self/stat`, all its threads), over the time
+//! between two samples, in cores: 1.0 is one core kept busy by other
+//! programs. Our own render threads run at idle priority, so they never
+//! hold the machine back; what is left is the owner's work.
+
+use std::fmt;
+use std::time::{Duration, Instant};
+
+/// `--busy-threshold`'s default, in cores of load not ours: half a core
+/// busy for [`BUSY_FOR`] is somebody working (a browser, a compile), while a
+/// desktop at rest stays well below it (a few percent of one core).
+pub const BUSY_THRESHOLD: f64 = 0.5;
+/// `--busy-for-ms`'s default: how long the load must stay above the
+/// threshold before the worker pauses (a short spike does not count).
+pub const BUSY_FOR: Duration = Duration::from_secs(3);
+/// `--quiet-for-ms`'s default: how long the load must stay below the
+/// threshold before a paused worker works again.
+pub const QUIET_FOR: Duration = Duration::from_secs(60);
+/// `--sample-ms`'s default: how often the load is sampled. A pause reaches
+/// the render threads at the next sample, and a render stops within a
+/// pixel of that.
+pub const SAMPLE: Duration = Duration::from_secs(1);
+
+/// Why a worker is not taking tiles.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pause {
+    /// Other programs kept this many cores busy.
+    Busy { load: f64 },
+    /// Outside `--active-hours`.
+    OutsideHours,
+}
+
+impl Pause {
+    /// The word the coordinator's monitor and metrics show.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            Pause::Busy { .. } => "busy",
+            Pause::OutsideHours => "outside hours",
+        }
+    }
+}
+
+impl fmt::Display for Pause {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Pause::Busy { load } => write!(
+                f,
+                "busy: other programs use {:.2} cores of this machine",
+                load
+            ),
+            Pause::OutsideHours => write!(f, "outside hours"),
+        }
+    }
+}
+
+/// What the worker watches, and how quickly it reacts.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PauseConfig {
+    /// Watch the load that is not ours (`--yield-when-busy`).
+    pub yield_when_busy: bool,
+    /// Cores of load not ours above which the machine is busy.
+    pub busy_threshold: f64,
+    pub busy_for: Duration,
+    pub quiet_for: Duration,
+    pub sample: Duration,
+    /// Work only within these hours (`--active-hours`).
+    pub active_hours: Option<ActiveHours>,
+}
+
+impl Default for PauseConfig {
+    fn default() -> Self {
+        PauseConfig {
+            yield_when_busy: false,
+            busy_threshold: BUSY_THRESHOLD,
+            busy_for: BUSY_FOR,
+            quiet_for: QUIET_FOR,
+            sample: SAMPLE,
+            active_hours: None,
+        }
+    }
+}
+
+impl PauseConfig {
+    /// Whether anything is watched at all.
+    pub fn watches(&self) -> bool {
+        self.yield_when_busy || self.active_hours.is_some()
+    }
+}
+
+/// CPU time counters at one moment, in clock ticks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CpuSample {
+    /// Every core's time in every state (the machine's `cpu` line summed).
+    pub total: u64,
+    /// The part of `total` not idle and not waiting for I/O.
+    pub busy: u64,
+    /// This process's user + system time (all its threads).
+    pub own: u64,
+}
+
+impl CpuSample {
+    /// Reads the counters from the text of `/proc/stat` and
+    /// `/proc/self/stat`; `None` if either is not as Linux writes it.
+    pub fn parse(proc_stat: &str, self_stat: &str) -> Option<CpuSample> {
+        let line = proc_stat
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some("cpu"))?;
+        // user nice system idle iowait irq softirq steal [guest guest_nice]:
+        // guest time is already counted in user, so only the first eight.
+        let f: Vec<u64> = line
+            .split_whitespace()
+            .skip(1)
+            .take(8)
+            .map(|v| v.parse().ok())
+            .collect::<Option<_>>()?;
+        if f.len() < 4 {
+            return None;
+        }
+        let total: u64 = f.iter().sum();
+        let idle = f[3] + f.get(4).copied().unwrap_or(0);
+        // The command name (field 2) may hold spaces and parentheses: count
+        // fields from the last ')'. utime and stime are fields 14 and 15.
+        let rest = &self_stat[self_stat.rfind(')')? + 1..];
+        let mut fields = rest.split_whitespace().skip(11);
+        let utime: u64 = fields.next()?.parse().ok()?;
+        let stime: u64 = fields.next()?.parse().ok()?;
+        Some(CpuSample {
+            total,
+            busy: total - idle,
+            own: utime + stime,
+        })
+    }
+
+    /// Cores kept busy by other programs between `earlier` and `self`, on a
+    /// machine of `cores` cores; `None` when no time passed.
+    pub fn foreign_load(&self, earlier: &CpuSample, cores: usize) -> Option<f64> {
+        let total = self.total.checked_sub(earlier.total)?;
+        if total == 0 {
+            return None;
+        }
+        let busy = self.busy.saturating_sub(earlier.busy);
+        let own = self.own.saturating_sub(earlier.own);
+        // Elapsed ticks of one core = total / cores.
+        let foreign = busy.saturating_sub(own) as f64;
+        Some(foreign * cores.max(1) as f64 / total as f64)
+    }
+}
+
+/// Reads a [`CpuSample`] from this machine (`None` where there is no
+/// `/proc`, or it cannot be read).
+pub fn sample_now() -> Option<CpuSample> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let me = std::fs::read_to_string("/proc/self/stat").ok()?;
+    CpuSample::parse(&stat, &me)
+}
+
+/// Decides from load samples whether the machine is busy: busy once the
+/// load stayed above the threshold for `busy_for`, quiet again once it
+/// stayed at or below it for `quiet_for`.
+#[derive(Debug, Clone)]
+pub struct BusyWatch {
+    threshold: f64,
+    busy_for: Duration,
+    quiet_for: Duration,
+    busy: bool,
+    /// Since when the samples disagree with `busy` (none: they agree).
+    since: Option<Instant>,
+    /// The highest load of the samples that disagree.
+    peak: f64,
+}
+
+impl BusyWatch {
+    pub fn new(threshold: f64, busy_for: Duration, quiet_for: Duration) -> Self {
+        BusyWatch {
+            threshold,
+            busy_for,
+            quiet_for,
+            busy: false,
+            since: None,
+            peak: 0.0,
+        }
+    }
+
+    /// Takes the load measured over the sample ending at `now`; returns
+    /// `Some(load)` while the machine is busy (the highest load of the
+    /// samples that made it so), `None` while it is quiet.
+    pub fn feed(&mut self, now: Instant, load: f64) -> Option<f64> {
+        let above = load > self.threshold;
+        if above == self.busy {
+            self.since = None;
+            if !above {
+                self.peak = 0.0;
+            }
+        } else {
+            let since = *self.since.get_or_insert(now);
+            if above {
+                self.peak = self.peak.max(load);
+            }
+            let need = if above { self.busy_for } else { self.quiet_for };
+            if now.saturating_duration_since(since) >= need {
+                self.busy = above;
+                self.since = None;
+            }
+        }
+        if !self.busy && self.since.is_none() {
+            self.peak = 0.0;
+        }
+        self.busy.then_some(self.peak)
+    }
+
+    pub fn is_busy(&self) -> bool {
+        self.busy
+    }
+}
+
+/// Hours of the day when the worker may work, like `19:00-07:00` (local
+/// time; a range whose end is before its start runs over midnight).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ActiveHours {
+    /// Minutes after midnight.
+    pub from: u32,
+    pub to: u32,
+}
+
+impl ActiveHours {
+    /// Whether `minute` (after local midnight) is within the hours; the
+    /// start is in, the end is out. `09:00-09:00` is the whole day.
+    pub fn contains(&self, minute: u32) -> bool {
+        if self.from <= self.to {
+            self.from == self.to || (self.from..self.to).contains(&minute)
+        } else {
+            minute >= self.from || minute < self.to
+        }
+    }
+}
+
+impl std::str::FromStr for ActiveHours {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let hm = |t: &str| -> Result<u32, String> {
+            let (h, m) = t
+                .trim()
+                .split_once(':')
+                .ok_or_else(|| format!("\"{t}\" is not HH:MM"))?;
+            let h: u32 = h.parse().map_err(|_| format!("\"{t}\" is not HH:MM"))?;
+            let m: u32 = m.parse().map_err(|_| format!("\"{t}\" is not HH:MM"))?;
+            if h > 24 || m > 59 || (h == 24 && m != 0) {
+                return Err(format!("\"{t}\" is not a time of day (00:00 to 24:00)"));
+            }
+            Ok(h * 60 + m)
+        };
+        let (a, b) = s
+            .split_once('-')
+            .ok_or_else(|| format!("\"{s}\" is not a range like 19:00-07:00"))?;
+        Ok(ActiveHours {
+            from: hm(a)? % (24 * 60),
+            to: hm(b)? % (24 * 60),
+        })
+    }
+}
+
+impl fmt::Display for ActiveHours {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{:02}:{:02}-{:02}:{:02}",
+            self.from / 60,
+            self.from % 60,
+            self.to / 60,
+            self.to % 60
+        )
+    }
+}
+
+/// Minutes after local midnight now (UTC where the local offset is not
+/// known: systems other than Linux).
+pub fn local_minute() -> u32 {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    #[cfg(target_os = "linux")]
+    {
+        let t = now as libc::time_t;
+        // SAFETY: `tm` is plain data that localtime_r fills in; both
+        // pointers are valid for the call, and localtime_r (unlike
+        // localtime) keeps no shared state.
+        let mut tm: libc::tm = unsafe { std::mem::zeroed() };
+        if !unsafe { libc::localtime_r(&t, &mut tm) }.is_null() {
+            return (tm.tm_hour * 60 + tm.tm_min) as u32;
+        }
+    }
+    ((now % 86_400) / 60) as u32
+}
+
+/// Both watchers together: the pause in force after a sample.
+#[derive(Debug)]
+pub struct Watcher {
+    cfg: PauseConfig,
+    busy: BusyWatch,
+    last: Option<CpuSample>,
+    cores: usize,
+}
+
+impl Watcher {
+    pub fn new(cfg: PauseConfig, cores: usize) -> Self {
+        Watcher {
+            busy: BusyWatch::new(cfg.busy_threshold, cfg.busy_for, cfg.quiet_for),
+            cfg,
+            last: None,
+            cores,
+        }
+    }
+
+    /// The pause (if any) given a CPU sample (`None`: none could be read)
+    /// and the local minute of the day, at `now`.
+    pub fn step(&mut self, now: Instant, sample: Option<CpuSample>, minute: u32) -> Option<Pause> {
+        let mut pause = None;
+        if self.cfg.yield_when_busy {
+            if let Some(s) = sample {
+                if let Some(load) = self.last.and_then(|l| s.foreign_load(&l, self.cores)) {
+                    self.busy.feed(now, load);
+                }
+                self.last = Some(s);
+            }
+            if self.busy.is_busy() {
+                pause = Some(Pause::Busy {
+                    load: self.busy.peak,
+                });
+            }
+        }
+        if let Some(h) = self.cfg.active_hours {
+            if !h.contains(minute) {
+                pause = Some(Pause::OutsideHours);
+            }
+        }
+        pause
+    }
+}
+
+/// The number of cores `/proc/stat` counts (`cpu0`, `cpu1`...).
+pub fn count_cores(proc_stat: &str) -> usize {
+    proc_stat
+        .lines()
+        .filter(|l| l.starts_with("cpu") && l.as_bytes().get(3).is_some_and(|b| b.is_ascii_digit()))
+        .count()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stat(user: u64, idle: u64) -> String {
+        // Two cores; the per-core lines must not be mistaken for the total.
+        format!(
+            "cpu  {user} 0 0 {idle} 0 0 0 0 0 0\ncpu0 1 2 3 4 5 6 7 8 0 0\n\
+             cpu1 1 2 3 4 5 6 7 8 0 0\nintr 5\n"
+        )
+    }
+
+    fn me(utime: u64, stime: u64) -> String {
+        format!("42 (a (weird) name) S 1 42 42 0 -1 4194560 1 0 0 0 {utime} {stime} 0 0 39 19 9 0")
+    }
+
+    #[test]
+    fn a_sample_reads_the_machine_total_and_our_own_time() {
+        let s = CpuSample::parse(&stat(100, 300), &me(30, 10)).unwrap();
+        assert_eq!(
+            s,
+            CpuSample {
+                total: 400,
+                busy: 100,
+                own: 40
+            }
+        );
+        assert_eq!(count_cores(&stat(1, 1)), 2);
+        assert_eq!(CpuSample::parse("intr 5\n", &me(1, 1)), None);
+        assert_eq!(CpuSample::parse(&stat(1, 1), "42 (x) S 1"), None);
+    }
+
+    #[test]
+    fn the_load_not_ours_leaves_our_own_time_out() {
+        // Two cores for 100 ticks each: 200 ticks. The machine was busy
+        // for 150 of them, 90 of which were ours: 60 ticks = 0.6 of a core.
+        let a = CpuSample::parse(&stat(1000, 1000), &me(500, 0)).unwrap();
+        let b = CpuSample::parse(&stat(1150, 1050), &me(580, 10)).unwrap();
+        let load = b.foreign_load(&a, 2).unwrap();
+        assert!((load - 0.6).abs() < 1e-12, "{load}");
+        // Only our own work: nothing foreign.
+        let c = CpuSample::parse(&stat(1350, 1050), &me(780, 10)).unwrap();
+        assert_eq!(c.foreign_load(&b, 2), Some(0.0));
+        // No time passed, or the counters went back: no reading.
+        assert_eq!(b.foreign_load(&b, 2), None);
+        assert_eq!(a.foreign_load(&b, 2), None);
+    }
+
+    #[test]
+    fn busy_only_after_busy_for_and_quiet_only_after_quiet_for() {
+        let t0 = Instant::now();
+        let s = |n: u64| t0 + Duration::from_secs(n);
+        let mut w = BusyWatch::new(0.5, Duration::from_secs(3), Duration::from_secs(10));
+        assert_eq!(w.feed(s(0), 0.1), None);
+        // A spike of two seconds does not count.
+        assert_eq!(w.feed(s(1), 0.9), None);
+        assert_eq!(w.feed(s(2), 0.9), None);
+        assert_eq!(w.feed(s(3), 0.2), None);
+        // Three seconds above: busy, with the highest load seen.
+        assert_eq!(w.feed(s(4), 0.8), None);
+        assert_eq!(w.feed(s(5), 1.7), None);
+        assert_eq!(w.feed(s(6), 0.9), None);
+        assert_eq!(w.feed(s(7), 0.9), Some(1.7));
+        assert!(w.is_busy());
+        // Quiet for less than ten seconds, then busy again: still busy.
+        for n in 8..15 {
+            assert!(w.feed(s(n), 0.0).is_some(), "second {n}");
+        }
+        assert!(w.feed(s(15), 2.0).is_some());
+        for n in 16..26 {
+            assert!(w.feed(s(n), 0.1).is_some(), "second {n}");
+        }
+        assert_eq!(w.feed(s(26), 0.1), None, "ten quiet seconds");
+        assert!(!w.is_busy());
+    }
+
+    #[test]
+    fn hours_wrap_over_midnight() {
+        let h: ActiveHours = "19:00-07:00".parse().unwrap();
+        assert_eq!(
+            h,
+            ActiveHours {
+                from: 1140,
+                to: 420
+            }
+        );
+        assert_eq!(h.to_string(), "19:00-07:00");
+        assert!(h.contains(19 * 60));
+        assert!(h.contains(23 * 60 + 59));
+        assert!(h.contains(0));
+        assert!(h.contains(6 * 60 + 59));
+        assert!(!h.contains(7 * 60));
+        assert!(!h.contains(12 * 60));
+        assert!(!h.contains(18 * 60 + 59));
+        let day: ActiveHours = "09:00-17:30".parse().unwrap();
+        assert!(day.contains(9 * 60) && day.contains(17 * 60 + 29));
+        assert!(!day.contains(17 * 60 + 30) && !day.contains(8 * 60));
+        let all: ActiveHours = "00:00-24:00".parse().unwrap();
+        assert!(all.contains(0) && all.contains(1439));
+        for bad in ["19:00", "19-07", "25:00-07:00", "19:60-07:00", "x:00-07:00"] {
+            assert!(bad.parse::<ActiveHours>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn the_watcher_combines_load_and_hours() {
+        let t0 = Instant::now();
+        let cfg = PauseConfig {
+            yield_when_busy: true,
+            busy_threshold: 0.5,
+            busy_for: Duration::from_secs(1),
+            quiet_for: Duration::from_secs(1),
+            active_hours: Some("19:00-07:00".parse().unwrap()),
+            ..PauseConfig::default()
+        };
+        let mut w = Watcher::new(cfg, 2);
+        let night = 22 * 60;
+        let sample = |user, idle| CpuSample::parse(&stat(user, idle), &me(0, 0));
+        assert_eq!(w.step(t0, sample(0, 0), night), None);
+        // A core and a half busy (others) for two one-second samples.
+        let t = |n| t0 + Duration::from_secs(n);
+        assert_eq!(w.step(t(1), sample(150, 50), night), None);
+        assert_eq!(
+            w.step(t(2), sample(300, 100), night),
+            Some(Pause::Busy { load: 1.5 })
+        );
+        // No reading at all: the last decision stands.
+        assert!(matches!(
+            w.step(t(3), None, night),
+            Some(Pause::Busy { .. })
+        ));
+        assert_eq!(
+            w.step(t(3), sample(300, 300), 12 * 60),
+            Some(Pause::OutsideHours)
+        );
+        assert_eq!(w.step(t(4), sample(300, 500), night), None);
+    }
+}
