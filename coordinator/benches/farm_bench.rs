@@ -5,6 +5,10 @@
 //!     [--width 4096] [--height 4096] [--tile 64] [--workers 8] [--format png] [--pid PID]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- farm [--width 4096] [--height 4096]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- direct SCENE.xml OUT.png [--tile 64]
+//! cargo bench -p trevi-coordinator --bench farm_bench -- cost SCENE.xml [--camera ID] [--tiles 16]
+//! cargo bench -p trevi-coordinator --bench farm_bench -- scale --coordinator URL --pid PID \
+//!     --workers N [--cores 16] --cost-ns NS [--multi] [--secs 8] [--warmup 3] [--jobs 4] \
+//!     [--width 2048] [--height 2048] [--tile 64]
 //! ```
 //!
 //! `ingest`: synthetic workers that replay ready tiles (noise, so the PNG
@@ -15,6 +19,20 @@
 //! `farm`: the same replay without the network, through `Farm::put_tile` on
 //! this thread, into a discarding sink and into the real PNG writer: what
 //! validation and scheduling cost alone, and with the encoder.
+//!
+//! `cost`: what a pixel of a real scene costs one core: `--tiles` 64×64
+//! tiles spread over the camera's frame rendered on one thread; prints
+//! nanoseconds per pixel (the `--cost-ns` of `scale`).
+//!
+//! `scale`: `--workers` simulated workers against a real coordinator, each
+//! registered with `--cores` threads and, like `trevi-worker`, two leases
+//! in flight of which one renders at a time: a lease "renders" by sleeping
+//! its pixels × `--cost-ns` / `--cores` and returns ready pixels. With
+//! `--multi` the workers announce leases of several tiles. `--jobs` frames
+//! are kept queued (a finished one is replaced). After `--warmup` seconds,
+//! measures for `--secs`: tiles/s against what the modelled workers could
+//! render (the demand), lease latency p50/p99 (the `LeaseTile` calls that
+//! brought work), the coordinator's CPU and peak RSS from /proc.
 //!
 //! `direct`: renders a scene's first camera in this process with no farm at
 //! all (band by band, the tiles of a band in parallel on every core, straight
@@ -49,6 +67,8 @@ fn main() {
         Some("ingest") => ingest(&args),
         Some("direct") => direct(&args),
         Some("farm") => farm(&args),
+        Some("cost") => cost(&args),
+        Some("scale") => scale(&args),
         _ => {
             // `cargo bench` with no arguments: nothing to do (the benchmarks
             // need a running coordinator or a scene).
@@ -191,6 +211,7 @@ fn ingest(args: &[String]) {
                     .register(pb::RegisterRequest {
                         name: "synthetic".into(),
                         threads: 1,
+                        ..Default::default()
                     })
                     .await
                     .unwrap()
@@ -384,4 +405,249 @@ fn farm(args: &[String]) {
             n as f64 / secs
         );
     }
+}
+
+fn cost(args: &[String]) {
+    let scene_path = args.get(1).expect("SCENE");
+    let tiles = num(args, "--tiles", 16) as usize;
+    let parsed =
+        trevi_core::ParsedBundle::from_scene_file(std::path::Path::new(scene_path)).expect("scene");
+    let scene = trevi_core::Scene::build(parsed.desc);
+    let camera = match arg(args, "--camera") {
+        Some(id) => scene.camera_index(&id).expect("no such camera"),
+        None => 0,
+    };
+    let r = &scene.desc.cameras[camera].render;
+    let all = trevi_core::tile::band_order_tiles(r.width, r.height, 64);
+    let step = (all.len() / tiles.max(1)).max(1);
+    let pick: Vec<Rect> = all.iter().step_by(step).take(tiles).copied().collect();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let (mut pixels, start) = (0u64, Instant::now());
+    pool.install(|| {
+        for &t in &pick {
+            trevi_core::render_tile(&scene, camera, t);
+            pixels += t.pixel_count() as u64;
+        }
+    });
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "cost: {scene_path} camera {camera}: {} tiles, {pixels} pixels in {secs:.3} s on one thread: \
+         {:.0} ns per pixel, {:.4} core-seconds per 64x64 tile",
+        pick.len(),
+        secs / pixels as f64 * 1e9,
+        secs / pixels as f64 * 4096.0
+    );
+}
+
+/// What the simulated workers saw.
+#[derive(Default)]
+struct ScaleStats {
+    measuring: bool,
+    tiles: u64,
+    leases: u64,
+    /// Microseconds of the `LeaseTile` calls that brought work.
+    latency_us: Vec<u32>,
+}
+
+fn scale(args: &[String]) {
+    use std::sync::Mutex;
+    let url = arg(args, "--coordinator").expect("--coordinator URL");
+    let pid = arg(args, "--pid");
+    let workers = num(args, "--workers", 10) as usize;
+    let cores = num(args, "--cores", 16) as u32;
+    let cost_ns = arg(args, "--cost-ns")
+        .expect("--cost-ns (see the cost mode)")
+        .parse::<f64>()
+        .expect("a number");
+    let multi = args.iter().any(|a| a == "--multi");
+    let secs = num(args, "--secs", 8);
+    let warmup = num(args, "--warmup", 3);
+    let jobs_kept = num(args, "--jobs", 4) as usize;
+    let (w, h) = (
+        num(args, "--width", 2048) as u32,
+        num(args, "--height", 2048) as u32,
+    );
+    let tile = num(args, "--tile", 64) as u32;
+    // Ready pixels for the widest lease: a band's worth.
+    let ready: Arc<Vec<u8>> = Arc::new(smooth_tile(1, w, tile));
+    let stats = Arc::new(Mutex::new(ScaleStats::default()));
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async move {
+        let connect = || async {
+            Channel::from_shared(url.clone())
+                .unwrap()
+                .tcp_nodelay(true)
+                .connect()
+                .await
+                .unwrap()
+        };
+        let channel = connect().await;
+        let scene = format!(
+            r#"<scene version="1">
+  <light type="point" position="0 5 0"/>
+  <camera id="bench" position="0 0 5" lookat="0 0 0" fov="40">
+    <render width="{w}" height="{h}" output="bench.png"/>
+  </camera>
+</scene>
+"#
+        );
+        let mut files = BTreeMap::new();
+        files.insert("bench.xml".to_string(), scene.into_bytes());
+        let bundle = Bundle {
+            scene: "bench.xml".into(),
+            files,
+        };
+        let hash = BundlesClient::new(channel.clone())
+            .upload_bundle(tokio_stream::iter([pb::BundleChunk {
+                data: bundle.encode(),
+            }]))
+            .await
+            .unwrap()
+            .into_inner()
+            .hash;
+        // Keeps `jobs_kept` frames queued: each slot submits a frame, waits
+        // for its end, and submits the next.
+        let mut tasks = Vec::new();
+        for _ in 0..jobs_kept {
+            let (channel, hash, stop) = (channel.clone(), hash.clone(), stop.clone());
+            tasks.push(tokio::spawn(async move {
+                let mut jobs = JobsClient::new(channel);
+                while !stop.load(Ordering::Relaxed) {
+                    let job = jobs
+                        .submit_job(pb::SubmitJobRequest {
+                            bundle_hash: hash.clone(),
+                            camera: String::new(),
+                            priority: 0,
+                            tile_size: tile,
+                            output_format: String::new(),
+                        })
+                        .await
+                        .unwrap()
+                        .into_inner();
+                    let mut watch = jobs.watch_job(pb::JobId { id: job.id }).await.unwrap().into_inner();
+                    while let Ok(Some(_)) = watch.message().await {}
+                }
+            }));
+        }
+        // One connection per worker up to 256 (the rest share them), so
+        // the bench stays under its open-files limit.
+        let mut channels = Vec::new();
+        for _ in 0..workers.min(256) {
+            channels.push(connect().await);
+        }
+        for i in 0..workers {
+            let mut wc = WorkersClient::new(channels[i % channels.len()].clone())
+                .max_decoding_message_size(usize::MAX);
+            let reg = wc
+                .register(pb::RegisterRequest {
+                    name: format!("sim-{i}"),
+                    threads: cores,
+                    multi_tile: multi,
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            let render = Arc::new(tokio::sync::Semaphore::new(1));
+            for _ in 0..2 {
+                let (mut wc, session, render) = (wc.clone(), reg.session.clone(), render.clone());
+                let (ready, stats, stop) = (ready.clone(), stats.clone(), stop.clone());
+                let id = reg.worker_id;
+                tasks.push(tokio::spawn(async move {
+                    while !stop.load(Ordering::Relaxed) {
+                        let permit = render.clone().acquire_owned().await.unwrap();
+                        let t0 = Instant::now();
+                        let Ok(lease) = wc
+                            .lease_tile(pb::LeaseRequest {
+                                worker_id: id,
+                                session: session.clone(),
+                                max_wait_ms: 500,
+                            })
+                            .await
+                        else {
+                            return;
+                        };
+                        let latency = t0.elapsed();
+                        let Some(lease) = lease.into_inner().lease else {
+                            continue;
+                        };
+                        let rect: Rect = lease.rect.unwrap().into();
+                        let px = rect.pixel_count() as u64;
+                        tokio::time::sleep(Duration::from_nanos(
+                            (px as f64 * cost_ns / f64::from(cores)) as u64,
+                        ))
+                        .await;
+                        drop(permit);
+                        let bytes = &ready[..px as usize * 12];
+                        let mut msgs = vec![pb::TileUpload {
+                            part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
+                                worker_id: id,
+                                lease_id: lease.lease_id,
+                                job_id: lease.job_id,
+                                rect: lease.rect,
+                                rays: px,
+                                session: session.clone(),
+                            })),
+                        }];
+                        msgs.extend(bytes.chunks(trevi_proto::CHUNK_SIZE).map(|c| pb::TileUpload {
+                            part: Some(pb::tile_upload::Part::Pixels(c.to_vec())),
+                        }));
+                        let Ok(ack) = wc.submit_tile(tokio_stream::iter(msgs)).await else {
+                            return;
+                        };
+                        let mut st = stats.lock().unwrap();
+                        if st.measuring {
+                            st.leases += 1;
+                            st.latency_us.push(latency.as_micros().min(u32::MAX as u128) as u32);
+                            if ack.into_inner().accepted {
+                                st.tiles += u64::from(lease.tiles.max(1));
+                            }
+                        }
+                    }
+                }));
+            }
+        }
+        tokio::time::sleep(Duration::from_secs(warmup)).await;
+        let cpu0 = pid.as_deref().and_then(cpu_seconds);
+        stats.lock().unwrap().measuring = true;
+        let start = Instant::now();
+        tokio::time::sleep(Duration::from_secs(secs)).await;
+        let st = std::mem::take(&mut *stats.lock().unwrap());
+        let elapsed = start.elapsed().as_secs_f64();
+        let cpu = match (cpu0, pid.as_deref().and_then(cpu_seconds)) {
+            (Some(a), Some(b)) => format!("{:.0} %", (b - a) / elapsed * 100.0),
+            _ => "?".into(),
+        };
+        let rss = pid
+            .as_deref()
+            .and_then(peak_rss_kib)
+            .map_or("?".into(), |k| format!("{:.0} MiB", k as f64 / 1024.0));
+        stop.store(true, Ordering::Relaxed);
+        let mut lat = st.latency_us;
+        lat.sort_unstable();
+        let pct = |p: f64| {
+            lat.get(((lat.len() as f64 * p) as usize).min(lat.len().saturating_sub(1)))
+                .map_or(f64::NAN, |&us| us as f64 / 1000.0)
+        };
+        let tiles_s = st.tiles as f64 / elapsed;
+        let demand = workers as f64 * f64::from(cores) * 1e9 / (cost_ns * f64::from(tile * tile));
+        println!(
+            "scale: workers {workers} x {cores} cores, {cost_ns:.0} ns/pixel, {}: {tiles_s:.0} tiles/s \
+             ({:.1} Mpixel/s) of {demand:.0} modelled ({:.0} %), {:.1} tiles/lease, lease p50 {:.2} ms \
+             p99 {:.2} ms, coordinator CPU {cpu} of one core, peak RSS {rss}",
+            if multi { "multi-tile leases" } else { "one tile per lease" },
+            tiles_s * f64::from(tile * tile) / 1e6,
+            tiles_s / demand * 100.0,
+            st.tiles as f64 / st.leases.max(1) as f64,
+            pct(0.5),
+            pct(0.99),
+        );
+        for t in tasks {
+            t.abort();
+        }
+    });
+    rt.shutdown_timeout(Duration::from_millis(100));
 }

@@ -114,6 +114,9 @@ pub struct WorkerOptions<'a> {
     /// so one worker cannot act under another's id. Without one (an
     /// in-process worker) no secret matches it.
     pub session: bool,
+    /// It renders leases of several adjacent tiles (see
+    /// [`crate::scheduler::lease_size`]); without it, one tile per lease.
+    pub multi_tile: bool,
 }
 
 /// A worker [`Farm::register_worker`] registered.
@@ -435,6 +438,9 @@ impl Farm {
         let mut st = lock(&self.state);
         let id = st.sched.register_worker(Instant::now(), session);
         st.sched.describe_worker(id, opts.name, opts.threads);
+        if opts.multi_tile {
+            st.sched.allow_spans(id);
+        }
         Ok(Registration { id, session })
     }
 
@@ -502,6 +508,59 @@ impl Farm {
     /// Checks that `rect` is one of `job`'s tiles (before reading a result).
     pub fn check_tile(&self, job: JobId, rect: Rect) -> Result<(), FarmError> {
         Ok(lock(&self.state).sched.check_tile(job, rect)?)
+    }
+
+    /// Checks that `rect` is one of `job`'s tiles or a span of them (before
+    /// reading a result); returns the tiles, left to right (see
+    /// [`Scheduler::span_tiles`]).
+    pub fn span_tiles(&self, job: JobId, rect: Rect) -> Result<Vec<Rect>, FarmError> {
+        Ok(lock(&self.state).sched.span_tiles(job, rect)?)
+    }
+
+    /// Takes the result of a lease of several tiles: `r.rect` is their
+    /// union, `parts` its tiles left to right ([`Farm::span_tiles`]), whose
+    /// leases are `r.lease`, `r.lease + 1`, …. Each tile goes through
+    /// [`Farm::put_tile`] with its own pixels and its share of the rays (by
+    /// pixels). Accepted when every tile is; the first error otherwise,
+    /// after every tile was tried.
+    pub fn put_span(&self, r: TileResult, parts: &[Rect]) -> Result<TileOutcome, FarmError> {
+        if let [only] = parts {
+            return self.put_tile(TileResult { rect: *only, ..r });
+        }
+        let whole = r.rect.pixel_count().max(1) as u128;
+        let mut rays_left = r.rays;
+        let mut outcome = Ok(TileOutcome::Accepted);
+        let mut pixels = Vec::new();
+        for (i, &part) in parts.iter().enumerate() {
+            pixels.clear();
+            // A result of the wrong size stays wrong: every part is refused.
+            if r.pixels.len() == r.rect.pixel_count() {
+                let (w, dx) = (r.rect.w as usize, (part.x - r.rect.x) as usize);
+                for row in r.pixels.chunks_exact(w) {
+                    pixels.extend_from_slice(&row[dx..dx + part.w as usize]);
+                }
+            }
+            let rays = if i + 1 == parts.len() {
+                rays_left
+            } else {
+                let share = (u128::from(r.rays) * part.pixel_count() as u128 / whole) as u64;
+                rays_left -= share.min(rays_left);
+                share
+            };
+            let one = self.put_tile(TileResult {
+                lease: r.lease + i as u64,
+                rect: part,
+                rays,
+                pixels: &pixels,
+                ..r
+            });
+            outcome = match (outcome, one) {
+                (Err(e), _) | (Ok(_), Err(e)) => Err(e),
+                (Ok(TileOutcome::Accepted), Ok(o)) => Ok(o),
+                (Ok(o), Ok(_)) => Ok(o),
+            };
+        }
+        outcome
     }
 
     pub fn heartbeat(

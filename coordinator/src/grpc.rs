@@ -375,6 +375,7 @@ impl pb::workers_server::Workers for WorkersService {
             name: &r.name,
             threads: r.threads,
             session: true,
+            multi_tile: r.multi_tile,
         })?;
         tracing::info!(worker = reg.id, name = %r.name, threads = r.threads, "worker registered");
         Ok(Response::new(pb::RegisterResponse {
@@ -403,6 +404,7 @@ impl pb::workers_server::Workers for WorkersService {
                 bundle_hash: l.bundle_hash,
                 camera: l.camera,
                 rect: Some(l.rect.into()),
+                tiles: l.tiles,
             }),
         }))
     }
@@ -434,9 +436,10 @@ impl pb::workers_server::Workers for WorkersService {
         };
         self.farm.check_session(header.worker_id, &header.session)?;
         let rect = rect_from(header.rect).map_err(|e| Status::invalid_argument(e.to_string()))?;
-        // A rectangle that is not one of the job's tiles is refused before
-        // any pixel is read (so a huge one cannot make us allocate).
-        self.farm.check_tile(header.job_id, rect)?;
+        // A rectangle that is not one of the job's tiles (or a span of
+        // them, at most `max_lease_pixels`) is refused before any pixel is
+        // read (so a huge one cannot make us allocate).
+        let parts = self.farm.span_tiles(header.job_id, rect)?;
         let expected = rect.pixel_count().saturating_mul(12);
         let mut bytes = Vec::with_capacity(expected.min(64 << 20));
         let mut oversized = false;
@@ -465,14 +468,17 @@ impl pb::workers_server::Workers for WorkersService {
             header.rays,
         );
         let outcome = blocking(move || {
-            farm.put_tile(TileResult {
-                lease,
-                job,
-                rect,
-                rays,
-                pixels: &pixels,
-                worker: Some(worker),
-            })
+            farm.put_span(
+                TileResult {
+                    lease,
+                    job,
+                    rect,
+                    rays,
+                    pixels: &pixels,
+                    worker: Some(worker),
+                },
+                &parts,
+            )
         })
         .await?;
         Ok(Response::new(pb::TileAck {

@@ -67,6 +67,14 @@ pub struct Limits {
     pub max_return_error_chars: usize,
     /// Final previews kept for jobs that have ended (the newest ones).
     pub kept_previews: usize,
+
+    /// How much of a worker's time one lease aims at, for workers that take
+    /// leases of several tiles (see [`crate::scheduler::lease_size`]).
+    pub lease_target: Duration,
+    /// Most pixels in one lease of several tiles (a single tile may be
+    /// bigger): bounds what one upload makes the coordinator hold, at 12
+    /// bytes a pixel.
+    pub max_lease_pixels: u64,
 }
 
 impl Default for Limits {
@@ -97,6 +105,11 @@ impl Default for Limits {
             list_page_bytes: 1 << 20,
             max_return_error_chars: 500,
             kept_previews: 32,
+
+            lease_target: Duration::from_secs(1),
+            // 12 MiB of pixels: a 4096-pixel-wide band of 64-pixel tiles
+            // is a quarter of it.
+            max_lease_pixels: 1 << 20,
         }
     }
 }

@@ -18,8 +18,10 @@
 //!   cannot keep its job running for ever. A lease the worker gives back
 //!   without an error (it is stopping) re-queues the tile and counts nothing.
 
+pub mod lease_size;
 mod window;
 
+use lease_size::LeaseSizer;
 pub use window::{band_bytes, encoder_bytes, ENCODER_ROWS, TILE_BOOKKEEPING_BYTES};
 use window::{BandWindow, TileState};
 
@@ -101,7 +103,9 @@ pub struct JobInfo {
     pub finish_order: u64,
 }
 
-/// A tile handed to a worker.
+/// A tile handed to a worker, or a span of adjacent tiles of one band (see
+/// [`lease_size`]): then `rect` is their union and their leases are `id`,
+/// `id + 1`, … `id + tiles - 1`, left to right.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Lease {
     pub id: LeaseId,
@@ -109,6 +113,8 @@ pub struct Lease {
     pub bundle_hash: String,
     pub camera: String,
     pub rect: Rect,
+    /// How many tiles `rect` covers (1 for one tile).
+    pub tiles: u32,
 }
 
 /// What became of a result handed to [`Scheduler::accept_tile`].
@@ -224,6 +230,10 @@ struct LeaseEntry {
     tile: u32,
     worker: WorkerId,
     deadline: Instant,
+    /// When it was granted, and the pixels of the span it came in: a
+    /// result measures the job's cost (see [`lease_size`]).
+    granted: Instant,
+    span_pixels: u64,
 }
 
 /// Why a lease ends before its tile is done.
@@ -251,6 +261,7 @@ pub struct Scheduler {
     finished: u64,
     /// Jobs failed by their tiles' failures, for the caller to wind up.
     failed: Vec<(JobId, String)>,
+    sizer: LeaseSizer,
 }
 
 impl Scheduler {
@@ -270,6 +281,7 @@ impl Scheduler {
             next_lease: worker_id_base.max(1),
             finished: 0,
             failed: Vec::new(),
+            sizer: LeaseSizer::default(),
         }
     }
 
@@ -293,6 +305,19 @@ impl Scheduler {
     /// Records why `worker` takes no tiles for now (`None`: it works).
     pub fn set_paused(&mut self, worker: WorkerId, why: Option<&str>) {
         self.workers.set_paused(worker, why);
+    }
+
+    /// `worker` takes leases of several adjacent tiles (it said so when it
+    /// registered; see [`lease_size`]).
+    pub fn allow_spans(&mut self, worker: WorkerId) {
+        if self.workers.threads(worker).is_some() {
+            self.sizer.allow_spans(worker);
+        }
+    }
+
+    /// The measured cost of `job` in core-seconds per pixel, if any.
+    pub fn measured_cost(&self, job: JobId) -> Option<f64> {
+        self.sizer.cost(job)
     }
 
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
@@ -388,31 +413,64 @@ impl Scheduler {
             {
                 continue;
             }
-            let Some(idx) = job.window.next_tile() else {
+            let Some(first) = job.window.next_tile() else {
                 continue;
             };
+            // A span: the next tiles while they follow `first` in its band.
+            let want = if self.sizer.takes_spans(worker) {
+                let t = job.spec.tile_size as u64;
+                lease_size::tiles_per_lease(
+                    self.sizer.cost(id),
+                    self.workers.threads(worker).unwrap_or(1),
+                    t * t,
+                    self.cfg.lease_target,
+                    self.cfg.max_lease_pixels,
+                )
+            } else {
+                1
+            };
+            let mut span = vec![first];
+            let mut rect = job.window.rect(first);
+            job.window.set_leased(first, self.next_lease);
+            while (span.len() as u32) < want {
+                let Some(next) = job.window.next_tile() else {
+                    break;
+                };
+                let r = job.window.rect(next);
+                if next != span[span.len() - 1] + 1 || r.y != rect.y || r.x != rect.x + rect.w {
+                    break;
+                }
+                span.push(next);
+                rect.w += r.w;
+                job.window
+                    .set_leased(next, self.next_lease + span.len() as u64 - 1);
+            }
             let lease_id = self.next_lease;
-            self.next_lease += 1;
-            self.counters.leases_granted += 1;
-            job.window.set_leased(idx, lease_id);
+            self.next_lease += span.len() as u64;
+            self.counters.leases_granted += span.len() as u64;
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
             }
-            self.leases.insert(
-                lease_id,
-                LeaseEntry {
-                    job: id,
-                    tile: idx,
-                    worker,
-                    deadline: now + self.cfg.lease_ttl,
-                },
-            );
+            for (i, &tile) in span.iter().enumerate() {
+                self.leases.insert(
+                    lease_id + i as u64,
+                    LeaseEntry {
+                        job: id,
+                        tile,
+                        worker,
+                        deadline: now + self.cfg.lease_ttl,
+                        granted: now,
+                        span_pixels: rect.pixel_count() as u64,
+                    },
+                );
+            }
             return Ok(Some(Lease {
                 id: lease_id,
                 job: id,
                 bundle_hash: job.spec.bundle_hash.clone(),
                 camera: job.spec.camera.clone(),
-                rect: job.window.rect(idx),
+                rect,
+                tiles: span.len() as u32,
             }));
         }
         Ok(None)
@@ -455,6 +513,8 @@ impl Scheduler {
         // comes back is told to register again.
         let forget = (self.cfg.lease_ttl * 10).max(Duration::from_secs(60));
         self.workers.forget_silent(forget, now);
+        let workers = &self.workers;
+        self.sizer.retain_workers(|w| workers.threads(w).is_some());
         self.fail_stranded_jobs(now);
         expired.len()
     }
@@ -639,6 +699,43 @@ impl Scheduler {
             .ok_or(SchedError::NotATile(rect, job))
     }
 
+    /// The tiles of `job` that a result for `rect` brings, left to right:
+    /// `rect` itself when it is one tile, or the tiles of a span (adjacent
+    /// tiles of one band, at most [`Limits::max_lease_pixels`] pixels; see
+    /// [`lease_size`]). A job that is over: `rect` alone (the result will
+    /// be ignored anyway).
+    pub fn span_tiles(&self, job: JobId, rect: Rect) -> Result<Vec<Rect>, SchedError> {
+        let j = self.jobs.get(&job).ok_or(SchedError::UnknownJob(job))?;
+        if j.state.is_final() || j.window.tile_index(rect).is_some() {
+            return Ok(vec![rect]);
+        }
+        let not_a_span = || SchedError::NotATile(rect, job);
+        if rect.pixel_count() as u64 > self.cfg.max_lease_pixels {
+            return Err(not_a_span());
+        }
+        let t = j.spec.tile_size;
+        let first = Rect::new(rect.x, rect.y, t.min(rect.w), rect.h);
+        let mut idx = j.window.tile_index(first).ok_or_else(not_a_span)?;
+        let mut parts = vec![first];
+        let mut covered = first.w;
+        while covered < rect.w {
+            idx += 1;
+            if idx >= j.window.tiles_total() {
+                return Err(not_a_span());
+            }
+            let r = j.window.rect(idx);
+            if r.y != rect.y || r.h != rect.h || r.x != rect.x + covered {
+                return Err(not_a_span());
+            }
+            covered += r.w;
+            parts.push(r);
+        }
+        if covered != rect.w {
+            return Err(not_a_span());
+        }
+        Ok(parts)
+    }
+
     /// Records a valid result for `rect` of `job`.
     pub fn accept_tile(
         &mut self,
@@ -660,7 +757,12 @@ impl Scheduler {
             TileState::Done => None,
             // Never handed out: not a result of this coordinator's leases.
             TileState::Pending if j.window.is_fresh(idx) => None,
-            TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| e.worker)),
+            TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| {
+                let threads = self.workers.threads(e.worker).unwrap_or(1);
+                let took = now.saturating_duration_since(e.granted);
+                self.sizer.observe(job, took, threads, e.span_pixels);
+                e.worker
+            })),
             // A late result under a lease that ran out.
             TileState::Pending => Some(
                 j.past_leases
@@ -805,6 +907,7 @@ impl Scheduler {
     }
 
     fn retire(&mut self, job: JobId) {
+        self.sizer.forget_job(job);
         let j = self.jobs.get_mut(&job).expect("job exists");
         self.queue.remove(&(Reverse(j.spec.priority), job));
         j.retire();

@@ -220,6 +220,11 @@ impl Workers {
         }
     }
 
+    /// The render threads `worker` registered with (`None`: no such worker).
+    pub fn threads(&self, worker: WorkerId) -> Option<u32> {
+        self.entries.get(&worker).map(|w| w.threads)
+    }
+
     /// Notes that `worker` was heard from; `false`: no such worker.
     pub fn touch(&mut self, worker: WorkerId, now: Instant) -> bool {
         match self.entries.get_mut(&worker) {

@@ -789,6 +789,7 @@ fn a_worker_acts_only_with_its_own_session_secret() {
                 name,
                 threads: 1,
                 session: true,
+                multi_tile: false,
             })
             .unwrap();
         (r.id, r.session.expect("asked for"))

@@ -276,6 +276,92 @@ fn workers_find_the_coordinator_probe_it_and_have_time_to_return_leases() {
     assert!(grace >= 60, "terminationGracePeriodSeconds {grace} < 60");
 }
 
+/// Every document of every `.yaml` file in `deploy/k8s/autoscale/`.
+fn autoscale_docs() -> Vec<(String, Value)> {
+    let dir = deploy_dir().join("k8s/autoscale");
+    let mut docs = Vec::new();
+    for e in std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let f = e.unwrap().path();
+        let name = f.file_name().unwrap().to_string_lossy().into_owned();
+        let text = std::fs::read_to_string(&f).unwrap();
+        for de in serde_yaml::Deserializer::from_str(&text) {
+            let v = Value::deserialize(de).unwrap_or_else(|e| panic!("{name}: {e}"));
+            if !v.is_null() {
+                docs.push((name.clone(), v));
+            }
+        }
+    }
+    docs
+}
+
+#[test]
+fn workers_scale_with_the_queue_depth_the_coordinator_exports() {
+    let base = k8s_docs();
+    let docs = autoscale_docs();
+    // The overlay is the farm plus its ScaledObject.
+    let (_, kust) = docs
+        .iter()
+        .find(|(f, _)| f == "kustomization.yaml")
+        .expect("deploy/k8s/autoscale/kustomization.yaml");
+    let resources: Vec<&str> = seq_at(kust, "resources")
+        .iter()
+        .map(|r| r.as_str().unwrap())
+        .collect();
+    assert!(resources.contains(&".."), "{resources:?}");
+    for (f, _) in docs.iter().filter(|(f, _)| f != "kustomization.yaml") {
+        assert!(resources.contains(&f.as_str()), "{f} is not in the overlay");
+    }
+    let so = docs
+        .iter()
+        .map(|(_, d)| d)
+        .find(|d| str_at(d, "kind") == "ScaledObject")
+        .expect("a KEDA ScaledObject");
+    assert_eq!(str_at(so, "apiVersion"), "keda.sh/v1alpha1");
+
+    // It scales the worker Deployment.
+    let dep = find(&base, &["Deployment"], "worker");
+    assert_eq!(str_at(so, "spec.scaleTargetRef.kind"), "Deployment");
+    assert_eq!(
+        str_at(so, "spec.scaleTargetRef.name"),
+        str_at(dep, "metadata.name")
+    );
+    let min = at(so, "spec.minReplicaCount").and_then(Value::as_u64);
+    let max = at(so, "spec.maxReplicaCount").and_then(Value::as_u64);
+    assert!(
+        matches!((min, max), (Some(a), Some(b)) if a < b),
+        "min {min:?} max {max:?}"
+    );
+
+    // On trevi_queue_depth_tiles, read from the coordinator Service's HTTP
+    // port, a metric the coordinator really exports.
+    let t = seq_at(so, "spec.triggers")
+        .iter()
+        .find(|t| str_at(t, "type") == "metrics-api")
+        .expect("a metrics-api trigger");
+    assert_eq!(str_at(t, "metadata.format"), "prometheus");
+    let metric = str_at(t, "metadata.valueLocation");
+    assert_eq!(metric, "trevi_queue_depth_tiles");
+    let exported = include_str!("../../coordinator/src/metrics.rs");
+    assert!(
+        exported.contains(&format!("\"{metric} {{}}\""))
+            || exported.contains(&format!("\"{metric}\"")),
+        "coordinator/src/metrics.rs does not write {metric}"
+    );
+    let svc = find(&base, &["Service"], "coordinator");
+    let http = seq_at(svc, "spec.ports")
+        .iter()
+        .find(|p| str_at(p, "name") == "http")
+        .and_then(|p| at(p, "port"))
+        .and_then(Value::as_u64)
+        .expect("the coordinator Service's http port");
+    assert_eq!(
+        str_at(t, "metadata.url"),
+        format!("http://{}:{http}/metrics", str_at(svc, "metadata.name"))
+    );
+    let target: f64 = str_at(t, "metadata.targetValue").parse().unwrap();
+    assert!(target > 0.0, "targetValue {target}");
+}
+
 #[test]
 fn compose_publishes_on_loopback_only_and_workers_scale() {
     let path = deploy_dir().join("docker-compose.yml");

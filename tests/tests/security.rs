@@ -80,6 +80,7 @@ fn token_roles(dir: &Dir, certs: Option<&Path>) {
                 .register(pb::RegisterRequest {
                     name: "t".into(),
                     threads: 1,
+                    ..Default::default()
                 })
                 .await
                 .map(|r| r.into_inner().worker_id)

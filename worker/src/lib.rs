@@ -8,6 +8,11 @@
 //! the lease runs out. It survives a coordinator restart by reconnecting and
 //! registering again.
 //!
+//! A lease may cover several adjacent tiles of one band (the worker
+//! registers with `multi_tile`; the coordinator sizes such spans from the
+//! render cost it measures): their union is rendered as one rectangle, which
+//! gives the same pixels, and uploaded once.
+//!
 //! A lease is held only by a tile being worked on: a loop takes the render
 //! threads before it asks for a lease, so no tile waits behind another while
 //! its lease is kept alive. A render stops within a pixel once its lease is
@@ -494,6 +499,7 @@ impl Session {
             .register(pb::RegisterRequest {
                 name: cfg.name.clone(),
                 threads: self.threads as u32,
+                multi_tile: true,
             })
             .await
         {
@@ -666,7 +672,13 @@ impl Session {
                         x,
                         y,
                         "lease dropped by the coordinator; render cancelled"
-                    )
+                    );
+                    // The other tiles of a span may still be ours.
+                    if lease.tiles > 1 {
+                        for id in span_ids(&lease) {
+                            self.give_back(&me, id, String::new()).await;
+                        }
+                    }
                 }
                 TileEnd::Stopped => {
                     tracing::info!(
@@ -675,7 +687,9 @@ impl Session {
                         y,
                         "stopping: render cancelled, lease given back"
                     );
-                    self.give_back(&me, id, String::new()).await;
+                    for id in span_ids(&lease) {
+                        self.give_back(&me, id, String::new()).await;
+                    }
                     return End::Shutdown;
                 }
                 TileEnd::Paused => {
@@ -689,7 +703,9 @@ impl Session {
                 }
                 TileEnd::Failed(why) => {
                     tracing::error!(lease = id, job = lease.job_id, x, y, "tile failed: {why}");
-                    self.give_back(&me, id, why).await;
+                    for id in span_ids(&lease) {
+                        self.give_back(&me, id, why.clone()).await;
+                    }
                     // Do not take the next tile of a broken job in a tight loop.
                     tokio::select! {
                         _ = tokio::time::sleep(Duration::from_secs(1)) => {}
@@ -788,7 +804,7 @@ impl Session {
                 _ = tick.tick(), if !dropped && !stopping => {
                     let hb = self.workers.heartbeat(pb::HeartbeatRequest {
                         worker_id: me.id,
-                        lease_ids: vec![lease.lease_id],
+                        lease_ids: span_ids(lease).collect(),
                         session: me.session.clone(),
                         paused: String::new(),
                     }).await;
@@ -877,6 +893,16 @@ impl Session {
             .into_inner();
         Ok(ack.accepted)
     }
+}
+
+/// The leases of a lease's tiles: `lease_id` and, for a span of several
+/// tiles (`tiles` > 1), the ids after it, one per tile.
+fn span_ids(lease: &pb::Lease) -> impl Iterator<Item = u64> {
+    // A span is never wider than a band: the bound only keeps a confused
+    // coordinator from making us heartbeat millions of ids.
+    let n = lease.tiles.clamp(1, 1 << 16);
+    let first = lease.lease_id;
+    (0..u64::from(n)).map(move |i| first + i)
 }
 
 /// The messages of a tile upload: the header, then the pixels in chunks.

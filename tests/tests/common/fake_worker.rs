@@ -20,6 +20,7 @@ impl FakeWorker {
             .register(pb::RegisterRequest {
                 name: name.into(),
                 threads: 1,
+                ..Default::default()
             })
             .await
             .unwrap_or_else(|s| panic!("register {name}: {s:?}"))

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# The farm at scale without a cluster (docs/benchmarks.md "The farm at
+# scale"): one process of N simulated workers against one real coordinator
+# on loopback, for N in a sweep, with one tile per lease and with leases
+# sized from the measured cost (multi-tile), on a cheap and an expensive
+# scene's measured per-pixel cost.
+#
+#   bench/scale.sh [CORES] [N...]     # default 16 cores, N = 1 3 10 30 100 300 1000
+#
+# 1. `farm_bench cost` measures ns per pixel of examples/cornell.xml: camera
+#    `corner` (Whitted: shadows, reflection, refraction; the cheap scene) and
+#    camera `front` with ao-samples and diffuse-samples 16 (the expensive one).
+# 2. For each cost, mode and N: a fresh coordinator pinned to core 0, the
+#    simulated workers (`farm_bench scale`) pinned to core 1; tiles/s
+#    against the modelled demand, lease latency p50/p99, coordinator CPU and
+#    peak RSS. The load average is printed with every line: on a shared
+#    machine the figures are only as quiet as it is.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cores=${1:-16}
+shift || true
+ns=("$@")
+[ ${#ns[@]} -gt 0 ] || ns=(1 3 10 30 100 300 1000)
+R=target/release
+cargo build --release -p trevi-coordinator --bins --benches
+B=$(ls -t target/release/deps/farm_bench-* | grep -v '[.]d$' | head -1)
+work=$(mktemp -d)
+trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
+load() { cut -d' ' -f1 /proc/loadavg; }
+
+sed -e 's/ao-samples="4"/ao-samples="16" diffuse-samples="16"/' examples/cornell.xml >"$work/expensive.xml"
+grep -q 'diffuse-samples="16"' "$work/expensive.xml"
+cheap=$("$B" cost examples/cornell.xml --camera corner --tiles 16 | tee /dev/stderr | sed -n 's/.*: \([0-9]*\) ns per pixel.*/\1/p')
+expensive=$("$B" cost "$work/expensive.xml" --camera front --tiles 4 | tee /dev/stderr | sed -n 's/.*: \([0-9]*\) ns per pixel.*/\1/p')
+
+start_coordinator() {
+    rm -rf "$work/data"
+    taskset -c 0 $R/trevi-coordinator --listen 127.0.0.1:0 --data-dir "$work/data" >"$work/coord.out" 2>"$work/coord.err" &
+    CP=$!
+    for _ in $(seq 100); do
+        PORT=$(sed -n 's/listening on .*:\([0-9]*\)/\1/p' "$work/coord.out")
+        [ -n "$PORT" ] && return 0
+        sleep 0.05
+    done
+    echo "the coordinator did not start" >&2
+    cat "$work/coord.err" >&2
+    exit 1
+}
+
+for scene in cheap expensive; do
+    cost=${!scene}
+    for mode in single multi; do
+        flag=(); [ "$mode" = multi ] && flag=(--multi)
+        for n in "${ns[@]}"; do
+            start_coordinator
+            echo -n "$scene (load $(load)) "
+            taskset -c 1 "$B" scale --coordinator "http://127.0.0.1:$PORT" --pid "$CP" \
+                --workers "$n" --cores "$cores" --cost-ns "$cost" "${flag[@]}" --secs "${SECS:-8}"
+            kill "$CP"; wait "$CP" 2>/dev/null || true
+        done
+    done
+done

@@ -1,0 +1,252 @@
+//! Lease sizing: how many tiles one lease covers, from the render cost the
+//! coordinator measures.
+//!
+//! A cheap frame in 64×64 tiles costs a worker a few milliseconds a tile, so
+//! a farm of many cores would spend most of the coordinator's time on the
+//! lease and upload of each tile. A worker that registers with
+//! `multi_tile` is given leases of several adjacent tiles of one band
+//! instead (a *span*): it renders their union as one rectangle and uploads
+//! it once; the coordinator splits it back into its tiles, which are
+//! validated, stored and stitched one by one as before. Tile size never
+//! changes a pixel, so neither does a span.
+//!
+//! The rule ([`tiles_per_lease`]): a job's cost is measured in
+//! core-seconds per pixel from its completed leases (time from grant to
+//! result, times the threads the worker registered with, over the lease's
+//! pixels), smoothed over the last few leases. A lease then gets as many
+//! tiles as `threads` cores render in about [`Limits::lease_target`], at
+//! least one, at most [`Limits::max_lease_pixels`] pixels and never more
+//! than the band has left. Until a job has a measurement its leases are
+//! single tiles (they make the first measurements). A worker that does not
+//! announce `multi_tile` always gets one tile per lease.
+//!
+//! [`Limits::lease_target`]: crate::limits::Limits::lease_target
+//! [`Limits::max_lease_pixels`]: crate::limits::Limits::max_lease_pixels
+
+use super::{JobId, WorkerId};
+use std::collections::{HashMap, HashSet};
+use std::time::Duration;
+
+/// Weight of a new measurement in a job's smoothed cost.
+const SMOOTHING: f64 = 0.25;
+
+/// How many tiles of `tile_pixels` pixels a lease for a worker of `threads`
+/// threads gets when its job costs `cost` core-seconds per pixel (`None`:
+/// not measured yet): enough for about `target` of the worker's time, at
+/// least 1, and at most `max_pixels` pixels (but always at least one tile).
+pub fn tiles_per_lease(
+    cost: Option<f64>,
+    threads: u32,
+    tile_pixels: u64,
+    target: Duration,
+    max_pixels: u64,
+) -> u32 {
+    let Some(cost) = cost.filter(|c| c.is_finite() && *c > 0.0) else {
+        return 1;
+    };
+    let tile_pixels = tile_pixels.max(1);
+    let by_time = target.as_secs_f64() * f64::from(threads.max(1)) / (cost * tile_pixels as f64);
+    let by_size = (max_pixels / tile_pixels).max(1);
+    // `as` saturates a huge or infinite quotient; floor keeps a lease at or
+    // under the target.
+    let by_time = by_time.floor().max(1.0) as u64;
+    by_time.min(by_size).min(u64::from(u32::MAX)) as u32
+}
+
+/// The scheduler's lease sizing state: which workers take spans, and each
+/// running job's measured cost.
+#[derive(Debug, Default)]
+pub struct LeaseSizer {
+    multi_tile: HashSet<WorkerId>,
+    /// Core-seconds per pixel, smoothed.
+    cost: HashMap<JobId, f64>,
+}
+
+impl LeaseSizer {
+    /// `worker` said it renders leases of several tiles.
+    pub fn allow_spans(&mut self, worker: WorkerId) {
+        self.multi_tile.insert(worker);
+    }
+
+    pub fn takes_spans(&self, worker: WorkerId) -> bool {
+        self.multi_tile.contains(&worker)
+    }
+
+    /// Keeps only the workers `known` says still exist.
+    pub fn retain_workers(&mut self, known: impl Fn(WorkerId) -> bool) {
+        self.multi_tile.retain(|&w| known(w));
+    }
+
+    /// A lease of `job` covering `pixels` pixels took a worker of `threads`
+    /// threads `took` from grant to result.
+    pub fn observe(&mut self, job: JobId, took: Duration, threads: u32, pixels: u64) {
+        if pixels == 0 {
+            return;
+        }
+        let sample = took.as_secs_f64() * f64::from(threads.max(1)) / pixels as f64;
+        if !sample.is_finite() {
+            return;
+        }
+        self.cost
+            .entry(job)
+            .and_modify(|c| *c += SMOOTHING * (sample - *c))
+            .or_insert(sample);
+    }
+
+    /// The job's smoothed cost in core-seconds per pixel, if measured.
+    pub fn cost(&self, job: JobId) -> Option<f64> {
+        self.cost.get(&job).copied()
+    }
+
+    /// Forgets a job that ended.
+    pub fn forget_job(&mut self, job: JobId) {
+        self.cost.remove(&job);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const S: Duration = Duration::from_secs(1);
+
+    #[test]
+    fn an_unmeasured_job_gets_one_tile() {
+        assert_eq!(tiles_per_lease(None, 16, 4096, S, 1 << 20), 1);
+        assert_eq!(tiles_per_lease(Some(0.0), 16, 4096, S, 1 << 20), 1);
+        assert_eq!(tiles_per_lease(Some(f64::NAN), 16, 4096, S, 1 << 20), 1);
+    }
+
+    #[test]
+    fn a_lease_holds_about_the_target_of_the_workers_time() {
+        // 0.01 core-seconds per 64×64 tile, 16 threads: 1600 tiles a second,
+        // capped by the size limit (2^20 / 4096 = 256 tiles).
+        let cost = 0.01 / 4096.0;
+        assert_eq!(tiles_per_lease(Some(cost), 16, 4096, S, 1 << 20), 256);
+        // Without the cap: exactly 1600 (floor of 1600 ± rounding).
+        let n = tiles_per_lease(Some(cost), 16, 4096, S, u64::MAX);
+        assert!((1599..=1600).contains(&n), "{n}");
+        // One thread, 0.1 s a tile: 10 tiles a second.
+        let n = tiles_per_lease(Some(0.1 / 4096.0), 1, 4096, S, u64::MAX);
+        assert!((9..=10).contains(&n), "{n}");
+        // Half the target, half the tiles.
+        let n = tiles_per_lease(Some(0.1 / 4096.0), 1, 4096, S / 2, u64::MAX);
+        assert!((4..=5).contains(&n), "{n}");
+    }
+
+    #[test]
+    fn an_expensive_tile_is_still_leased_alone() {
+        // 3 core-seconds a tile on 2 threads: 1.5 s > target.
+        assert_eq!(tiles_per_lease(Some(3.0 / 4096.0), 2, 4096, S, 1 << 20), 1);
+        // A tile bigger than the size limit: one tile, never zero.
+        assert_eq!(tiles_per_lease(Some(1e-9), 64, 1 << 21, S, 1 << 20), 1);
+    }
+
+    #[test]
+    fn zero_threads_count_as_one() {
+        assert_eq!(
+            tiles_per_lease(Some(0.1 / 4096.0), 0, 4096, S, u64::MAX),
+            tiles_per_lease(Some(0.1 / 4096.0), 1, 4096, S, u64::MAX)
+        );
+    }
+
+    #[test]
+    fn the_cost_is_smoothed_over_leases() {
+        let mut s = LeaseSizer::default();
+        assert_eq!(s.cost(1), None);
+        // 1 s on 4 threads for 1000 pixels: 0.004 core-seconds a pixel.
+        s.observe(1, Duration::from_secs(1), 4, 1000);
+        assert_eq!(s.cost(1), Some(0.004));
+        // A second lease twice as costly moves it a quarter of the way.
+        s.observe(1, Duration::from_secs(2), 4, 1000);
+        let c = s.cost(1).unwrap();
+        assert!((c - 0.005).abs() < 1e-12, "{c}");
+        s.observe(1, Duration::from_secs(1), 4, 0);
+        assert_eq!(s.cost(1), Some(c));
+        s.forget_job(1);
+        assert_eq!(s.cost(1), None);
+    }
+
+    #[test]
+    fn a_measured_job_leases_spans_of_one_band_each_tile_under_its_own_lease() {
+        use crate::limits::Limits;
+        use crate::scheduler::{Accepted, JobSpec, Scheduler};
+        use std::time::Instant;
+        use trevi_core::tile::Rect;
+        let now = Instant::now();
+        let mut s = Scheduler::new(
+            Limits {
+                window_bytes: 1 << 30,
+                ..Limits::default()
+            },
+            100,
+        );
+        let w = s.register_worker(now, None);
+        s.describe_worker(w, "new", 4);
+        s.allow_spans(w);
+        let old = s.register_worker(now, None);
+        s.describe_worker(old, "old", 4);
+        // 10 tiles of 10×10 a band, two bands.
+        let job = s.submit(
+            JobSpec {
+                bundle_hash: "h".into(),
+                camera: "c".into(),
+                priority: 0,
+                width: 100,
+                height: 20,
+                tile_size: 10,
+                output_name: "o.png".into(),
+            },
+            now,
+        );
+        // Not measured yet: one tile.
+        let first = s.lease(w, now).unwrap().unwrap();
+        assert_eq!((first.tiles, first.rect), (1, Rect::new(0, 0, 10, 10)));
+        // Its result 1 ms later: 4 threads × 1 ms / 100 pixels. A second of
+        // 4 threads is 1000 such tiles: the span takes the band's other 9.
+        let t = now + Duration::from_millis(1);
+        assert_eq!(
+            s.accept_tile(job, first.rect, 1, t).unwrap(),
+            Accepted::New { last: false }
+        );
+        let c = s.measured_cost(job).unwrap();
+        assert!((c - 4e-5).abs() < 1e-12, "{c}");
+        let span = s.lease(w, t).unwrap().unwrap();
+        assert_eq!((span.tiles, span.rect), (9, Rect::new(10, 0, 90, 10)));
+        // A worker that did not announce spans: one tile, of the next band.
+        let single = s.lease(old, t).unwrap().unwrap();
+        assert_eq!((single.tiles, single.rect), (1, Rect::new(0, 10, 10, 10)));
+        // The span splits back into its tiles, each under its own lease.
+        let parts = s.span_tiles(job, span.rect).unwrap();
+        let want: Vec<Rect> = (1..10).map(|i| Rect::new(10 * i, 0, 10, 10)).collect();
+        assert_eq!(parts, want);
+        for (i, &p) in parts.iter().enumerate() {
+            let lease = span.id + i as u64;
+            s.check_lease(job, p, lease, Some(w)).unwrap();
+            assert!(s.check_lease(job, p, lease, Some(old)).is_err());
+            assert_eq!(
+                s.accept_tile(job, p, 1, t).unwrap(),
+                Accepted::New { last: false }
+            );
+        }
+        // Rectangles that are not spans of whole tiles of one band.
+        for bad in [
+            Rect::new(10, 10, 25, 10),
+            Rect::new(5, 10, 20, 10),
+            Rect::new(10, 0, 20, 20),
+            Rect::new(90, 10, 20, 10),
+        ] {
+            assert!(s.span_tiles(job, bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn only_announced_workers_take_spans() {
+        let mut s = LeaseSizer::default();
+        s.allow_spans(7);
+        assert!(s.takes_spans(7));
+        assert!(!s.takes_spans(8));
+        s.retain_workers(|w| w != 7);
+        assert!(!s.takes_spans(7));
+    }
+}
