@@ -699,7 +699,9 @@ impl Session {
                         y,
                         "paused: render cancelled, lease given back"
                     );
-                    self.give_back(&me, id, String::new()).await;
+                    for id in span_ids(&lease) {
+                        self.give_back(&me, id, String::new()).await;
+                    }
                 }
                 TileEnd::Failed(why) => {
                     tracing::error!(lease = id, job = lease.job_id, x, y, "tile failed: {why}");
