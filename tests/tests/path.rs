@@ -27,7 +27,6 @@ const SCENE: &str = r#"<scene version="1">
 "#;
 
 #[test]
-#[ignore = "did not finish within 5 minutes on h19 (undiagnosed at the deadline: a hang or a slow path-mode render on 1-thread workers); run with --ignored to investigate"]
 fn a_path_traced_frame_on_three_workers_is_byte_identical_to_one_process() {
     let dir = Dir::new();
     let scene = dir.write("scene/s.xml", SCENE);

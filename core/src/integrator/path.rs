@@ -67,9 +67,10 @@ impl Bsdf {
         let r = s.reflectivity.clamp(0.0, 1.0);
         let a = s.opacity.clamp(0.0, 1.0);
         // kd + ks ≤ 1 per channel: both scaled by the same factor.
-        let sum = s.diffuse + s.specular;
+        // `sp.kd`: the diffuse colour times its texture, if any.
+        let sum = sp.kd + s.specular;
         let scale = Vec3::ONE / sum.max(Vec3::ONE);
-        let (kd, ks) = (s.diffuse * scale, s.specular * scale);
+        let (kd, ks) = (sp.kd * scale, s.specular * scale);
         let (md, ms) = (mean(kd), mean(ks));
         let (w_mirror, w_glass, w_local) = (r, (1.0 - r) * (1.0 - a), (1.0 - r) * a);
         // Lobes are chosen in proportion to what they can reflect, so a
@@ -190,7 +191,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                 radiance += beta * self.background;
                 break;
             };
-            let sp = self.view.surface_point(origin, dir, &hit);
+            let mut sp = self.view.surface_point(origin, dir, &hit);
+            // Paths carry no ray cone: the texture is read at its finest
+            // level, and the pixel's samples do the filtering.
+            self.view.apply_texture(&mut sp, &hit, dir);
             let surf = sp.surface;
             if surf.emission != Vec3::ZERO {
                 let w = match (prev_pdf, hit.kind) {
