@@ -202,7 +202,7 @@ fn metrics_parse_as_prometheus_text_and_count_the_tiles_and_the_preview_file_sho
         .map(|s| value("trevi_workers", Some(("state", s))))
         .sum();
     assert_eq!(workers, 1.0);
-    // Each tile result is one SubmitTile call, timed by the histogram.
+    // Tile results arrive in SubmitTile calls, timed by the histogram.
     let submit_tile = scrape
         .samples
         .iter()
@@ -218,7 +218,13 @@ fn metrics_parse_as_prometheus_text_and_count_the_tiles_and_the_preview_file_sho
         .iter()
         .find(|b| b.less_than.is_infinite())
         .expect("+Inf bucket");
-    assert_eq!(inf.count, tiles as f64);
+    // A worker may be leased a span of adjacent tiles (lease sizing) and
+    // upload it in one call: at least one call, never more than tiles.
+    assert!(
+        inf.count >= 1.0 && inf.count <= tiles as f64,
+        "{} SubmitTile calls for {tiles} tiles",
+        inf.count
+    );
     assert!(buckets.windows(2).all(|w| w[0].count <= w[1].count));
 }
 

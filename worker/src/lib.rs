@@ -657,7 +657,11 @@ impl Session {
             let (x, y, id) = (rect.x, rect.y, lease.lease_id);
             match end {
                 TileEnd::Rendered(pixels, rays) => {
-                    tracing::debug!(lease = id, job = lease.job_id, x, y, "tile rendered");
+                    // One line per tile, also for a span of several: the
+                    // logs count tiles, not leases.
+                    for id in span_ids(&lease) {
+                        tracing::debug!(lease = id, job = lease.job_id, x, y, "tile rendered");
+                    }
                     if let Err(s) = self.send(&me, &lease, rect, rays, &pixels).await {
                         if s.code() == Code::InvalidArgument {
                             tracing::error!(lease = id, "tile rejected: {}", s.message());
