@@ -1,0 +1,82 @@
+//! Textures on the farm: a scene with an image texture (shipped in the
+//! bundle, decoded by each worker) rendered by a real coordinator and real
+//! workers is byte-identical to `trevi-submit` rendering it alone, through a
+//! mirror too (the texture's level of detail follows the reflected ray cone).
+
+mod common;
+
+use common::*;
+
+const SCENE: &str = r#"<scene version="1">
+  <settings background="0.1 0.1 0.15"/>
+  <mesh id="quad"><vertices>-2 0 -2  2 0 -2  2 0 2  -2 0 2</vertices>
+    <uvs>0 0  1 0  1 1  0 1</uvs><triangles>0 2 1  0 3 2</triangles></mesh>
+  <model id="floor" mesh="quad">
+    <surface diffuse="1 1 1" diffuse-texture="tex.png" texture-scale="3 3"/>
+  </model>
+  <sphere id="mirror" center="0.4 0.6 0" radius="0.6">
+    <surface diffuse="0.1 0.1 0.1" reflectivity="0.8"/>
+  </sphere>
+  <light type="point" position="2 3 3" intensity="6" attenuation="0 0 1"/>
+  <camera id="main" position="0 1.5 3.5" lookat="0 0.3 0" fov="55">
+    <render width="48" height="32" supersample="2" output="main.png"/>
+  </camera>
+</scene>
+"#;
+
+/// A 64 × 64 8-bit RGB checker of 8-texel cells in four colours.
+fn texture_png() -> Vec<u8> {
+    const COLOURS: [[u8; 3]; 4] = [[230, 40, 30], [20, 180, 60], [30, 60, 220], [240, 220, 40]];
+    let mut rgb = Vec::with_capacity(64 * 64 * 3);
+    for y in 0..64 {
+        for x in 0..64 {
+            rgb.extend_from_slice(&COLOURS[(x / 8 + 2 * (y / 8)) % 4]);
+        }
+    }
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, 64, 64);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().unwrap();
+    w.write_image_data(&rgb).unwrap();
+    drop(w);
+    out
+}
+
+#[test]
+fn a_textured_frame_on_three_workers_is_byte_identical_to_one_process() {
+    let dir = Dir::new();
+    std::fs::create_dir_all(dir.path().join("scene")).unwrap();
+    std::fs::write(dir.path().join("scene/tex.png"), texture_png()).unwrap();
+    let scene = dir.write("scene/s.xml", SCENE);
+    let expected = embedded(&dir, &scene, "embedded.png");
+    // The texture is in effect: the same scene without it differs.
+    let plain = dir.write(
+        "scene/plain.xml",
+        &SCENE.replace(r#" diffuse-texture="tex.png" texture-scale="3 3""#, ""),
+    );
+    assert!(embedded(&dir, &plain, "plain.png") != expected);
+    let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
+    let _w: Vec<Proc> = (0..3)
+        .map(|i| worker_with(&dir, &c.url, &format!("worker{i}"), &[], &[]))
+        .collect();
+    let out = dir.path().join("farm.png");
+    let o = submit(
+        &dir,
+        &[
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &c.url,
+            "-o",
+            out.to_str().unwrap(),
+            "--tile",
+            "8",
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(
+        std::fs::read(&out).unwrap() == expected,
+        "farm output differs\n{}",
+        dir.logs()
+    );
+}
