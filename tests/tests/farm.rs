@@ -49,22 +49,8 @@ fn three_workers_render_the_same_bytes_as_the_embedded_render() {
     let _w: Vec<Proc> = (0..3)
         .map(|i| worker(&dir, &c.url, &format!("worker{i}")))
         .collect();
-    let out = dir.path().join("farm.png");
-    let o = submit(
-        &dir,
-        &[
-            scene.to_str().unwrap(),
-            "--coordinator",
-            &c.url,
-            "-o",
-            out.to_str().unwrap(),
-            "--tile",
-            "16",
-        ],
-    );
-    assert!(o.status.success(), "{}", dir.logs());
     assert!(
-        std::fs::read(&out).unwrap() == expected,
+        farm_render(&dir, &c.url, &scene, "farm.png", 16) == expected,
         "farm output differs\n{}",
         dir.logs()
     );

@@ -41,22 +41,8 @@ fn a_path_traced_frame_on_three_workers_is_byte_identical_to_one_process() {
     let _w: Vec<Proc> = (0..3)
         .map(|i| worker_with(&dir, &c.url, &format!("worker{i}"), &[], &[]))
         .collect();
-    let out = dir.path().join("farm.png");
-    let o = submit(
-        &dir,
-        &[
-            scene.to_str().unwrap(),
-            "--coordinator",
-            &c.url,
-            "-o",
-            out.to_str().unwrap(),
-            "--tile",
-            "8",
-        ],
-    );
-    assert!(o.status.success(), "{}", dir.logs());
     assert!(
-        std::fs::read(&out).unwrap() == expected,
+        farm_render(&dir, &c.url, &scene, "farm.png", 8) == expected,
         "farm output differs\n{}",
         dir.logs()
     );

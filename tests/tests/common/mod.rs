@@ -402,6 +402,27 @@ pub fn submit_env(dir: &Dir, args: &[&str], envs: &[(&str, &str)]) -> Output {
     out
 }
 
+/// Renders `scene` on the farm at `url` with `trevi-submit --coordinator`
+/// into `dir/out` in tiles of `tile` pixels, and returns the file's bytes
+/// (the counterpart of [`embedded`]).
+pub fn farm_render(dir: &Dir, url: &str, scene: &Path, out: &str, tile: u32) -> Vec<u8> {
+    let out = dir.path().join(out);
+    let o = submit(
+        dir,
+        &[
+            scene.to_str().unwrap(),
+            "--coordinator",
+            url,
+            "-o",
+            out.to_str().unwrap(),
+            "--tile",
+            &tile.to_string(),
+        ],
+    );
+    assert!(o.status.success(), "farm render failed\n{}", dir.logs());
+    std::fs::read(out).unwrap()
+}
+
 /// The embedded (one-process) render of a scene.
 pub fn embedded(dir: &Dir, scene: &Path, out: &str) -> Vec<u8> {
     let out = dir.path().join(out);
