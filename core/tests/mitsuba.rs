@@ -155,7 +155,10 @@ fn check(a: &Agreement) -> Result<(), String> {
         }
     }
     if a.block_z > 5.0 {
-        return Err(format!("a 4×4 block is {:.1} standard errors off", a.block_z));
+        return Err(format!(
+            "a 4×4 block is {:.1} standard errors off",
+            a.block_z
+        ));
     }
     if a.chi2 > 1.3 {
         return Err(format!(
