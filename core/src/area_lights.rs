@@ -36,6 +36,17 @@ enum Shape {
         center: Vec3,
         radius: f32,
     },
+    /// Corner `a`, edges `e1`, `e2`: the points a + s·e1 + t·e2, s, t in
+    /// [0, 1]; front normal normalize(e1 × e2). Two consecutive triangles
+    /// that make a parallelogram (a rect light, a quad of a mesh) are merged
+    /// into one: the density per area is the same, and one 2D sample covers
+    /// the whole quad, so a stratified set of samples stays stratified over
+    /// it (the triangle pick would otherwise spend one dimension).
+    Parallelogram {
+        a: Vec3,
+        e1: Vec3,
+        e2: Vec3,
+    },
 }
 
 /// One emitting triangle or sphere.
@@ -88,7 +99,23 @@ impl AreaLights {
     }
 
     /// Adds the triangle `a b c` (view coordinates) emitting `radiance`.
+    /// When the emitter added last is the triangle `a p b` of the same
+    /// radiance and sides and the quad `a p b c` is a parallelogram, the two
+    /// become one parallelogram emitter.
     pub fn triangle(&mut self, [a, b, c]: [Vec3; 3], radiance: Vec3, two_sided: bool) {
+        if let Some(q) = self.parallelogram_with_last([a, b, c], radiance, two_sided) {
+            let last = self.emitters.len() - 1;
+            self.emitters.pop();
+            self.cdf.pop();
+            self.total = if last == 0 { 0.0 } else { self.cdf[last - 1] };
+            let scale = q.scale;
+            let Shape::Parallelogram { e1, e2, .. } = q.shape else {
+                unreachable!("parallelogram_with_last returns parallelograms")
+            };
+            let area = f64::from(e1.cross(e2).length());
+            self.push(Emitter { scale, ..q }, area);
+            return;
+        }
         let (e1, e2) = (b - a, c - a);
         let area = 0.5 * f64::from(e1.cross(e2).length());
         let scale = a.abs().max(b.abs()).max(c.abs()).max_element();
@@ -116,6 +143,45 @@ impl AreaLights {
             },
             area,
         );
+    }
+
+    /// The parallelogram the last emitter (a triangle `a p b`) makes with
+    /// the triangle `a b c` (its quad `a p b c`), if it does: same first
+    /// vertex, its third vertex is this one's second, c − a = b − p (within
+    /// rounding), same radiance and sides.
+    fn parallelogram_with_last(
+        &self,
+        [a, b, c]: [Vec3; 3],
+        radiance: Vec3,
+        two_sided: bool,
+    ) -> Option<Emitter> {
+        let last = self.emitters.last()?;
+        let Shape::Triangle {
+            a: a0,
+            e1: p_a,
+            e2: b_a,
+        } = last.shape
+        else {
+            return None;
+        };
+        if a0 != a || last.radiance != radiance || last.two_sided != two_sided {
+            return None;
+        }
+        // The quad a, p, b, c: a parallelogram when c − a = b − p. Vertices
+        // come from one transform in f32, so "equal" is within rounding.
+        let (e1, e2) = (p_a, c - a);
+        let size = e1.abs().max_element().max(e2.abs().max_element());
+        let shared = (b - a - b_a).abs().max_element();
+        let gap = (e2 - (b_a - p_a)).abs().max_element();
+        if !(shared <= 1e-5 * size) || !(gap <= 1e-5 * size) {
+            return None;
+        }
+        Some(Emitter {
+            shape: Shape::Parallelogram { a, e1, e2 },
+            radiance,
+            two_sided,
+            scale: last.scale.max(c.abs().max_element()),
+        })
     }
 
     fn push(&mut self, e: Emitter, area: f64) {
@@ -166,6 +232,9 @@ impl AreaLights {
                 let (b1, b2) = (su * (1.0 - u[1]), su * u[1]);
                 let n = e1.cross(e2).normalize_or_zero();
                 (a + e1 * b1 + e2 * b2, n)
+            }
+            Shape::Parallelogram { a, e1, e2 } => {
+                (a + e1 * u[0] + e2 * u[1], e1.cross(e2).normalize_or_zero())
             }
             Shape::Sphere { center, radius } => {
                 let z = 1.0 - 2.0 * u[0];

@@ -1,18 +1,42 @@
-//! `<light>`: a point or spot light.
+//! `<light>`: a point or spot light, or (a Trevi extension) a rectangle
+//! light `type="rect"`: an emitting parallelogram that becomes a two-triangle
+//! model of the scene (so camera rays see it and it casts shadows), lit by
+//! sampled shadow rays in Whitted mode and by next-event estimation in path
+//! mode (docs/aisxml-extensions.md, "Rectangle lights").
 
 use super::animation::{Keys, Kind};
 use super::table::{attr, extension, Attribute, REQUIRED};
 use super::xml::Elem;
+use super::values::El;
 use super::{req_vec3, Resolver, Result};
+use crate::error::SceneErrorKind;
+use crate::mesh::Mesh;
 use crate::scene::animation::LightAnimation;
-use crate::scene::{Light, LightKind};
-use glam::{DVec3, Vec3};
+use crate::scene::{Light, LightKind, Model, Sided, Surface};
+use glam::{DMat4, DVec3, Vec3};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Type {
+    Point,
+    Spot,
+    Rect,
+}
 
 /// The attributes of `<light>`.
 pub(super) const LIGHT: &[Attribute] = &[
     extension("id", "id", "none", "the light's name, unique among lights"),
-    attr("type", "point | spot", "point", "the kind of light"),
-    attr("position", "point", REQUIRED, "where the light is"),
+    attr(
+        "type",
+        "point | spot | rect",
+        "point",
+        "the kind of light (rect: a Trevi extension)",
+    ),
+    attr(
+        "position",
+        "point",
+        REQUIRED,
+        "where the light is (a rect light's centre)",
+    ),
     attr("color", "color", "1 1 1", "the light's color"),
     attr("intensity", "real ≥ 0", "1", "the factor on its color"),
     attr(
@@ -45,6 +69,48 @@ pub(super) const LIGHT: &[Attribute] = &[
         "30",
         "a spot's cut-off half-angle, in degrees",
     ),
+    extension(
+        "edge-u",
+        "vector",
+        "required for a rect",
+        "a rect light's first edge: its corners are position ± edge-u/2 ± edge-v/2",
+    ),
+    extension(
+        "edge-v",
+        "vector",
+        "required for a rect",
+        "a rect light's second edge; the front faces edge-u × edge-v",
+    ),
+    extension(
+        "emission",
+        "color",
+        "one of emission, power",
+        "a rect light's radiance Le (linear RGB, each ≥ 0)",
+    ),
+    extension(
+        "power",
+        "real ≥ 0",
+        "one of emission, power",
+        "a rect light's power Φ: Le = color·Φ / (sides·π·area)",
+    ),
+    extension(
+        "sided",
+        "two | front",
+        "two",
+        "a rect light emits (and is hit) on both sides, or only its front",
+    ),
+];
+
+/// The attributes a point or spot light does not take.
+const RECT_ONLY: &[&str] = &["edge-u", "edge-v", "emission", "power", "sided"];
+/// The attributes a rect light does not take.
+const POINT_ONLY: &[&str] = &[
+    "intensity",
+    "radius",
+    "attenuation",
+    "direction",
+    "inner",
+    "outer",
 ];
 
 /// The channels of a `<light>`'s `<animate>` (docs/aisxml-extensions.md).
@@ -59,9 +125,25 @@ impl<'a> Resolver<'a> {
             let (id_attr, id) = el.id("id")?;
             Self::claim(self.src, &mut self.light_ids, &el, id_attr, &id)?;
         }
-        let spot = el
-            .keyword("type", &[("point", false), ("spot", true)])?
-            .unwrap_or(false);
+        let kind = el
+            .keyword(
+                "type",
+                &[("point", Type::Point), ("spot", Type::Spot), ("rect", Type::Rect)],
+            )?
+            .unwrap_or(Type::Point);
+        let (not_taken, what) = match kind {
+            Type::Rect => (POINT_ONLY, "a rect light"),
+            _ => (RECT_ONLY, "a point or spot light"),
+        };
+        if let Some(a) = el.e.attrs.iter().find(|a| not_taken.contains(&a.name.as_str())) {
+            return Err(el
+                .attr_err(a, format!("not an attribute of {what}"))
+                .with_kind(SceneErrorKind::UnknownAttribute));
+        }
+        if kind == Type::Rect {
+            return self.rect_light(e, &el);
+        }
+        let spot = kind == Type::Spot;
         let position = req_vec3(&el, "position")?;
         let color = el.color("color")?.unwrap_or(Vec3::ONE);
         let intensity = el
@@ -133,6 +215,110 @@ impl<'a> Resolver<'a> {
         };
         self.desc.lights.push(anim.light_at(0.0));
         self.desc.animation.lights.push(anim);
+        Ok(())
+    }
+}
+
+impl<'a> Resolver<'a> {
+    /// `<light type="rect">`: a two-triangle mesh (corners relative to the
+    /// centre, the centre in the model's transform, so far-off lights keep
+    /// their precision) and a model of it whose surface reflects nothing and
+    /// emits Le. Its id, if any, is the light's (the model has none: models,
+    /// spheres and planes keep their own namespace).
+    fn rect_light(&mut self, e: &'a Elem, el: &El<'a>) -> Result<()> {
+        self.room_for_an_object(el)?;
+        if let Some(c) = e.children.iter().find(|c| c.name == "animate") {
+            return Err(self
+                .src
+                .err(
+                    c.pos,
+                    "a rect light cannot be animated (expected no <animate> in <light type=\"rect\">)",
+                )
+                .with_kind(SceneErrorKind::UnknownElement));
+        }
+        let position = req_vec3(el, "position")?;
+        el.req("edge-u")?;
+        el.req("edge-v")?;
+        let u = el.vec3("edge-u")?.unwrap_or(DVec3::ZERO).as_vec3();
+        let v = el.vec3("edge-v")?.unwrap_or(DVec3::ZERO).as_vec3();
+        for (name, x) in [("edge-u", u), ("edge-v", v)] {
+            if !x.is_finite() {
+                let a = el.req(name)?;
+                return Err(el.expected(a, "a vector \"x y z\" whose components fit in 32 bits"));
+            }
+        }
+        let sided = el
+            .keyword("sided", &[("two", Sided::Two), ("front", Sided::Front)])?
+            .unwrap_or(Sided::Two);
+        let sides = if sided == Sided::Two { 2.0 } else { 1.0 };
+        let area = f64::from(u.cross(v).length());
+        let emission = match (el.get("emission"), el.get("power")) {
+            (Some(_), Some(p)) => {
+                return Err(el
+                    .attr_err(p, "give either emission (radiance) or power, not both")
+                    .with_kind(SceneErrorKind::BadValue))
+            }
+            (None, None) => {
+                return Err(el
+                    .err("<light type=\"rect\"> needs \"emission\" (its radiance) or \"power\"")
+                    .with_kind(SceneErrorKind::Missing))
+            }
+            (Some(_), None) => {
+                if let Some(c) = el.get("color") {
+                    return Err(el
+                        .attr_err(c, "a rect light with emission takes its colour from emission (color tints power only)")
+                        .with_kind(SceneErrorKind::BadValue));
+                }
+                el.color("emission")?.unwrap_or(Vec3::ZERO)
+            }
+            (None, Some(p)) => {
+                let power = el.real_in("power", "a number ≥ 0", |x| x >= 0.0)?.unwrap_or(0.0);
+                let color = el.color("color")?.unwrap_or(Vec3::ONE);
+                if power > 0.0 && !(area > 0.0) {
+                    return Err(el
+                        .attr_err(p, "a rect light of zero area (edge-u × edge-v = 0) cannot send a power (its radiance would be infinite)")
+                        .with_kind(SceneErrorKind::BadValue));
+                }
+                let le = if power > 0.0 {
+                    power / (sides * std::f64::consts::PI * area)
+                } else {
+                    0.0
+                };
+                let le = color * le as f32;
+                if !le.is_finite() {
+                    return Err(el
+                        .attr_err(p, format!("the radiance power / (sides·π·area) = {le} overflows 32 bits (expected a smaller power or a larger rectangle)"))
+                        .with_kind(SceneErrorKind::BadValue));
+                }
+                le
+            }
+        };
+        let (hu, hv) = (u * 0.5, v * 0.5);
+        let mut mesh = Mesh {
+            positions: vec![-hu - hv, hu - hv, hu + hv, -hu + hv],
+            normals: Vec::new(),
+            uvs: Vec::new(),
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+        };
+        mesh.compute_smooth_normals();
+        self.desc.meshes.push(mesh);
+        self.mesh_offsets.push(DVec3::ZERO);
+        self.mesh_materials.push(None);
+        self.desc.models.push(Model {
+            id: String::new(),
+            mesh: self.desc.meshes.len() - 1,
+            transform: DMat4::from_translation(position),
+            surfaces: vec![Surface {
+                diffuse: Vec3::ZERO,
+                ambient: Vec3::ZERO,
+                specular: Vec3::ZERO,
+                smooth: false,
+                sided,
+                emission,
+                ..Surface::default()
+            }],
+            triangle_surface: Vec::new(),
+        });
         Ok(())
     }
 }
