@@ -322,3 +322,157 @@ impl<'a> Resolver<'a> {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::parse_scene;
+    use crate::scene::{SceneDesc, Sided};
+    use crate::Bundle;
+    use glam::{DVec3, Vec3};
+    use std::collections::BTreeMap;
+
+    /// A scene with `light` on line 2.
+    fn parse(light: &str) -> super::Result<SceneDesc> {
+        let text = format!(
+            "<scene version=\"1\">\n{light}\n<camera id=\"c\" position=\"0 0 5\" lookat=\"0 0 0\" fov=\"50\"><render width=\"4\" height=\"3\"/></camera>\n</scene>\n"
+        );
+        let mut files = BTreeMap::new();
+        files.insert("scene.xml".to_string(), text.into_bytes());
+        parse_scene(
+            "scene.xml",
+            &Bundle {
+                scene: "scene.xml".into(),
+                files,
+            },
+        )
+    }
+
+    /// Fails on line 2 where `at` first occurs in `light` (the element's
+    /// `<` for "<"), with every one of `needles`.
+    #[track_caller]
+    fn check(light: &str, at: &str, needles: &[&str]) {
+        let col = light.find(at).expect(at) as u32 + 1;
+        let e = parse(light).expect_err(light);
+        assert_eq!(
+            (e.location.file.as_str(), e.location.line, e.location.column),
+            ("scene.xml", 2, col),
+            "{e}"
+        );
+        for n in needles {
+            assert!(e.message.contains(n), "`{e}` lacks `{n}`");
+        }
+    }
+
+    #[test]
+    fn a_rect_light_becomes_an_emitting_two_triangle_model_centred_on_its_position() {
+        let d = parse(
+            r#"<light id="lamp" type="rect" position="1 2 3" edge-u="2 0 0" edge-v="0 0 0.5" emission="4 5 6" sided="front"/>"#,
+        )
+        .unwrap();
+        assert!(d.lights.is_empty());
+        assert_eq!(d.models.len(), 1);
+        let m = &d.models[0];
+        let mesh = &d.meshes[m.mesh];
+        assert_eq!(mesh.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+        let corners: Vec<DVec3> = mesh
+            .positions
+            .iter()
+            .map(|p| m.transform.transform_point3(p.as_dvec3()))
+            .collect();
+        let expect = [
+            DVec3::new(0.0, 2.0, 2.75),
+            DVec3::new(2.0, 2.0, 2.75),
+            DVec3::new(2.0, 2.0, 3.25),
+            DVec3::new(0.0, 2.0, 3.25),
+        ];
+        for (c, e) in corners.iter().zip(expect) {
+            assert!((*c - e).length() < 1e-6, "{corners:?}");
+        }
+        // The front (edge-u × edge-v) faces −y, as the triangles' winding.
+        let [a, b, c] = [0, 1, 2].map(|i| mesh.positions[i]);
+        assert!((b - a).cross(c - a).normalize().dot(Vec3::NEG_Y) > 0.999);
+        let s = m.surfaces[0];
+        assert_eq!(s.emission, Vec3::new(4.0, 5.0, 6.0));
+        assert_eq!((s.diffuse, s.specular, s.ambient), (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO));
+        assert_eq!(s.sided, Sided::Front);
+    }
+
+    #[test]
+    fn a_rect_light_given_its_power_gets_the_radiance_that_sends_it() {
+        // Area 2 × 0.5 = 1; both sides: Le = color·Φ/(2π).
+        let d = parse(
+            r#"<light type="rect" position="0 0 0" edge-u="2 0 0" edge-v="0 0 0.5" power="10" color="1 0.5 0"/>"#,
+        )
+        .unwrap();
+        let le = 10.0 / (2.0 * std::f32::consts::PI);
+        let got = d.models[0].surfaces[0].emission;
+        assert!((got - Vec3::new(1.0, 0.5, 0.0) * le).length() < 1e-5, "{got}");
+        let front = parse(
+            r#"<light type="rect" position="0 0 0" edge-u="2 0 0" edge-v="0 0 0.5" power="10" sided="front"/>"#,
+        )
+        .unwrap();
+        let got = front.models[0].surfaces[0].emission;
+        assert!((got - Vec3::splat(2.0 * le)).length() < 1e-5, "{got}");
+    }
+
+    #[test]
+    fn bad_rect_lights_are_errors_at_the_attribute_that_is_wrong() {
+        let r = r#"<light type="rect" position="0 0 0" edge-u="1 0 0" edge-v="0 0 1""#;
+        check(
+            &format!(r#"{r} emission="1 1 1" power="2"/>"#),
+            "power=",
+            &["attribute \"power\"", "either emission", "not both"],
+        );
+        check(&format!("{r}/>"), "<", &["needs \"emission\"", "or \"power\""]);
+        check(
+            &format!(r#"{r} color="1 0 0" emission="1 1 1"/>"#),
+            "color=",
+            &["attribute \"color\"", "tints power only"],
+        );
+        check(
+            &format!(r#"{r} emission="1 1 1" attenuation="0 0 1"/>"#),
+            "attenuation=",
+            &["attribute \"attenuation\"", "not an attribute of a rect light"],
+        );
+        check(
+            &format!(r#"{r} emission="1 -1 1"/>"#),
+            "emission=",
+            &["attribute \"emission\"", "≥ 0"],
+        );
+        check(
+            r#"<light type="rect" position="0 0 0" edge-u="1 0 0" emission="1 1 1"/>"#,
+            "<",
+            &["missing its required attribute \"edge-v\""],
+        );
+        check(
+            r#"<light type="rect" position="0 0 0" edge-u="1 0 0" edge-v="2 0 0" power="1"/>"#,
+            "power=",
+            &["attribute \"power\"", "zero area"],
+        );
+        check(
+            r#"<light type="rect" position="0 0 0" edge-u="1 0 0" edge-v="0 0 1" sided="back" emission="1 1 1"/>"#,
+            "sided=",
+            &["attribute \"sided\"", "\"two\", \"front\""],
+        );
+        check(
+            r#"<light position="0 0 0" edge-u="1 0 0"/>"#,
+            "edge-u=",
+            &["attribute \"edge-u\"", "not an attribute of a point or spot light"],
+        );
+        check(
+            r#"<light type="rect" position="0 0 0" edge-u="1 0 0" edge-v="0 0 1" emission="1 1 1"><animate channel="position" times="0 1" values="0 0 0 1 1 1"/></light>"#,
+            "<animate",
+            &["cannot be animated"],
+        );
+        check(
+            r#"<light type="area" position="0 0 0"/>"#,
+            "type=",
+            &["attribute \"type\"", "\"rect\""],
+        );
+        // A zero-area rect with a radiance is allowed (it emits nothing).
+        parse(
+            r#"<light type="rect" position="0 0 0" edge-u="0 0 0" edge-v="0 0 1" emission="1 1 1"/>"#,
+        )
+        .unwrap();
+    }
+}
