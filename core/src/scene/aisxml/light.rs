@@ -251,7 +251,8 @@ impl<'a> Resolver<'a> {
             .keyword("sided", &[("two", Sided::Two), ("front", Sided::Front)])?
             .unwrap_or(Sided::Two);
         let sides = if sided == Sided::Two { 2.0 } else { 1.0 };
-        let area = f64::from(u.cross(v).length());
+        // In f64: tiny edges (1e-20) would underflow the f32 cross product.
+        let area = u.as_dvec3().cross(v.as_dvec3()).length();
         let emission = match (el.get("emission"), el.get("power")) {
             (Some(_), Some(p)) => {
                 return Err(el
