@@ -1,6 +1,8 @@
-//! Area lights: the emitting surfaces of a view (triangles of models and
-//! spheres whose `<surface>` has `emission` > 0), as the path tracer's
-//! next-event estimation samples them.
+//! Area lights: the emitting surfaces of a view (triangles of models,
+//! `<light type="rect">` among them, and spheres whose `<surface>` has
+//! `emission` > 0), as path mode's next-event estimation and Whitted mode's
+//! shadow rays (`integrator/area.rs`) sample them. Two consecutive triangles
+//! forming a parallelogram are kept as one parallelogram emitter.
 //!
 //! One entry per emitting triangle or sphere, in the view's camera-relative
 //! coordinates (built with the view, see `world.rs`), so the memory is
@@ -404,7 +406,11 @@ mod tests {
                             let dist2 = to.length_squared();
                             let l = to / dist2.sqrt();
                             let cos_y = -l.y;
-                            let emits = if two_sided { cos_y.abs() } else { cos_y.max(0.0) };
+                            let emits = if two_sided {
+                                cos_y.abs()
+                            } else {
+                                cos_y.max(0.0)
+                            };
                             e += le * emits * l.dot(n_x) / dist2;
                         }
                     }

@@ -94,8 +94,10 @@ fn a_rect_light_gives_a_parallel_plane_the_closed_form_irradiance_in_both_modes(
 /// its own points), the mean is within 4 standard errors of kd·Le·F.
 #[test]
 fn whitted_area_light_sampling_is_unbiased_at_one_shadow_sample() {
-    let xml = rect_over_floor("whitted", 0.0, 0.0, "")
-        .replace(r#"width="1" height="1""#, r#"width="32" height="32" jitter="true""#);
+    let xml = rect_over_floor("whitted", 0.0, 0.0, "").replace(
+        r#"width="1" height="1""#,
+        r#"width="32" height="32" jitter="true""#,
+    );
     let px: Vec<f64> = pixels(&scene(&xml))
         .iter()
         .map(|p| f64::from(p[0]))
@@ -196,7 +198,10 @@ fn degenerate_rect_lights_never_give_nan_or_infinity() {
             ao-samples="2" diffuse-samples="2" integrator="{mode}" max-bounces="8"/></camera></scene>"#
         ));
         for p in pixels(&s) {
-            assert!(p.iter().all(|c| c.is_finite() && *c >= 0.0), "{mode}: {p:?}");
+            assert!(
+                p.iter().all(|c| c.is_finite() && *c >= 0.0),
+                "{mode}: {p:?}"
+            );
         }
     }
 }

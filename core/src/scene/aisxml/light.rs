@@ -6,8 +6,8 @@
 
 use super::animation::{Keys, Kind};
 use super::table::{attr, extension, Attribute, REQUIRED};
-use super::xml::Elem;
 use super::values::El;
+use super::xml::Elem;
 use super::{req_vec3, Resolver, Result};
 use crate::error::SceneErrorKind;
 use crate::mesh::Mesh;
@@ -128,14 +128,22 @@ impl<'a> Resolver<'a> {
         let kind = el
             .keyword(
                 "type",
-                &[("point", Type::Point), ("spot", Type::Spot), ("rect", Type::Rect)],
+                &[
+                    ("point", Type::Point),
+                    ("spot", Type::Spot),
+                    ("rect", Type::Rect),
+                ],
             )?
             .unwrap_or(Type::Point);
         let (not_taken, what) = match kind {
             Type::Rect => (POINT_ONLY, "a rect light"),
             _ => (RECT_ONLY, "a point or spot light"),
         };
-        if let Some(a) = el.e.attrs.iter().find(|a| not_taken.contains(&a.name.as_str())) {
+        if let Some(a) =
+            el.e.attrs
+                .iter()
+                .find(|a| not_taken.contains(&a.name.as_str()))
+        {
             return Err(el
                 .attr_err(a, format!("not an attribute of {what}"))
                 .with_kind(SceneErrorKind::UnknownAttribute));
@@ -273,7 +281,9 @@ impl<'a> Resolver<'a> {
                 el.color("emission")?.unwrap_or(Vec3::ZERO)
             }
             (None, Some(p)) => {
-                let power = el.real_in("power", "a number ≥ 0", |x| x >= 0.0)?.unwrap_or(0.0);
+                let power = el
+                    .real_in("power", "a number ≥ 0", |x| x >= 0.0)?
+                    .unwrap_or(0.0);
                 let color = el.color("color")?.unwrap_or(Vec3::ONE);
                 if power > 0.0 && !(area > 0.0) {
                     return Err(el
@@ -394,7 +404,10 @@ mod tests {
         assert!((b - a).cross(c - a).normalize().dot(Vec3::NEG_Y) > 0.999);
         let s = m.surfaces[0];
         assert_eq!(s.emission, Vec3::new(4.0, 5.0, 6.0));
-        assert_eq!((s.diffuse, s.specular, s.ambient), (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO));
+        assert_eq!(
+            (s.diffuse, s.specular, s.ambient),
+            (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO)
+        );
         assert_eq!(s.sided, Sided::Front);
     }
 
@@ -407,7 +420,10 @@ mod tests {
         .unwrap();
         let le = 10.0 / (2.0 * std::f32::consts::PI);
         let got = d.models[0].surfaces[0].emission;
-        assert!((got - Vec3::new(1.0, 0.5, 0.0) * le).length() < 1e-5, "{got}");
+        assert!(
+            (got - Vec3::new(1.0, 0.5, 0.0) * le).length() < 1e-5,
+            "{got}"
+        );
         let front = parse(
             r#"<light type="rect" position="0 0 0" edge-u="2 0 0" edge-v="0 0 0.5" power="10" sided="front"/>"#,
         )
@@ -424,7 +440,11 @@ mod tests {
             "power=",
             &["attribute \"power\"", "either emission", "not both"],
         );
-        check(&format!("{r}/>"), "<", &["needs \"emission\"", "or \"power\""]);
+        check(
+            &format!("{r}/>"),
+            "<",
+            &["needs \"emission\"", "or \"power\""],
+        );
         check(
             &format!(r#"{r} color="1 0 0" emission="1 1 1"/>"#),
             "color=",
@@ -433,7 +453,10 @@ mod tests {
         check(
             &format!(r#"{r} emission="1 1 1" attenuation="0 0 1"/>"#),
             "attenuation=",
-            &["attribute \"attenuation\"", "not an attribute of a rect light"],
+            &[
+                "attribute \"attenuation\"",
+                "not an attribute of a rect light",
+            ],
         );
         check(
             &format!(r#"{r} emission="1 -1 1"/>"#),
@@ -458,7 +481,10 @@ mod tests {
         check(
             r#"<light position="0 0 0" edge-u="1 0 0"/>"#,
             "edge-u=",
-            &["attribute \"edge-u\"", "not an attribute of a point or spot light"],
+            &[
+                "attribute \"edge-u\"",
+                "not an attribute of a point or spot light",
+            ],
         );
         check(
             r#"<light type="rect" position="0 0 0" edge-u="1 0 0" edge-v="0 0 1" emission="1 1 1"><animate channel="position" times="0 1" values="0 0 0 1 1 1"/></light>"#,
