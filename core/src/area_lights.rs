@@ -1,6 +1,8 @@
-//! Area lights: the emitting surfaces of a view (triangles of models and
-//! spheres whose `<surface>` has `emission` > 0), as the path tracer's
-//! next-event estimation samples them.
+//! Area lights: the emitting surfaces of a view (triangles of models,
+//! `<light type="rect">` among them, and spheres whose `<surface>` has
+//! `emission` > 0), as path mode's next-event estimation and Whitted mode's
+//! shadow rays (`integrator/area.rs`) sample them. Two consecutive triangles
+//! forming a parallelogram are kept as one parallelogram emitter.
 //!
 //! One entry per emitting triangle or sphere, in the view's camera-relative
 //! coordinates (built with the view, see `world.rs`), so the memory is
@@ -35,6 +37,17 @@ enum Shape {
     Sphere {
         center: Vec3,
         radius: f32,
+    },
+    /// Corner `a`, edges `e1`, `e2`: the points a + s·e1 + t·e2, s, t in
+    /// [0, 1]; front normal normalize(e1 × e2). Two consecutive triangles
+    /// that make a parallelogram (a rect light, a quad of a mesh) are merged
+    /// into one: the density per area is the same, and one 2D sample covers
+    /// the whole quad, so a stratified set of samples stays stratified over
+    /// it (the triangle pick would otherwise spend one dimension).
+    Parallelogram {
+        a: Vec3,
+        e1: Vec3,
+        e2: Vec3,
     },
 }
 
@@ -88,7 +101,23 @@ impl AreaLights {
     }
 
     /// Adds the triangle `a b c` (view coordinates) emitting `radiance`.
+    /// When the emitter added last is the triangle `a p b` of the same
+    /// radiance and sides and the quad `a p b c` is a parallelogram, the two
+    /// become one parallelogram emitter.
     pub fn triangle(&mut self, [a, b, c]: [Vec3; 3], radiance: Vec3, two_sided: bool) {
+        if let Some(q) = self.parallelogram_with_last([a, b, c], radiance, two_sided) {
+            let last = self.emitters.len() - 1;
+            self.emitters.pop();
+            self.cdf.pop();
+            self.total = if last == 0 { 0.0 } else { self.cdf[last - 1] };
+            let scale = q.scale;
+            let Shape::Parallelogram { e1, e2, .. } = q.shape else {
+                unreachable!("parallelogram_with_last returns parallelograms")
+            };
+            let area = f64::from(e1.cross(e2).length());
+            self.push(Emitter { scale, ..q }, area);
+            return;
+        }
         let (e1, e2) = (b - a, c - a);
         let area = 0.5 * f64::from(e1.cross(e2).length());
         let scale = a.abs().max(b.abs()).max(c.abs()).max_element();
@@ -116,6 +145,45 @@ impl AreaLights {
             },
             area,
         );
+    }
+
+    /// The parallelogram the last emitter (a triangle `a p b`) makes with
+    /// the triangle `a b c` (its quad `a p b c`), if it does: same first
+    /// vertex, its third vertex is this one's second, c − a = b − p (within
+    /// rounding), same radiance and sides.
+    fn parallelogram_with_last(
+        &self,
+        [a, b, c]: [Vec3; 3],
+        radiance: Vec3,
+        two_sided: bool,
+    ) -> Option<Emitter> {
+        let last = self.emitters.last()?;
+        let Shape::Triangle {
+            a: a0,
+            e1: p_a,
+            e2: b_a,
+        } = last.shape
+        else {
+            return None;
+        };
+        if a0 != a || last.radiance != radiance || last.two_sided != two_sided {
+            return None;
+        }
+        // The quad a, p, b, c: a parallelogram when c − a = b − p. Vertices
+        // come from one transform in f32, so "equal" is within rounding.
+        let (e1, e2) = (p_a, c - a);
+        let size = e1.abs().max_element().max(e2.abs().max_element());
+        let shared = (b - a - b_a).abs().max_element();
+        let gap = (e2 - (b_a - p_a)).abs().max_element();
+        if !(shared <= 1e-5 * size) || !(gap <= 1e-5 * size) {
+            return None;
+        }
+        Some(Emitter {
+            shape: Shape::Parallelogram { a, e1, e2 },
+            radiance,
+            two_sided,
+            scale: last.scale.max(c.abs().max_element()),
+        })
     }
 
     fn push(&mut self, e: Emitter, area: f64) {
@@ -166,6 +234,9 @@ impl AreaLights {
                 let (b1, b2) = (su * (1.0 - u[1]), su * u[1]);
                 let n = e1.cross(e2).normalize_or_zero();
                 (a + e1 * b1 + e2 * b2, n)
+            }
+            Shape::Parallelogram { a, e1, e2 } => {
+                (a + e1 * u[0] + e2 * u[1], e1.cross(e2).normalize_or_zero())
             }
             Shape::Sphere { center, radius } => {
                 let z = 1.0 - 2.0 * u[0];
@@ -249,5 +320,108 @@ mod tests {
         assert!(AreaLights::new()
             .sample(0.5, [0.5, 0.5], Vec3::ZERO)
             .is_none());
+    }
+
+    /// The two triangles of a quad (a rect light's mesh) become one
+    /// parallelogram emitter whose points cover the whole quad uniformly
+    /// with one 2D sample; a trapezoid stays two triangles.
+    #[test]
+    fn the_triangles_of_a_parallelogram_merge_into_one_emitter() {
+        let (p0, p1, p2, p3) = (
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+            Vec3::new(2.5, 1.0, 1.0),
+            Vec3::new(0.5, 1.0, 1.0),
+        );
+        let mut l = AreaLights::new();
+        l.triangle([p0, p1, p2], Vec3::ONE, false);
+        l.triangle([p0, p2, p3], Vec3::ONE, false);
+        assert_eq!(l.len(), 1);
+        // Area 2 (base 2, height 1), one side: Φ = π·2·1.
+        assert!((l.power() - std::f64::consts::TAU).abs() < 1e-6);
+        let n = 64;
+        let mut mean = Vec3::ZERO;
+        for i in 0..n {
+            for j in 0..n {
+                let u = [(i as f32 + 0.5) / n as f32, (j as f32 + 0.5) / n as f32];
+                let s = l.sample(0.5, u, Vec3::new(1.0, -5.0, 0.5)).unwrap();
+                assert!((s.n - Vec3::NEG_Y).length() < 1e-6, "{}", s.n);
+                mean += s.y;
+            }
+        }
+        // The centroid of the parallelogram.
+        let c = (p0 + p1 + p2 + p3) / 4.0;
+        assert!(((mean / (n * n) as f32) - c).length() < 1e-3);
+        let mut t = AreaLights::new();
+        t.triangle([p0, p1, p2], Vec3::ONE, false);
+        t.triangle([p0, p2, p3 + Vec3::X * 0.3], Vec3::ONE, false);
+        assert_eq!(t.len(), 2);
+        // Different radiance: not merged either.
+        let mut r = AreaLights::new();
+        r.triangle([p0, p1, p2], Vec3::ONE, false);
+        r.triangle([p0, p2, p3], Vec3::splat(2.0), false);
+        assert_eq!(r.len(), 2);
+    }
+
+    /// Φ = ∮ E dA over a sphere enclosing a rectangle light, E at each point
+    /// of the sphere computed by quadrature over the rectangle
+    /// (Le·cos θ_y·cos θ_x/d² per patch): π·A·Le for a one-sided light,
+    /// twice that for a two-sided one, as [`AreaLights::power`] says.
+    #[test]
+    fn a_rect_lights_power_is_the_integral_of_its_irradiance_over_a_sphere() {
+        let (w, d, le) = (1.0f64, 0.5f64, 3.0f64);
+        let r = 2.0f64;
+        for two_sided in [false, true] {
+            let mut l = AreaLights::new();
+            let (hw, hd) = (w as f32 / 2.0, d as f32 / 2.0);
+            let c = [
+                Vec3::new(-hw, 0.0, -hd),
+                Vec3::new(hw, 0.0, -hd),
+                Vec3::new(hw, 0.0, hd),
+                Vec3::new(-hw, 0.0, hd),
+            ];
+            l.triangle([c[0], c[1], c[2]], Vec3::splat(le as f32), two_sided);
+            l.triangle([c[0], c[2], c[3]], Vec3::splat(le as f32), two_sided);
+            // (1,0,0) × (1,0,1): the front faces −y.
+            let (nx, nz, ns, nphi) = (16, 8, 400, 100);
+            let mut phi_sum = 0.0;
+            for i in 0..ns {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / ns as f64;
+                let s = (1.0 - z * z).sqrt();
+                for j in 0..nphi {
+                    let a = std::f64::consts::TAU * (j as f64 + 0.5) / nphi as f64;
+                    // Sphere point with its outward normal; the light's
+                    // normal is y, so put the sphere's pole on y.
+                    let n_x = glam::DVec3::new(s * a.cos(), z, s * a.sin());
+                    let x = n_x * r;
+                    let mut e = 0.0;
+                    for p in 0..nx {
+                        for q in 0..nz {
+                            let y = glam::DVec3::new(
+                                (p as f64 + 0.5) / nx as f64 * w - w / 2.0,
+                                0.0,
+                                (q as f64 + 0.5) / nz as f64 * d - d / 2.0,
+                            );
+                            let to = x - y;
+                            let dist2 = to.length_squared();
+                            let l = to / dist2.sqrt();
+                            let cos_y = -l.y;
+                            let emits = if two_sided {
+                                cos_y.abs()
+                            } else {
+                                cos_y.max(0.0)
+                            };
+                            e += le * emits * l.dot(n_x) / dist2;
+                        }
+                    }
+                    phi_sum += e * (w * d) / (nx * nz) as f64;
+                }
+            }
+            let got = phi_sum * 4.0 * std::f64::consts::PI * r * r / (ns * nphi) as f64;
+            let sides = if two_sided { 2.0 } else { 1.0 };
+            let expect = std::f64::consts::PI * w * d * le * sides;
+            assert!((got - expect).abs() < 2e-3 * expect, "{got} vs {expect}");
+            assert!((l.power() - expect).abs() < 1e-5 * expect, "{}", l.power());
+        }
     }
 }

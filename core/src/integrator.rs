@@ -13,6 +13,7 @@
 //! the ray tree they are used at (see `sampling`), so a pixel is a pure
 //! function of its coordinates.
 
+mod area;
 mod path;
 
 use crate::camera::Camera;
@@ -512,6 +513,8 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             hash2(node, TAG_SHADOW),
             u64::from(ctx.sample),
         );
+        // An emitting surface's Le (integrator/area.rs); zero for the rest.
+        c += self.emitted(sp);
         if r.diffuse_samples > 0 && sp.kd != Vec3::ZERO {
             let g = self.gather(
                 ctx,
@@ -589,6 +592,8 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             }
             total += sum.mean(u64::from(samples));
         }
+        // Area lights (integrator/area.rs): zero, and nothing drawn, without.
+        total += self.area_direct(ctx, sp, v, stream, index);
         saturate(total)
     }
 

@@ -47,6 +47,41 @@ pub fn incident(light: &Light, from: Vec3, p: Vec3) -> Option<Incident> {
     Some(Incident { e, l, dist })
 }
 
+/// The power Φ of a point or spot light (per channel), as the renderer's
+/// transport reads it: a surface at distance d facing the light receives
+/// irradiance π·E (so a Lambertian one reflects kd·E, the Whitted term), so
+/// the light's radiant intensity is π·color·intensity/q and
+///
+/// - a point light sends Φ = 4π · π·color·intensity/q,
+/// - a spot light Φ = 2π·(1 − (cos inner + cos outer)/2) · π·color·intensity/q
+///   (the smoothstep between the cones integrates, over cos θ, to half its
+///   width).
+///
+/// Finite only when E falls as 1/d², `attenuation="0 0 q"`; with a constant
+/// or linear term the light sends more the farther one looks and `None` is
+/// returned. Area lights: [`crate::area_lights::AreaLights::power`].
+pub fn power(light: &Light) -> Option<Vec3> {
+    let [c, lin, q] = light.attenuation.to_array();
+    if c != 0.0 || lin != 0.0 || !(q > 0.0) {
+        return None;
+    }
+    let pi = std::f64::consts::PI;
+    let solid = match light.kind {
+        LightKind::Point => 4.0 * pi,
+        LightKind::Spot {
+            cos_inner,
+            cos_outer,
+            ..
+        } => {
+            // A hard step (inner = outer) is the same formula.
+            let (ci, co) = (f64::from(cos_inner), f64::from(cos_outer));
+            2.0 * pi * (1.0 - 0.5 * (ci + co))
+        }
+    };
+    let i = pi * f64::from(light.intensity) / f64::from(q);
+    Some((light.color.as_dvec3() * (solid * i)).as_vec3())
+}
+
 /// GLSL smoothstep; a hard step at `e1` when the edges coincide.
 #[inline]
 pub fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
@@ -95,6 +130,58 @@ mod tests {
             radius: 0.0,
             attenuation: att,
         }
+    }
+
+    /// Φ = ∮ π·E dA over a sphere round the light, by the midpoint rule in
+    /// (cos θ, φ) about the spot's axis: the closed form of [`power`] for a
+    /// point light and for spots (smooth and hard-edged), at two radii (the
+    /// power does not depend on where it is measured when E ∝ 1/d²).
+    #[test]
+    fn a_lights_power_is_the_integral_of_its_irradiance_over_a_sphere() {
+        let mut spot = point(Vec3::new(0.0, 0.0, 2.0));
+        spot.kind = LightKind::Spot {
+            direction: Vec3::new(0.3, -1.0, 0.2).normalize(),
+            cos_inner: 20f32.to_radians().cos(),
+            cos_outer: 45f32.to_radians().cos(),
+        };
+        let mut hard = spot.clone();
+        hard.kind = LightKind::Spot {
+            direction: Vec3::X,
+            cos_inner: 30f32.to_radians().cos(),
+            cos_outer: 30f32.to_radians().cos(),
+        };
+        for light in [point(Vec3::new(0.0, 0.0, 2.0)), spot, hard] {
+            let axis = match light.kind {
+                LightKind::Spot { direction, .. } => direction,
+                LightKind::Point => Vec3::Y,
+            };
+            let (t, b) = crate::sampling::basis(axis);
+            let pos = light.position.as_vec3();
+            let expect = power(&light).unwrap().as_dvec3();
+            for r in [0.5f32, 3.0] {
+                let (nz, nphi) = (20000, 8);
+                let mut sum = glam::DVec3::ZERO;
+                for i in 0..nz {
+                    let z = 1.0 - 2.0 * (i as f64 + 0.5) / nz as f64;
+                    let s = (1.0 - z * z).sqrt();
+                    for j in 0..nphi {
+                        let phi = std::f64::consts::TAU * (j as f64 + 0.5) / nphi as f64;
+                        let d = t * (s * phi.cos()) as f32
+                            + b * (s * phi.sin()) as f32
+                            + axis * z as f32;
+                        let e = incident(&light, pos, pos + d * r).map_or(Vec3::ZERO, |i| i.e);
+                        sum += e.as_dvec3();
+                    }
+                }
+                // dA = r²·dz·dφ, each cell 4π r²/(nz·nphi).
+                let area = 4.0 * std::f64::consts::PI * f64::from(r * r);
+                let got = sum * std::f64::consts::PI * area / f64::from(nz * nphi);
+                let err = ((got - expect) / expect).abs().max_element();
+                assert!(err < 2e-3, "{:?} at r = {r}: {got} vs {expect}", light.kind);
+            }
+        }
+        // A constant term: no finite power.
+        assert!(power(&point(Vec3::new(1.0, 0.0, 1.0))).is_none());
     }
 
     #[test]
