@@ -25,6 +25,7 @@ images=(
     "examples/cornell.xml front cornell-front.png"
     "examples/cornell.xml corner cornell-corner.png"
     "examples/instancing.xml main instancing.png"
+    "examples/textured.xml main textured.png"
     "examples/turntable.xml turntable turntable.00.png"
     "examples/turntable.xml turntable turntable.06.png"
     "examples/turntable.xml turntable turntable.12.png"
