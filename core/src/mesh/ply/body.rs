@@ -469,7 +469,7 @@ mod tests {
         ]);
         for format in FORMATS {
             let m = ok(&ply(format, header, &rows));
-            let uv = |k: usize| Vec2::new(k as f32 * 0.2, (k as f32 * 0.2 + 0.1) as f32);
+            let uv = |k: usize| Vec2::new(k as f32 * 0.2, k as f32 * 0.2 + 0.1);
             let got: Vec<[Vec2; 3]> = m
                 .triangles
                 .iter()
