@@ -30,6 +30,19 @@ seed() {
     done
 }
 seed aisxml '*.xml'
+# A scene using every textured file of the aisxml target's bundle (see
+# fuzz_targets/aisxml.rs): OBJ with vt and an MTL, PLY texcoord, <uvs>, and
+# the texture attributes.
+cat > corpus/aisxml/textured-seed.xml <<'XML'
+<scene version="1"><settings background="0 0 0"/>
+<mesh id="a" file="t.obj"/><mesh id="b" file="t.ply"/>
+<mesh id="q"><vertices>0 0 0 1 0 0 1 1 0</vertices><uvs>0 0 1 0 1 1</uvs><triangles>0 1 2</triangles></mesh>
+<model id="ma" mesh="a"/>
+<model id="mb" mesh="b"><surface diffuse="1 1 1" diffuse-texture="t.png" texture-wrap="clamp" texture-scale="2 3"/></model>
+<model id="mq" mesh="q"><surface diffuse-texture="t.png"/></model>
+<light type="point" position="0 0 5"/>
+<camera id="c" position="0 0 5" lookat="0 0 0" fov="50"><render width="4" height="3"/></camera></scene>
+XML
 seed obj '*.obj'
 seed mtl '*.mtl'
 seed ply '*.ply'

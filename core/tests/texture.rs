@@ -202,3 +202,70 @@ fn the_level_of_detail_logarithm_is_close_to_log2_everywhere() {
     assert_eq!(texture_lod(1.0, 0.0, 1.0, 1.0), 0.0);
     assert_eq!(texture_lod(1.0, 1.0, 0.0, 1.0), 0.0);
 }
+
+/// A PNG of `side × side` texels of one 8-bit RGB colour.
+fn uniform_png(side: u32, rgb: [u8; 3]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, side, side);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().unwrap();
+    let data: Vec<u8> = (0..side * side).flat_map(|_| rgb).collect();
+    w.write_image_data(&data).unwrap();
+    w.finish().unwrap();
+    out
+}
+
+/// Every mode reads the textured albedo: with ambient occlusion and the
+/// diffuse gather (whose gathered points are textured surfaces too), a
+/// floor and a wall textured with one uniform colour render as the same
+/// scene untextured with `diffuse` (and `ambient`) set to that colour,
+/// decoded from sRGB here; and the gather and the texture both change the
+/// picture, so the comparison is not vacuous.
+#[test]
+fn ao_and_the_diffuse_gather_use_the_textured_albedo() {
+    const RGB: [u8; 3] = [200, 120, 60];
+    let linear = RGB.map(srgb);
+    let scene = |surface: &str, render: &str| {
+        format!(
+            r#"<scene version="1">
+  <settings background="0.3 0.4 0.5" ambient="0.4 0.4 0.4"/>
+  <mesh id="q"><vertices>-1 0 -1  1 0 -1  1 0 1  -1 0 1</vertices>
+    <uvs>0 0  1 0  1 1  0 1</uvs><triangles>0 2 1  0 3 2</triangles></mesh>
+  <model id="floor" mesh="q"><transform><scale v="3"/></transform>{surface}</model>
+  <model id="wall" mesh="q">
+    <transform><rotate axis="1 0 0" angle="90"/><scale v="3"/><translate v="0 1 -1.5"/></transform>{surface}</model>
+  <sphere id="s" center="0 0.6 0" radius="0.6"><surface diffuse="0.8 0.8 0.8"/></sphere>
+  <light type="point" position="1.5 2.5 2" intensity="3" attenuation="0 0 1"/>
+  <camera id="c" position="0 1.2 3.5" lookat="0 0.5 0" fov="55">
+    <render width="24" height="18" {render}/>
+  </camera>
+</scene>"#
+        )
+    };
+    let textured = r#"<surface diffuse="1 1 1" diffuse-texture="tex.png"/>"#;
+    let c = format!("{:.9} {:.9} {:.9}", linear[0], linear[1], linear[2]);
+    let plain = format!(r#"<surface diffuse="{c}" ambient="{c}"/>"#);
+    let png = || uniform_png(8, RGB);
+    let effects = r#"ao-samples="4" diffuse-samples="4" diffuse-depth="2""#;
+    let a = render(&textured_scene(&scene(textured, effects), png()), 0);
+    let b = render(&textured_scene(&scene(&plain, effects), png()), 0);
+    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        for c in 0..3 {
+            assert!(
+                (x[c] - y[c]).abs() < 1e-5,
+                "pixel {k}: textured {x:?}, untextured {y:?}"
+            );
+        }
+    }
+    let differs = |p: &[[f32; 3]], q: &[[f32; 3]]| {
+        p.iter()
+            .zip(q)
+            .any(|(x, y)| (0..3).any(|c| (x[c] - y[c]).abs() > 1e-3))
+    };
+    let no_gather = render(&textured_scene(&scene(textured, ""), png()), 0);
+    assert!(differs(&a, &no_gather), "the gather adds nothing here");
+    let white = r#"<surface diffuse="1 1 1"/>"#;
+    let untextured = render(&textured_scene(&scene(white, effects), png()), 0);
+    assert!(differs(&a, &untextured), "the texture changes nothing here");
+}

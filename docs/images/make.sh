@@ -27,6 +27,7 @@ images=(
     "examples/instancing.xml main instancing.png"
     "examples/cornell-path.xml whitted cornell-whitted.png"
     "examples/cornell-path.xml path cornell-path.png"
+    "examples/textured.xml main textured.png"
     "examples/turntable.xml turntable turntable.00.png"
     "examples/turntable.xml turntable turntable.06.png"
     "examples/turntable.xml turntable turntable.12.png"

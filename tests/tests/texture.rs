@@ -1,7 +1,9 @@
 //! Textures on the farm: a scene with an image texture (shipped in the
 //! bundle, decoded by each worker) rendered by a real coordinator and real
 //! workers is byte-identical to `trevi-submit` rendering it alone, through a
-//! mirror too (the texture's level of detail follows the reflected ray cone).
+//! mirror too (the texture's level of detail follows the reflected ray cone);
+//! the workers report the scene's memory (meshes and MIP chains). A textured
+//! PLY (per-face `texcoord`) renders its texture.
 
 mod common;
 
@@ -65,4 +67,50 @@ fn a_textured_frame_on_three_workers_is_byte_identical_to_one_process() {
         "farm output differs\n{}",
         dir.logs()
     );
+    // Each worker that built the scene reports its memory: the quad's
+    // arrays (4 positions, 4 normals, 4 uvs of 8 bytes, 2 triangles) and
+    // the 64 x 64 texture's MIP chain (64² + 32² + … + 1² texels of 12 bytes).
+    let mesh_bytes = 4 * 12 + 4 * 12 + 4 * 8 + 2 * 12;
+    let chain: u64 = (0..7).map(|k| (64u64 >> k).pow(2)).sum();
+    let line = format!("mesh_bytes={mesh_bytes} texture_bytes={}", chain * 12);
+    let built: Vec<String> = (0..3)
+        .map(|i| dir.read_log(&format!("worker{i}")))
+        .filter(|log| log.contains("scene built"))
+        .collect();
+    assert!(
+        !built.is_empty(),
+        "no worker built the scene\n{}",
+        dir.logs()
+    );
+    for log in &built {
+        assert!(log.contains(&line), "expected {line:?} in\n{log}");
+    }
+}
+
+/// The floor of `SCENE` as a PLY whose faces carry `texcoord` lists (the
+/// same uv at each corner as the inline mesh's `<uvs>`): the frame is
+/// byte-identical to the inline mesh's, and differs without the texture.
+#[test]
+fn a_ply_with_face_texcoords_renders_as_the_inline_mesh_with_uvs() {
+    const PLY: &str = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\n\
+        property float y\nproperty float z\nelement face 2\n\
+        property list uchar int vertex_indices\nproperty list uchar float texcoord\nend_header\n\
+        -2 0 -2\n2 0 -2\n2 0 2\n-2 0 2\n3 0 2 1 6 0 0 1 1 1 0\n3 0 3 2 6 0 0 0 1 1 1\n";
+    let dir = Dir::new();
+    std::fs::create_dir_all(dir.path().join("scene")).unwrap();
+    std::fs::write(dir.path().join("scene/tex.png"), texture_png()).unwrap();
+    std::fs::write(dir.path().join("scene/floor.ply"), PLY).unwrap();
+    let inline = dir.write("scene/inline.xml", SCENE);
+    let (head, rest) = SCENE.split_once("<mesh id=\"quad\">").unwrap();
+    let rest = rest.split_once("</mesh>").unwrap().1;
+    let ply_scene = format!("{head}<mesh id=\"quad\" file=\"floor.ply\"/>{rest}");
+    assert!(ply_scene.contains("floor.ply") && !ply_scene.contains("<uvs>"));
+    let ply = dir.write("scene/ply.xml", &ply_scene);
+    let from_ply = embedded(&dir, &ply, "ply.png");
+    assert!(from_ply == embedded(&dir, &inline, "inline.png"));
+    let plain = dir.write(
+        "scene/plain.xml",
+        &ply_scene.replace(r#" diffuse-texture="tex.png" texture-scale="3 3""#, ""),
+    );
+    assert!(embedded(&dir, &plain, "plain.png") != from_ply);
 }

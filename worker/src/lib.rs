@@ -878,7 +878,13 @@ impl Session {
         })
         .await??;
         let scene = Arc::new(scene);
-        tracing::info!(bundle = %hash, "scene built");
+        let memory = trevi_core::texture::SceneMemory::of(&scene.desc);
+        tracing::info!(
+            bundle = %hash,
+            mesh_bytes = memory.meshes,
+            texture_bytes = memory.textures,
+            "scene built"
+        );
         cache.put(hash.to_string(), scene.clone());
         Ok(scene)
     }

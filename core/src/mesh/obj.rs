@@ -29,11 +29,9 @@
 //! with texture coordinates but without normals gets its smooth normals
 //! here, before the split, so that a seam does not show in the shading.
 
-use std::collections::HashMap;
-
 use glam::{Vec2, Vec3};
 
-use super::read::{parse_token, show, unit_normal, MeshFile};
+use super::read::{parse_token, per_vertex_attributes, show, unit_normal, MeshFile};
 use super::Mesh;
 use crate::error::SceneError;
 
@@ -468,27 +466,7 @@ impl Parser<'_> {
                 .map(|t| t.map(|i| self.texcoords[i as usize]))
                 .collect::<Vec<[Vec2; 3]>>()
         });
-        if corner_uvs.is_none() && corner_normals.is_none() {
-            return Ok(mesh);
-        }
-        // Texture coordinates without normals: the smooth normals are made
-        // now, before seams are split, so that a seam's copies share their
-        // original's normal and the shading does not show the seam.
-        let smooth;
-        let corner_normals = match corner_normals {
-            Some(c) => Some(c),
-            None => {
-                mesh.compute_smooth_normals();
-                smooth = mesh
-                    .triangles
-                    .iter()
-                    .map(|t| t.map(|i| mesh.normals[i as usize]))
-                    .collect::<Vec<[Vec3; 3]>>();
-                Some(smooth)
-            }
-        };
-        if let Err(at) = split_corners(&mut mesh, corner_normals.as_deref(), corner_uvs.as_deref())
-        {
+        if let Err(at) = per_vertex_attributes(&mut mesh, corner_normals, corner_uvs) {
             return Err(file.error_at(
                 at,
                 "too many vertices after splitting by normal and texture coordinate",
@@ -496,72 +474,6 @@ impl Parser<'_> {
         }
         Ok(mesh)
     }
-}
-
-/// A corner's attributes as bits, for comparing them exactly: normal, uv.
-type CornerKey = ([u32; 3], [u32; 2]);
-
-/// Gives `mesh` one normal and/or uv per vertex from the per-corner ones
-/// (whichever are given), splitting a position used with different ones.
-/// Original positions keep their indices (with the first attributes they
-/// are used with; unused ones get `+y` and uv `0 0`); the copies are
-/// appended. `Err(0)` if the vertex count would overflow u32.
-fn split_corners(
-    mesh: &mut Mesh,
-    corner_normals: Option<&[[Vec3; 3]]>,
-    corner_uvs: Option<&[[Vec2; 3]]>,
-) -> Result<(), usize> {
-    let original = mesh.positions.len();
-    let mut assigned: Vec<Option<(Vec3, Vec2)>> = vec![None; original];
-    let mut extra: Vec<(Vec3, Vec2)> = Vec::new();
-    let mut copies: HashMap<(u32, CornerKey), u32> = HashMap::new();
-    let key = |(n, uv): (Vec3, Vec2)| -> CornerKey {
-        (
-            n.to_array().map(f32::to_bits),
-            uv.to_array().map(f32::to_bits),
-        )
-    };
-    for (k, t) in mesh.triangles.iter_mut().enumerate() {
-        for (j, v) in t.iter_mut().enumerate() {
-            let attrs = (
-                corner_normals.map_or(Vec3::Y, |c| c[k][j]),
-                corner_uvs.map_or(Vec2::ZERO, |c| c[k][j]),
-            );
-            let slot = &mut assigned[*v as usize];
-            match slot {
-                None => *slot = Some(attrs),
-                Some(m) if key(*m) == key(attrs) => {}
-                Some(_) => {
-                    let ck = (*v, key(attrs));
-                    *v = match copies.get(&ck) {
-                        Some(&i) => i,
-                        None => {
-                            let i = mesh.positions.len();
-                            if i >= NONE as usize {
-                                return Err(0);
-                            }
-                            mesh.positions.push(mesh.positions[*v as usize]);
-                            extra.push(attrs);
-                            copies.insert(ck, i as u32);
-                            i as u32
-                        }
-                    };
-                }
-            }
-        }
-    }
-    let all = assigned
-        .into_iter()
-        .map(|a| a.unwrap_or((Vec3::Y, Vec2::ZERO)))
-        .chain(extra);
-    if corner_normals.is_some() && corner_uvs.is_some() {
-        (mesh.normals, mesh.uvs) = all.unzip();
-    } else if corner_normals.is_some() {
-        mesh.normals = all.map(|a| a.0).collect();
-    } else {
-        mesh.uvs = all.map(|a| a.1).collect();
-    }
-    Ok(())
 }
 
 #[cfg(test)]

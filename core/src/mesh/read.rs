@@ -1,9 +1,13 @@
 //! What the OBJ and PLY readers share: the file being read (for errors that
 //! point at a byte of it), tokens shown in messages, numbers read from
-//! tokens, and file normals made unit length.
+//! tokens, file normals made unit length, and per-corner normals and
+//! texture coordinates turned into per-vertex ones.
 
-use glam::Vec3;
+use std::collections::HashMap;
 
+use glam::{Vec2, Vec3};
+
+use super::Mesh;
 use crate::error::{Location, SceneError};
 
 /// A mesh file being read: its bundle-relative name and its bytes, so that
@@ -53,6 +57,99 @@ pub(super) fn unit_normal(n: Vec3) -> Option<Vec3> {
     } else {
         None
     }
+}
+
+/// Gives `mesh` per-vertex normals and texture coordinates from per-corner
+/// ones (one `[_; 3]` per triangle), whichever are given; with neither the
+/// mesh is left as it is. Texture coordinates without normals: the smooth
+/// normals are made now, before seams are split, so that a seam's copies
+/// share their original's normal and the shading does not show the seam.
+/// `Err(0)` if the vertex count would overflow u32.
+pub(super) fn per_vertex_attributes(
+    mesh: &mut Mesh,
+    corner_normals: Option<Vec<[Vec3; 3]>>,
+    corner_uvs: Option<Vec<[Vec2; 3]>>,
+) -> Result<(), usize> {
+    if corner_uvs.is_none() && corner_normals.is_none() {
+        return Ok(());
+    }
+    let corner_normals = match corner_normals {
+        Some(c) => c,
+        None => {
+            mesh.compute_smooth_normals();
+            mesh.triangles
+                .iter()
+                .map(|t| t.map(|i| mesh.normals[i as usize]))
+                .collect()
+        }
+    };
+    split_corners(mesh, Some(&corner_normals), corner_uvs.as_deref())
+}
+
+/// A corner's attributes as bits, for comparing them exactly: normal, uv.
+type CornerKey = ([u32; 3], [u32; 2]);
+
+/// Gives `mesh` one normal and/or uv per vertex from the per-corner ones
+/// (whichever are given), splitting a position used with different ones.
+/// Original positions keep their indices (with the first attributes they
+/// are used with; unused ones get `+y` and uv `0 0`); the copies are
+/// appended. `Err(0)` if the vertex count would overflow u32.
+fn split_corners(
+    mesh: &mut Mesh,
+    corner_normals: Option<&[[Vec3; 3]]>,
+    corner_uvs: Option<&[[Vec2; 3]]>,
+) -> Result<(), usize> {
+    let original = mesh.positions.len();
+    let mut assigned: Vec<Option<(Vec3, Vec2)>> = vec![None; original];
+    let mut extra: Vec<(Vec3, Vec2)> = Vec::new();
+    let mut copies: HashMap<(u32, CornerKey), u32> = HashMap::new();
+    let key = |(n, uv): (Vec3, Vec2)| -> CornerKey {
+        (
+            n.to_array().map(f32::to_bits),
+            uv.to_array().map(f32::to_bits),
+        )
+    };
+    for (k, t) in mesh.triangles.iter_mut().enumerate() {
+        for (j, v) in t.iter_mut().enumerate() {
+            let attrs = (
+                corner_normals.map_or(Vec3::Y, |c| c[k][j]),
+                corner_uvs.map_or(Vec2::ZERO, |c| c[k][j]),
+            );
+            let slot = &mut assigned[*v as usize];
+            match slot {
+                None => *slot = Some(attrs),
+                Some(m) if key(*m) == key(attrs) => {}
+                Some(_) => {
+                    let ck = (*v, key(attrs));
+                    *v = match copies.get(&ck) {
+                        Some(&i) => i,
+                        None => {
+                            let i = mesh.positions.len();
+                            if i >= u32::MAX as usize {
+                                return Err(0);
+                            }
+                            mesh.positions.push(mesh.positions[*v as usize]);
+                            extra.push(attrs);
+                            copies.insert(ck, i as u32);
+                            i as u32
+                        }
+                    };
+                }
+            }
+        }
+    }
+    let all = assigned
+        .into_iter()
+        .map(|a| a.unwrap_or((Vec3::Y, Vec2::ZERO)))
+        .chain(extra);
+    if corner_normals.is_some() && corner_uvs.is_some() {
+        (mesh.normals, mesh.uvs) = all.unzip();
+    } else if corner_normals.is_some() {
+        mesh.normals = all.map(|a| a.0).collect();
+    } else {
+        mesh.uvs = all.map(|a| a.1).collect();
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -17,8 +17,10 @@
 //! (the OBJ convention); texel `(i, j)` (column, row from the top) has its
 //! centre at `u = (i + ½)/W`, `v = 1 − (j + ½)/H`.
 
+mod memory;
 mod sample;
 
+pub use memory::SceneMemory;
 pub use sample::Wrap;
 
 use glam::Vec3;

@@ -98,6 +98,9 @@ pub(super) enum Role {
     /// `s t` or `texture_u texture_v`).
     Vertex(usize),
     Indices,
+    /// A face's `texcoord` list: `u v` for each corner, in the order of
+    /// its `vertex_indices`.
+    TexCoord,
 }
 
 #[derive(Debug)]
@@ -135,7 +138,12 @@ pub(super) struct Header {
     pub body_line: u32,
     pub vertex_count: u32,
     pub has_normals: bool,
+    /// The vertex element has `u v` (or `s t`, `texture_u texture_v`) and
+    /// the face element has no `texcoord` list.
     pub has_uvs: bool,
+    /// The face element has a `texcoord` list (which then wins over any
+    /// per-vertex texture coordinates).
+    pub has_face_uvs: bool,
 }
 
 /// One header line: its whitespace-separated tokens with their byte
@@ -444,6 +452,13 @@ impl<'a> Reader<'a> {
                 }
                 Role::Indices
             }
+            (Use::Face, b"texcoord", Kind::Scalar(_)) => {
+                return Err(self.err(
+                    name_at,
+                    "face property \"texcoord\" must be a list (u v for each corner)",
+                ))
+            }
+            (Use::Face, b"texcoord", Kind::List { .. }) => Role::TexCoord,
             _ => Role::Skip,
         })
     }
@@ -460,7 +475,11 @@ impl<'a> Reader<'a> {
         let Some(format) = self.format else {
             return Err(self.err(end_header_at, "PLY header has no format line"));
         };
-        let (vi, has_normals, has_uvs) = self.vertex_element(end_header_at)?;
+        let has_face_uvs = self
+            .elements
+            .iter()
+            .any(|e| e.props.iter().any(|p| p.role == Role::TexCoord));
+        let (vi, has_normals, has_uvs) = self.vertex_element(end_header_at, has_face_uvs)?;
         self.check_polygon_elements(end_header_at)?;
         self.check_counts(format, body_start)?;
         let vertex_count = u32::try_from(self.elements[vi].count)
@@ -475,6 +494,7 @@ impl<'a> Reader<'a> {
             vertex_count,
             has_normals,
             has_uvs,
+            has_face_uvs,
         })
     }
 
@@ -482,8 +502,13 @@ impl<'a> Reader<'a> {
     /// texture coordinates. `x y z` are required; normals are used only if
     /// all of `nx ny nz` are there, texture coordinates only if both `u v`
     /// (or `s t`, `texture_u texture_v`) are (otherwise those present are
-    /// skipped like any other property).
-    fn vertex_element(&mut self, end_header_at: usize) -> Result<(usize, bool, bool), SceneError> {
+    /// skipped like any other property), and not when the faces have a
+    /// `texcoord` list (`face_uvs`), which wins.
+    fn vertex_element(
+        &mut self,
+        end_header_at: usize,
+        face_uvs: bool,
+    ) -> Result<(usize, bool, bool), SceneError> {
         let Some(vi) = self.elements.iter().position(|e| e.used == Use::Vertex) else {
             return Err(self.err(end_header_at, "PLY header declares no vertex element"));
         };
@@ -500,7 +525,7 @@ impl<'a> Reader<'a> {
             ));
         }
         let has_normals = has[3..6].iter().all(|&h| h);
-        let has_uvs = has[6..].iter().all(|&h| h);
+        let has_uvs = has[6..].iter().all(|&h| h) && !face_uvs;
         for p in &mut self.elements[vi].props {
             if (!has_normals && matches!(p.role, Role::Vertex(3..6)))
                 || (!has_uvs && matches!(p.role, Role::Vertex(6..)))

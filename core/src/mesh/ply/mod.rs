@@ -26,6 +26,19 @@
 //! the header, column 1 + the byte offset into the body, and the message
 //! says "byte N" (N = that offset).
 //!
+//! Texture coordinates: per vertex when the vertex element has both `u v`
+//! (or `s t`, `texture_u texture_v`); per face corner when the face
+//! element has a `texcoord` list (any scalar types) of `u v` for each
+//! vertex of its `vertex_indices`, in that order (6 values for a triangle,
+//! 2n for an n-gon, whose fan triangles `(0, k-1, k)` take those corners'
+//! pairs; the list may come before or after the indices). Per-face ones win
+//! over per-vertex ones. A vertex used with different uvs (a seam) is
+//! copied, as in OBJ (`mesh/read.rs`); without file normals, smooth ones are
+//! made before the split so the seam does not show. A list of another
+//! length than 2n is an error at the second of the two lists' counts; an
+//! empty one means the face has none, and then neither has the mesh (nor
+//! when it also has triangle strips, which have no texture coordinates).
+//!
 //! Normals: used when the vertex element has all of `nx ny nz`; they are
 //! normalised, and a zero-length one drops the normals of the whole mesh (the
 //! caller then computes smooth ones). Non-finite coordinates or normals are
@@ -280,7 +293,8 @@ mod tests {
                 "ply\nformat {format} 1.0\nelement vertex {vertices}\nproperty {ty} x\n\
                  property {ty} y\nproperty {ty} z\nelement extra {extra}\n\
                  property list {count_ty} {ty} stuff\nelement face {faces}\n\
-                 property list {count_ty} {index_ty} vertex_indices\nend_header\n"
+                 property list {count_ty} {index_ty} vertex_indices\n\
+                 property list {count_ty} {ty} texcoord\nend_header\n"
             );
             let mut bytes = header.into_bytes();
             bytes.extend_from_slice(&body);

@@ -159,7 +159,7 @@ property uchar red
 property list ushort uint32 tags
 property list uint8 float64 weights
 element face 5
-property list uint8 float32 texcoord
+property list uint8 float32 quality
 property list uchar int vertex_indices
 property int16 flags
 element trailer 2

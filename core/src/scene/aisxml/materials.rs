@@ -2,7 +2,8 @@
 //! models that instance it (unless the model has `<surface>` children of
 //! its own, which then replace them all).
 //!
-//! Mapping (docs/aisxml-extensions.md, "OBJ materials"): `Kd` → diffuse,
+//! Mapping (docs/aisxml-extensions.md, "OBJ materials"): `Kd` → diffuse
+//! (absent: 1 with a `map_Kd`, whose image is then the colour, else 0.8),
 //! `Ka` → ambient (absent: = diffuse, as in AISXML), `Ks` → specular (not
 //! for nvdiffrec's `bsdf` materials, whose `Ks` packs PBR parameters),
 //! `Ns` → shininess, `d`/`Tr` → opacity, `Ni` → ior, `map_Kd` →
@@ -138,7 +139,14 @@ impl Resolver<'_> {
 /// A material's surface (see the module's mapping).
 fn surface_of(m: &Material) -> Surface {
     let d = Surface::default();
-    let diffuse = m.kd.unwrap_or(d.diffuse);
+    // A map_Kd without Kd is the colour itself (as nvdiffrec's and most
+    // exporters' files mean it), not the image times AISXML's default 0.8.
+    let no_kd = if m.map_kd.is_some() {
+        glam::Vec3::ONE
+    } else {
+        d.diffuse
+    };
+    let diffuse = m.kd.unwrap_or(no_kd);
     let specular = if m.bsdf {
         d.specular
     } else {
@@ -218,6 +226,17 @@ mod tests {
         );
         let tex = &m.surfaces[2];
         assert_eq!(tex.specular, Vec3::ZERO, "bsdf pbr: Ks is not a colour");
+        assert_eq!(
+            tex.diffuse,
+            Vec3::ONE,
+            "map_Kd without Kd: the image is the colour"
+        );
+        assert_eq!(tex.ambient, Vec3::ONE);
+        assert_eq!(
+            m.surfaces[0].diffuse,
+            Vec3::splat(0.8),
+            "no material: the default"
+        );
         let t = tex.texture.unwrap();
         assert_eq!(t.wrap, crate::texture::Wrap::Clamp);
         assert_eq!(d.textures.len(), 1);
