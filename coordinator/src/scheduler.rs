@@ -562,7 +562,8 @@ impl Scheduler {
     fn fail_jobs_too_big(&mut self, now: Instant) {
         let live = self.workers.live(self.cfg.lease_ttl, now);
         let limits: Vec<u64> = live.iter().map(|&w| self.workers.memory_limit(w)).collect();
-        for &(_, id) in &self.queue {
+        let queued: Vec<JobId> = self.queue.iter().map(|&(_, id)| id).collect();
+        for id in queued {
             if self.failed.iter().any(|(f, _)| *f == id) {
                 continue;
             }

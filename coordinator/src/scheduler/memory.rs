@@ -6,11 +6,12 @@
 //! least its estimate.
 //!
 //! A job that no live worker can hold waits [`Limits::memory_grace`] from
-//! the time its estimate became known, so that a bigger worker can still
-//! register (a farm starting up, a machine waking for the night); after
-//! that, while the live workers still cannot hold it, it fails with a
-//! message naming the estimate and the largest limit. With no live worker
-//! at all the job waits, like any job.
+//! the time its estimate became known or, later, the last time a live
+//! worker could hold it (or no worker was live), so that a bigger worker
+//! can still register (a farm starting up, a worker's service
+//! restarting); after that, while the live workers still cannot hold it,
+//! it fails with a message naming the estimate and the largest limit. With
+//! no live worker at all the job waits, like any job.
 //!
 //! [`Limits::memory_grace`]: crate::limits::Limits::memory_grace
 
@@ -19,7 +20,8 @@ use std::collections::HashMap;
 use std::time::{Duration, Instant};
 use trevi_core::scene::estimate::human_bytes;
 
-/// The estimates of the jobs that have one, and since when.
+/// The estimates of the jobs that have one, and since when no live worker
+/// could hold them (as far as [`MemoryGate::too_big`] has seen).
 #[derive(Debug, Default)]
 pub struct MemoryGate {
     jobs: HashMap<JobId, (u64, Instant)>,
@@ -52,19 +54,23 @@ impl MemoryGate {
     }
 
     /// Why `job` must fail, if the workers live now (their limits in
-    /// `limits`) cannot hold it and its grace has passed.
+    /// `limits`) cannot hold it and its grace has passed. Called
+    /// periodically; a live worker that can hold it (or none live)
+    /// restarts the grace.
     pub fn too_big(
-        &self,
+        &mut self,
         job: JobId,
         limits: &[u64],
         grace: Duration,
         now: Instant,
     ) -> Option<String> {
-        let &(bytes, since) = self.jobs.get(&job)?;
-        if limits.is_empty()
-            || limits.iter().any(|&l| fits(bytes, l))
-            || now.saturating_duration_since(since) < grace
-        {
+        let (bytes, since) = self.jobs.get_mut(&job)?;
+        let bytes = *bytes;
+        if limits.is_empty() || limits.iter().any(|&l| fits(bytes, l)) {
+            *since = (*since).max(now);
+            return None;
+        }
+        if now.saturating_duration_since(*since) < grace {
             return None;
         }
         let largest = limits.iter().copied().max().unwrap_or(0);
@@ -126,24 +132,20 @@ mod tests {
         let mut g = MemoryGate::default();
         g.set(7, 3_328_599_654, t0);
         let small = [GIB, 2 * GIB];
-        let late = t0 + grace;
+        let t1 = t0 + grace / 2;
+        assert_eq!(g.too_big(7, &small, grace, t1), None, "in its grace");
+        assert_eq!(g.too_big(8, &small, grace, t0 + grace), None, "no estimate");
+        // A worker that can hold it, or one without a limit, or no live
+        // worker at all: it waits, and its grace starts again from there.
+        assert_eq!(g.too_big(7, &[GIB, 4 * GIB], grace, t1), None);
+        assert_eq!(g.too_big(7, &[GIB, 0], grace, t1), None);
+        assert_eq!(g.too_big(7, &[], grace, t1), None);
         assert_eq!(
-            g.too_big(7, &small, grace, t0 + grace / 2),
+            g.too_big(7, &small, grace, t0 + grace),
             None,
-            "in its grace"
+            "grace from t1"
         );
-        assert_eq!(
-            g.too_big(7, &[], grace, late),
-            None,
-            "no live worker: it waits"
-        );
-        assert_eq!(g.too_big(7, &[GIB, 4 * GIB], grace, late), None, "one can");
-        assert_eq!(
-            g.too_big(7, &[GIB, 0], grace, late),
-            None,
-            "one has no limit"
-        );
-        assert_eq!(g.too_big(8, &small, grace, late), None, "no estimate");
+        let late = t1 + grace;
         assert_eq!(
             g.too_big(7, &small, grace, late).as_deref(),
             Some(
