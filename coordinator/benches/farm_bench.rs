@@ -547,6 +547,7 @@ fn scale(args: &[String]) {
                     name: format!("sim-{i}"),
                     threads: cores,
                     multi_tile: multi,
+                    ..Default::default()
                 })
                 .await
                 .unwrap()

@@ -117,6 +117,9 @@ pub struct WorkerOptions<'a> {
     /// It renders leases of several adjacent tiles (see
     /// [`crate::scheduler::lease_size`]); without it, one tile per lease.
     pub multi_tile: bool,
+    /// The most memory it lets a scene take, in bytes (`--max-memory`);
+    /// 0: no limit (see [`crate::scheduler::memory`]).
+    pub max_memory: u64,
 }
 
 /// A worker [`Farm::register_worker`] registered.
@@ -385,7 +388,13 @@ impl Farm {
             )));
         }
         let now = Instant::now();
+        // The scene's memory estimate, from the summary `job_spec` made.
+        let memory = self
+            .summaries
+            .get(&spec.bundle_hash)
+            .map_or(0, |s| s.memory);
         let id = st.sched.submit(spec, now);
+        st.sched.set_memory_estimate(id, memory, now);
         let sink = match make(id) {
             Ok(s) => s,
             Err(e) => {
@@ -441,7 +450,31 @@ impl Farm {
         if opts.multi_tile {
             st.sched.allow_spans(id);
         }
+        st.sched.set_memory_limit(id, opts.max_memory);
         Ok(Registration { id, session })
+    }
+
+    /// `worker` declines `lease`: its scene needs about `bytes`, more than
+    /// the worker's memory limit. Re-queued at once, not counted as a
+    /// failure; the job keeps the estimate (see
+    /// [`Scheduler::decline_lease`]).
+    pub fn decline_tile(
+        &self,
+        worker: WorkerId,
+        lease: LeaseId,
+        bytes: u64,
+    ) -> Result<(), FarmError> {
+        lock(&self.state)
+            .sched
+            .decline_lease(worker, lease, bytes, Instant::now())?;
+        tracing::info!(
+            worker,
+            lease,
+            needs = %trevi_core::scene::estimate::human_bytes(bytes),
+            "tile declined: the scene needs more memory than the worker's --max-memory; re-queued"
+        );
+        self.work.notify_waiters();
+        Ok(())
     }
 
     /// Checks that `session` is the secret `worker` registered with: an

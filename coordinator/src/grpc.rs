@@ -376,6 +376,7 @@ impl pb::workers_server::Workers for WorkersService {
             threads: r.threads,
             session: true,
             multi_tile: r.multi_tile,
+            max_memory: r.max_memory,
         })?;
         tracing::info!(worker = reg.id, name = %r.name, threads = r.threads, "worker registered");
         Ok(Response::new(pb::RegisterResponse {
@@ -405,6 +406,7 @@ impl pb::workers_server::Workers for WorkersService {
                 camera: l.camera,
                 rect: Some(l.rect.into()),
                 tiles: l.tiles,
+                memory_estimate: l.memory_estimate,
             }),
         }))
     }
@@ -496,6 +498,11 @@ impl pb::workers_server::Workers for WorkersService {
         let keep = self.farm.config().limits.max_return_error_chars;
         let error: String = r.error.chars().take(keep).collect();
         let error = (!error.is_empty()).then_some(error);
+        if r.memory_needed > 0 && error.is_none() {
+            self.farm
+                .decline_tile(r.worker_id, r.lease_id, r.memory_needed)?;
+            return Ok(Response::new(pb::TileReturnAck {}));
+        }
         self.farm
             .return_tile(r.worker_id, r.lease_id, error.as_deref())?;
         Ok(Response::new(pb::TileReturnAck {}))

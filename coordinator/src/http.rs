@@ -365,9 +365,13 @@ struct WorkerView {
     name: String,
     threads: u32,
     state: &'static str,
-    /// Why a paused worker is paused ("busy", "outside hours"); null
-    /// otherwise.
+    /// Why a paused worker is paused ("busy", "outside hours", "memory":
+    /// no queued job fits its memory limit); null otherwise.
     paused: Option<String>,
+    /// Its `--max-memory` in bytes; null when it said none.
+    memory_limit: Option<u64>,
+    /// The same for people ("2.0 GiB"); null when none.
+    memory_limit_text: Option<String>,
     silent_ms: u64,
     tiles: Vec<TileView>,
     tiles_done: u64,
@@ -384,6 +388,9 @@ impl From<&WorkerInfo> for WorkerView {
             threads: w.threads,
             state: w.state.name(),
             paused: w.paused.clone().filter(|_| w.state == WorkerState::Paused),
+            memory_limit: (w.memory_limit > 0).then_some(w.memory_limit),
+            memory_limit_text: (w.memory_limit > 0)
+                .then(|| trevi_core::scene::estimate::human_bytes(w.memory_limit)),
             silent_ms: w.silent_for.as_millis() as u64,
             tiles: w
                 .leases

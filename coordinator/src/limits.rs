@@ -75,6 +75,10 @@ pub struct Limits {
     /// bigger): bounds what one upload makes the coordinator hold, at 12
     /// bytes a pixel.
     pub max_lease_pixels: u64,
+    /// How long a job that no live worker has the memory for waits for a
+    /// bigger worker to register before it fails (counted from when its
+    /// estimate became known; see [`crate::scheduler::memory`]).
+    pub memory_grace: Duration,
 }
 
 impl Default for Limits {
@@ -110,6 +114,9 @@ impl Default for Limits {
             // 12 MiB of pixels: a 4096-pixel-wide band of 64-pixel tiles
             // is a quarter of it.
             max_lease_pixels: 1 << 20,
+            // Long enough for a worker started with the job (or restarted
+            // by its service manager) to register.
+            memory_grace: Duration::from_secs(30),
         }
     }
 }

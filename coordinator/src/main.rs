@@ -72,6 +72,12 @@ struct Args {
     #[arg(long, env = "TREVI_MAX_TILE_LOSSES", value_parser = at_least::<u32>(1),
           default_value_t = defaults().limits.max_tile_losses)]
     max_tile_losses: u32,
+    /// How long, in milliseconds, a job whose scene no live worker has the
+    /// memory for (by their --max-memory) waits for a bigger worker to
+    /// register before it fails, naming its estimate and the largest limit.
+    #[arg(long, env = "TREVI_MEMORY_GRACE_MS",
+          default_value_t = defaults().limits.memory_grace.as_millis() as u64)]
+    memory_grace_ms: u64,
     /// Token submitters must present (`trevi-submit --token`); without it
     /// anyone who reaches the coordinator may submit and read jobs.
     #[arg(long, env = "TREVI_SUBMIT_TOKEN", hide_env_values = true)]
@@ -169,6 +175,7 @@ impl Args {
                 max_tile_failures: self.max_tile_failures,
                 max_worker_failures: self.max_worker_failures,
                 max_tile_losses: self.max_tile_losses,
+                memory_grace: Duration::from_millis(self.memory_grace_ms),
                 http_header_timeout: Duration::from_millis(self.http_header_timeout_ms),
                 http_max_connections: self.http_max_connections,
                 ..d.limits

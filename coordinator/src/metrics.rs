@@ -192,7 +192,7 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
         &mut out,
         "trevi_workers_paused",
         "gauge",
-        "Paused workers, by the reason they gave (busy, outside hours).",
+        "Paused workers, by reason (busy, outside hours: the worker's; memory: no queued job fits its limit).",
     );
     let mut reasons = std::collections::BTreeMap::<&str, usize>::new();
     for w in &s.workers {
@@ -217,6 +217,24 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
                 w.id,
                 label(&w.name),
                 label(r)
+            );
+        }
+    }
+
+    family(
+        &mut out,
+        "trevi_worker_memory_limit_bytes",
+        "gauge",
+        "Each live worker's --max-memory in bytes (workers that gave none are left out).",
+    );
+    for w in &s.workers {
+        if w.memory_limit > 0 && w.state != WorkerState::Lost {
+            let _ = writeln!(
+                out,
+                "trevi_worker_memory_limit_bytes{{worker=\"{}\",name=\"{}\"}} {}",
+                w.id,
+                label(&w.name),
+                w.memory_limit
             );
         }
     }

@@ -19,9 +19,11 @@
 //!   without an error (it is stopping) re-queues the tile and counts nothing.
 
 pub mod lease_size;
+pub mod memory;
 mod window;
 
 use lease_size::LeaseSizer;
+use memory::MemoryGate;
 pub use window::{band_bytes, encoder_bytes, ENCODER_ROWS, TILE_BOOKKEEPING_BYTES};
 use window::{BandWindow, TileState};
 
@@ -115,6 +117,8 @@ pub struct Lease {
     pub rect: Rect,
     /// How many tiles `rect` covers (1 for one tile).
     pub tiles: u32,
+    /// The job's memory estimate in bytes, 0 if none (see [`memory`]).
+    pub memory_estimate: u64,
 }
 
 /// What became of a result handed to [`Scheduler::accept_tile`].
@@ -262,6 +266,8 @@ pub struct Scheduler {
     /// Jobs failed by their tiles' failures, for the caller to wind up.
     failed: Vec<(JobId, String)>,
     sizer: LeaseSizer,
+    /// Which workers can hold which jobs (see [`memory`]).
+    memory: MemoryGate,
 }
 
 impl Scheduler {
@@ -282,6 +288,7 @@ impl Scheduler {
             finished: 0,
             failed: Vec::new(),
             sizer: LeaseSizer::default(),
+            memory: MemoryGate::default(),
         }
     }
 
@@ -305,6 +312,25 @@ impl Scheduler {
     /// Records why `worker` takes no tiles for now (`None`: it works).
     pub fn set_paused(&mut self, worker: WorkerId, why: Option<&str>) {
         self.workers.set_paused(worker, why);
+    }
+
+    /// Records the memory limit `worker` registered with (0: none); see
+    /// [`memory`].
+    pub fn set_memory_limit(&mut self, worker: WorkerId, bytes: u64) {
+        self.workers.set_memory_limit(worker, bytes);
+    }
+
+    /// Records that `job`'s scene needs about `bytes` once built (the
+    /// larger of what is known wins); see [`memory`].
+    pub fn set_memory_estimate(&mut self, job: JobId, bytes: u64, now: Instant) {
+        if self.jobs.contains_key(&job) {
+            self.memory.set(job, bytes, now);
+        }
+    }
+
+    /// `job`'s memory estimate in bytes (0: none).
+    pub fn memory_estimate(&self, job: JobId) -> u64 {
+        self.memory.estimate(job)
     }
 
     /// `worker` takes leases of several adjacent tiles (it said so when it
@@ -404,6 +430,8 @@ impl Scheduler {
         self.workers.set_paused(worker, None);
         self.expire(now);
         let max_fail = self.cfg.max_worker_failures.max(1);
+        let limit = self.workers.memory_limit(worker);
+        let mut too_small = false;
         for &(_, id) in &self.queue {
             let job = self.jobs.get_mut(&id).expect("queued jobs exist");
             if job
@@ -411,6 +439,10 @@ impl Scheduler {
                 .get(&worker)
                 .is_some_and(|&n| n >= max_fail)
             {
+                continue;
+            }
+            if !self.memory.fits(id, limit) {
+                too_small |= job.window.next_tile().is_some();
                 continue;
             }
             let Some(first) = job.window.next_tile() else {
@@ -471,7 +503,12 @@ impl Scheduler {
                 camera: job.spec.camera.clone(),
                 rect,
                 tiles: span.len() as u32,
+                memory_estimate: self.memory.estimate(id),
             }));
+        }
+        if too_small {
+            // Work is waiting that this worker cannot hold.
+            self.workers.set_paused(worker, Some("memory"));
         }
         Ok(None)
     }
@@ -516,7 +553,46 @@ impl Scheduler {
         let workers = &self.workers;
         self.sizer.retain_workers(|w| workers.threads(w).is_some());
         self.fail_stranded_jobs(now);
+        self.fail_jobs_too_big(now);
         expired.len()
+    }
+
+    /// Fails the jobs no live worker can hold once their grace has passed
+    /// (see [`memory`]).
+    fn fail_jobs_too_big(&mut self, now: Instant) {
+        let live = self.workers.live(self.cfg.lease_ttl, now);
+        let limits: Vec<u64> = live.iter().map(|&w| self.workers.memory_limit(w)).collect();
+        let queued: Vec<JobId> = self.queue.iter().map(|&(_, id)| id).collect();
+        for id in queued {
+            if self.failed.iter().any(|(f, _)| *f == id) {
+                continue;
+            }
+            if let Some(msg) = self.memory.too_big(id, &limits, self.cfg.memory_grace, now) {
+                self.failed.push((id, msg));
+            }
+        }
+    }
+
+    /// `worker` declines `lease` because its scene needs about `bytes`,
+    /// more than its memory limit: the tile is re-queued without counting
+    /// a failure, the job keeps the estimate (so it is not leased to
+    /// workers that small again), and the worker shows as paused for
+    /// "memory" until it takes a tile.
+    pub fn decline_lease(
+        &mut self,
+        worker: WorkerId,
+        lease: LeaseId,
+        bytes: u64,
+        now: Instant,
+    ) -> Result<(), SchedError> {
+        if let Some(e) = self.leases.get(&lease) {
+            if e.worker == worker {
+                self.memory.set(e.job, bytes, now);
+            }
+        }
+        self.return_lease(worker, lease, None, now)?;
+        self.workers.set_paused(worker, Some("memory"));
+        Ok(())
     }
 
     /// Fails the jobs that every live worker is kept from (each failed too
@@ -908,6 +984,7 @@ impl Scheduler {
 
     fn retire(&mut self, job: JobId) {
         self.sizer.forget_job(job);
+        self.memory.remove(job);
         let j = self.jobs.get_mut(&job).expect("job exists");
         self.queue.remove(&(Reverse(j.spec.priority), job));
         j.retire();

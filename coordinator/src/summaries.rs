@@ -32,6 +32,9 @@ pub struct CameraSummary {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SceneSummary {
     pub cameras: Vec<CameraSummary>,
+    /// What the scene needs once built, in bytes
+    /// ([`trevi_core::scene::estimate`]): which workers can take its jobs.
+    pub memory: u64,
 }
 
 impl SceneSummary {
@@ -48,6 +51,7 @@ impl SceneSummary {
                     output: c.render.output.clone(),
                 })
                 .collect(),
+            memory: trevi_core::scene::estimate::estimate(desc).total(),
         }
     }
 }
@@ -129,6 +133,7 @@ mod tests {
                 supersample: 1,
                 output: "c.png".into(),
             }],
+            memory: 0,
         })
     }
 

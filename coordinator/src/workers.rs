@@ -100,7 +100,12 @@ pub struct WorkerEntry {
     pub session: Option<[u8; 32]>,
     /// Why it said it takes no tiles for now ("busy", "outside hours"),
     /// from its last heartbeat; none once it asks for a tile again.
+    /// "memory" when the coordinator found no queued job it can hold (see
+    /// [`crate::scheduler::memory`]).
     pub paused: Option<String>,
+    /// The most memory it lets a scene take, in bytes (its
+    /// `--max-memory`); 0: it said nothing (no limit).
+    pub memory_limit: u64,
 }
 
 impl WorkerEntry {
@@ -114,6 +119,7 @@ impl WorkerEntry {
             rate: Rate::default(),
             session: None,
             paused: None,
+            memory_limit: 0,
         }
     }
 
@@ -156,6 +162,8 @@ pub struct WorkerInfo {
     pub state: WorkerState,
     /// Why it is paused (see [`WorkerEntry::paused`]).
     pub paused: Option<String>,
+    /// See [`WorkerEntry::memory_limit`] (0: none said).
+    pub memory_limit: u64,
     /// Time since it was last heard from.
     pub silent_for: Duration,
     /// The tiles it holds leases on: (job, tile rectangle).
@@ -218,6 +226,19 @@ impl Workers {
             // Reasons come from the network: keep them short.
             w.paused = why.map(|s| s.chars().take(32).collect());
         }
+    }
+
+    /// Records the memory limit `worker` registered with (0: none).
+    pub fn set_memory_limit(&mut self, worker: WorkerId, bytes: u64) {
+        if let Some(w) = self.entries.get_mut(&worker) {
+            w.memory_limit = bytes;
+        }
+    }
+
+    /// The memory limit `worker` registered with (0: none, or no such
+    /// worker).
+    pub fn memory_limit(&self, worker: WorkerId) -> u64 {
+        self.entries.get(&worker).map_or(0, |w| w.memory_limit)
     }
 
     /// The render threads `worker` registered with (`None`: no such worker).
@@ -285,6 +306,7 @@ impl Workers {
                     threads: w.threads,
                     state: w.state(leases.len(), lease_ttl, now),
                     paused: w.paused.clone(),
+                    memory_limit: w.memory_limit,
                     silent_for: now.saturating_duration_since(w.last_seen),
                     leases,
                     tiles_done: w.tiles_done,

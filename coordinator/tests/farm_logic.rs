@@ -790,6 +790,7 @@ fn a_worker_acts_only_with_its_own_session_secret() {
                 threads: 1,
                 session: true,
                 multi_tile: false,
+                max_memory: 0,
             })
             .unwrap();
         (r.id, r.session.expect("asked for"))

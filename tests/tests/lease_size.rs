@@ -61,6 +61,7 @@ async fn render_all(c: &Coordinator, multi_tile: bool) -> (Vec<u32>, u64) {
             name: "spans".into(),
             threads: 1,
             multi_tile,
+            ..Default::default()
         })
         .await
         .unwrap()

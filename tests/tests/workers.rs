@@ -289,6 +289,7 @@ fn a_worker_cannot_act_under_another_workers_id() {
                     session: session.clone(),
                     lease_id: lease.lease_id,
                     error: "forged".into(),
+                    ..Default::default()
                 })
                 .await
                 .unwrap_err();

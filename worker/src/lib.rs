@@ -24,9 +24,15 @@
 //! The render threads run at idle priority unless told otherwise
 //! ([`priority`]): a worker on a spare desk takes only the CPU time its
 //! owner leaves unused.
+//!
+//! A scene whose estimated size exceeds the worker's memory limit
+//! ([`memory`], `--max-memory`) is declined, not built: the coordinator
+//! learns the limit at registration and leases such jobs elsewhere.
 
+pub mod memory;
 pub mod pause;
 pub mod priority;
+pub use memory::MaxMemory;
 pub use pause::{Pause, PauseConfig};
 pub use priority::Priority;
 
@@ -74,6 +80,11 @@ pub struct WorkerConfig {
     /// When to step aside: the machine is busy, or outside the active
     /// hours (nothing watched by default; see [`pause`]).
     pub pause: PauseConfig,
+    /// The most memory one scene may take ([`memory`]); no limit by
+    /// default here (an in-process worker renders what its user asked
+    /// for), while `trevi-worker` defaults to a share of the machine's RAM
+    /// ([`MaxMemory::default_for_this_machine`]).
+    pub max_memory: MaxMemory,
     /// Tests only: make the render of one tile fail (see [`TestFault`]).
     #[doc(hidden)]
     pub test_fault: Option<TestFault>,
@@ -171,6 +182,7 @@ impl Default for WorkerConfig {
             preloaded: Vec::new(),
             priority: Priority::default(),
             pause: PauseConfig::default(),
+            max_memory: MaxMemory::NONE,
             test_fault: None,
         }
     }
@@ -226,6 +238,10 @@ pub enum SceneLoadError {
     /// The blocking task that builds the scene panicked or was cancelled.
     #[error(transparent)]
     Task(#[from] tokio::task::JoinError),
+    /// The scene's estimate exceeds the worker's `--max-memory`: not built.
+    #[error("the scene needs about {} of memory, more than --max-memory {}",
+        trevi_core::scene::estimate::human_bytes(*.needs), trevi_core::scene::estimate::human_bytes(.limit.0))]
+    TooBig { needs: u64, limit: MaxMemory },
 }
 
 /// Why a session with the coordinator ended.
@@ -316,6 +332,7 @@ pub async fn run(
                     threads,
                     render: Arc::new(tokio::sync::Semaphore::new(1)),
                     paused: paused.clone(),
+                    max_memory: cfg.max_memory,
                 };
                 s.serve(&cfg, &cache, &shutdown, &mut backoff).await
             }
@@ -371,6 +388,8 @@ struct Session {
     render: Arc<tokio::sync::Semaphore>,
     /// Why the worker steps aside now (none: it works); see [`pause`].
     paused: watch::Receiver<Option<Pause>>,
+    /// The most memory one scene may take; see [`memory`].
+    max_memory: MaxMemory,
 }
 
 /// Starts watching the machine as `cfg` says; the receiver tells why the
@@ -454,6 +473,9 @@ enum TileEnd {
     Paused,
     /// The scene could not be loaded, or the render panicked.
     Failed(String),
+    /// The scene needs about this many bytes, more than `--max-memory`:
+    /// declined without building it (see [`memory`]).
+    Declined(u64),
 }
 
 /// Sets a render's cancellation flag when dropped, so a loop aborted midway
@@ -500,6 +522,7 @@ impl Session {
                 name: cfg.name.clone(),
                 threads: self.threads as u32,
                 multi_tile: true,
+                max_memory: self.max_memory.0,
             })
             .await
         {
@@ -649,6 +672,9 @@ impl Session {
                 TileEnd::Stopped
             } else if self.paused.borrow().is_some() {
                 TileEnd::Paused
+            } else if !self.max_memory.allows(lease.memory_estimate) {
+                // The coordinator's estimate says no: not even downloaded.
+                TileEnd::Declined(lease.memory_estimate)
             } else {
                 self.tile(&me, &lease, rect, beat, fault, &cache, &mut shutdown)
                     .await
@@ -707,6 +733,16 @@ impl Session {
                         self.give_back(&me, id, String::new()).await;
                     }
                 }
+                TileEnd::Declined(needs) => {
+                    tracing::warn!(
+                        lease = id,
+                        "{}",
+                        memory::declined(lease.job_id, needs, self.max_memory)
+                    );
+                    for id in span_ids(&lease) {
+                        self.decline(&me, id, needs).await;
+                    }
+                }
                 TileEnd::Failed(why) => {
                     tracing::error!(lease = id, job = lease.job_id, x, y, "tile failed: {why}");
                     for id in span_ids(&lease) {
@@ -731,11 +767,31 @@ impl Session {
                 session: me.session.clone(),
                 lease_id: lease,
                 error,
+                memory_needed: 0,
             })
             .await;
         if let Err(s) = r {
             // The lease then runs out on its own.
             tracing::warn!(lease, "cannot give the lease back: {}", s.message());
+        }
+    }
+
+    /// Declines a lease: its scene needs about `needs` bytes, more than
+    /// `--max-memory` (not a failure; the coordinator leases the job to
+    /// workers that can hold it).
+    async fn decline(&mut self, me: &Me, lease: u64, needs: u64) {
+        let r = self
+            .workers
+            .return_tile(pb::TileReturn {
+                worker_id: me.id,
+                session: me.session.clone(),
+                lease_id: lease,
+                error: String::new(),
+                memory_needed: needs.max(1),
+            })
+            .await;
+        if let Err(s) = r {
+            tracing::warn!(lease, "cannot decline the lease: {}", s.message());
         }
     }
 
@@ -765,6 +821,7 @@ impl Session {
                 };
                 let scene = match scene {
                     Ok(s) => s,
+                    Err(SceneLoadError::TooBig { needs, .. }) => return TileEnd::Declined(needs),
                     Err(e) => return TileEnd::Failed(format!("cannot load the scene: {e}")),
                 };
                 let Some(camera) = scene.camera_index(&camera) else {
@@ -868,13 +925,21 @@ impl Session {
             bytes.extend_from_slice(&c.data);
         }
         let want = hash.to_string();
+        let limit = self.max_memory;
         let scene = tokio::task::spawn_blocking(move || -> Result<Scene, SceneLoadError> {
             let got = trevi_core::bundle::sha256_hex(&bytes);
             if got != want {
                 return Err(SceneLoadError::HashMismatch { want, got });
             }
             let bundle = Bundle::decode(&bytes)?;
-            Ok(Scene::from_bundle(&bundle)?)
+            drop(bytes);
+            let desc = trevi_core::ParsedBundle::parse(bundle)?.desc;
+            // Checked before the build, which is what takes the memory.
+            let needs = trevi_core::scene::estimate::estimate(&desc).total();
+            if !limit.allows(needs) {
+                return Err(SceneLoadError::TooBig { needs, limit });
+            }
+            Ok(Scene::build(desc))
         })
         .await??;
         let scene = Arc::new(scene);

@@ -4,7 +4,7 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use std::num::{IntErrorKind, NonZeroU64, NonZeroUsize, ParseIntError};
 use trevi_worker::pause::ActiveHours;
-use trevi_worker::{PauseConfig, Priority, WorkerConfig};
+use trevi_worker::{MaxMemory, PauseConfig, Priority, WorkerConfig};
 
 #[derive(Parser, Debug)]
 #[command(name = "trevi-worker", version, about = "A Trevi render farm worker")]
@@ -81,6 +81,13 @@ struct Args {
     /// the worker is paused ("outside hours").
     #[arg(long, env = "TREVI_ACTIVE_HOURS")]
     active_hours: Option<ActiveHours>,
+    /// The most memory one scene may take, like 2G or 512M (powers of
+    /// 1024; 0: no limit). A scene whose estimated size is larger is
+    /// declined before it is built, and the coordinator leases its job to
+    /// workers that can hold it. Default: half of the machine's RAM.
+    #[arg(long, env = "TREVI_MAX_MEMORY",
+          default_value_t = MaxMemory::default_for_this_machine())]
+    max_memory: MaxMemory,
 }
 
 /// `--busy-threshold`: a finite number of cores, not negative.
@@ -130,6 +137,16 @@ async fn main() -> Result<()> {
     cfg.tiles_in_flight = args.tiles_in_flight;
     cfg.poll = std::time::Duration::from_millis(args.poll_ms.get());
     cfg.priority = args.priority;
+    cfg.max_memory = args.max_memory;
+    if args.max_memory == MaxMemory::NONE {
+        tracing::info!("no memory limit (--max-memory 0, or the machine's RAM is unknown)");
+    } else {
+        tracing::info!(
+            "scenes of up to {} (--max-memory {})",
+            trevi_core::scene::estimate::human_bytes(args.max_memory.0),
+            args.max_memory
+        );
+    }
     cfg.pause = PauseConfig {
         yield_when_busy: args.yield_when_busy,
         busy_threshold: args.busy_threshold,

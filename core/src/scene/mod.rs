@@ -9,6 +9,7 @@
 
 pub mod aisxml;
 pub mod animation;
+pub mod estimate;
 pub mod source;
 
 use crate::mesh::Mesh;
