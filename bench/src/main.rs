@@ -619,6 +619,38 @@ fn print_report(reports: &[MeshReport], threads: usize, reps: usize, embree: boo
         )
         .unwrap();
     }
+    if !embree {
+        return;
+    }
+    // The table of issue 17 (and of docs/performance.md's goals): every
+    // ratio Trevi / Embree per CPU-second, from the figures above.
+    writeln!(
+        o,
+        "\n### Trevi / Embree (per CPU-second), the issue's table\n"
+    )
+    .unwrap();
+    writeln!(
+        o,
+        "| mesh | primary | shadow | incoherent | build | bytes/triangle |"
+    )
+    .unwrap();
+    writeln!(o, "|---|---:|---:|---:|---:|---:|").unwrap();
+    for r in reports {
+        let ratio = |k: usize| r.embree[k].cpu / r.trevi[k].cpu;
+        writeln!(
+            o,
+            "| {} ({} tris) | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} (Embree {:.1}) |",
+            r.name,
+            r.tris,
+            ratio(0),
+            ratio(1),
+            ratio(2),
+            r.embree_scene_build.cpu / r.build.cpu,
+            r.bytes_per_tri,
+            r.embree_bytes / r.tris as f64
+        )
+        .unwrap();
+    }
 }
 
 // ---------------------------------------------------------------- render
