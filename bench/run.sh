@@ -14,7 +14,9 @@
 # BEFORE=<rev>: also render both frames with trevi-bench built from that
 # commit (in a worktree at target/before-src, built into target/before), in
 # the same run, each frame after then before, rays per CPU-second side by
-# side; SUBMIT=0 skips the trevi-submit renders of the frames.
+# side (and the same-mix figures of both); SUBMIT=0 skips the trevi-submit
+# renders of the frames; CAMERAS (default "whitted effects") picks the
+# full-size frames rendered.
 set -eu
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
@@ -85,7 +87,7 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
                    $1, $2, $3, cpu, $3 / cpu / 1e6, $6, $7 / 1024, $8 }' >> "$OUT/frames.md"
     }
     : > "$OUT/frames.md"
-    for cam in whitted effects; do
+    for cam in ${CAMERAS:-whitted effects}; do
         frame "$REV" "$BIN" "$cam"
         [ -n "$BEFORE_BIN" ] && frame "$BEFORE_REV" "$BEFORE_BIN" "$cam"
         [ "${SUBMIT:-1}" = 0 ] && continue
@@ -102,7 +104,10 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
     cat "$OUT/frames.md"
     # Same ray mix: every 8th tile of the whitted frame, every 64th of the
     # effects frame (about 12 M and 28 M rays, recorded in memory).
-    "$BIN" mix "$OUT/bundle/cornell-nefertiti.xml" whitted --every 8 --reps 3 --threads "$THREADS"
-    "$BIN" mix "$OUT/bundle/cornell-nefertiti.xml" effects --every 64 --reps 3 --threads "$THREADS"
+    for bin in "$BIN" $BEFORE_BIN; do
+        echo "# mix with $bin"
+        "$bin" mix "$OUT/bundle/cornell-nefertiti.xml" whitted --every 8 --reps 3 --threads "$THREADS"
+        "$bin" mix "$OUT/bundle/cornell-nefertiti.xml" effects --every 64 --reps 3 --threads "$THREADS"
+    done
 fi
 echo "# load average at the end $(cut -d' ' -f1-3 /proc/loadavg); files in $OUT"
