@@ -41,7 +41,7 @@ else
 fi
 BIN="$ROOT/target/release/trevi-bench"
 [ -n "${CARGO_TARGET_DIR:-}" ] && BIN="$CARGO_TARGET_DIR/release/trevi-bench"
-SUBMIT="$(dirname "$BIN")/trevi-submit"
+SUBMIT_BIN="$(dirname "$BIN")/trevi-submit"
 BEFORE_BIN=""
 if [ -n "${BEFORE:-}" ] && [ "$WHAT" != micro ]; then
     if [ -d target/before-src ]; then
@@ -94,7 +94,7 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
         # The same frame as users render it: trevi-submit's embedded farm,
         # tiles stitched into a streamed PNG.
         echo "trevi-submit $cam:"
-        /usr/bin/time -v "$SUBMIT" "$OUT/bundle/cornell-nefertiti.xml" --camera "$cam" \
+        /usr/bin/time -v "$SUBMIT_BIN" "$OUT/bundle/cornell-nefertiti.xml" --camera "$cam" \
             -o "$OUT/$cam.png" --threads "$THREADS" --quiet 2> "$OUT/time-submit-$cam.txt"
         grep -E "Elapsed|Maximum resident|User time|System time" "$OUT/time-submit-$cam.txt"
     done
