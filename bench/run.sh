@@ -16,7 +16,7 @@
 # the same run, each frame after then before, rays per CPU-second side by
 # side (and the same-mix figures of both); SUBMIT=0 skips the trevi-submit
 # renders of the frames; CAMERAS (default "whitted effects") picks the
-# full-size frames rendered.
+# full-size frames rendered; MIX=0 skips the same-mix figures.
 set -eu
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
@@ -104,7 +104,7 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
     cat "$OUT/frames.md"
     # Same ray mix: every 8th tile of the whitted frame, every 64th of the
     # effects frame (about 12 M and 28 M rays, recorded in memory).
-    for bin in "$BIN" $BEFORE_BIN; do
+    [ "${MIX:-1}" = 0 ] || for bin in "$BIN" $BEFORE_BIN; do
         echo "# mix with $bin"
         "$bin" mix "$OUT/bundle/cornell-nefertiti.xml" whitted --every 8 --reps 3 --threads "$THREADS"
         "$bin" mix "$OUT/bundle/cornell-nefertiti.xml" effects --every 64 --reps 3 --threads "$THREADS"
