@@ -83,7 +83,7 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
         mean=$(grep -o 'mean value [0-9.]*' "$OUT/render-$1-$3.txt" | cut -d' ' -f3)
         read -r user sys wall rss < "$OUT/time-$1-$3.txt"
         echo "$3 $1 $rays $user $sys $wall $rss $mean" |
-            awk '{ cpu = $4 + $5; printf "| %s | %s | %d | %.2f s | **%.2f** | %.1f s | %.1f MiB | %s |\n",
+            awk '{ cpu = $4 + $5; printf "| %s | %s | %s | %.2f s | **%.2f** | %.1f s | %.1f MiB | %s |\n",
                    $1, $2, $3, cpu, $3 / cpu / 1e6, $6, $7 / 1024, $8 }' >> "$OUT/frames.md"
     }
     : > "$OUT/frames.md"
