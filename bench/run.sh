@@ -10,7 +10,13 @@
 # Needs ../shared/meshes/nefertiti.obj beside the checkout. Installs Debian's
 # libembree-dev (Embree 3) with apt-get when it is missing. Environment:
 # REPS (default 5), THREADS (default 2), OUT (default a temporary directory),
-# MESHES (default ../shared/meshes), CARGO_TARGET_DIR as for cargo.
+# MESHES (default ../shared/meshes), CARGO_TARGET_DIR as for cargo;
+# BEFORE=<rev>: also render both frames with trevi-bench built from that
+# commit (in a worktree at target/before-src, built into target/before), in
+# the same run, each frame after then before, rays per CPU-second side by
+# side (and the same-mix figures of both); SUBMIT=0 skips the trevi-submit
+# renders of the frames; CAMERAS (default "whitted effects") picks the
+# full-size frames rendered; MIX=0 skips the same-mix figures.
 set -eu
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
@@ -28,10 +34,25 @@ if [ ! -f /usr/include/embree3/rtcore.h ]; then
     $SUDO apt-get install -y libembree-dev
 fi
 cc -O2 -std=c11 -Wall -o "$OUT/embree_bench" bench/embree/embree_bench.c -lembree3 -lpthread -lm
-cargo build --release -p trevi-bench -p trevi-submit
+if [ "${SUBMIT:-1}" = 0 ] || [ "$WHAT" = micro ]; then
+    cargo build --release -p trevi-bench
+else
+    cargo build --release -p trevi-bench -p trevi-submit
+fi
 BIN="$ROOT/target/release/trevi-bench"
 [ -n "${CARGO_TARGET_DIR:-}" ] && BIN="$CARGO_TARGET_DIR/release/trevi-bench"
-SUBMIT="$(dirname "$BIN")/trevi-submit"
+SUBMIT_BIN="$(dirname "$BIN")/trevi-submit"
+BEFORE_BIN=""
+if [ -n "${BEFORE:-}" ] && [ "$WHAT" != micro ]; then
+    if [ -d target/before-src ]; then
+        git -C target/before-src checkout -q --detach "$BEFORE"
+    else
+        git worktree add -q --detach target/before-src "$BEFORE"
+    fi
+    (cd target/before-src && CARGO_TARGET_DIR="$ROOT/target/before" cargo build --release -p trevi-bench)
+    BEFORE_BIN="$ROOT/target/before/release/trevi-bench"
+    BEFORE_REV=$(git rev-parse --short "$BEFORE")
+fi
 
 echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) CPUs: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')," \
     "family $(grep -m1 'cpu family' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')" \
@@ -51,20 +72,42 @@ if [ "$WHAT" = all ] || [ "$WHAT" = render ]; then
     mkdir -p "$OUT/bundle/meshes"
     cp bench/cornell-nefertiti.xml "$OUT/bundle/"
     cp "$MESHES/nefertiti.obj" "$OUT/bundle/meshes/"
-    for cam in whitted effects; do
-        /usr/bin/time -v "$BIN" render "$OUT/bundle/cornell-nefertiti.xml" "$cam" \
-            --threads "$THREADS" 2> "$OUT/time-$cam.txt"
-        grep -E "Elapsed|Maximum resident" "$OUT/time-$cam.txt"
+    # One frame with one build of trevi-bench: its own line, then a table
+    # row (rays, CPU = user + system of the whole process, rays per
+    # CPU-second, wall, peak RSS, mean pixel value).
+    frame() { # LABEL BIN CAMERA
+        /usr/bin/time -f "%U %S %e %M" -o "$OUT/time-$1-$3.txt" "$2" render \
+            "$OUT/bundle/cornell-nefertiti.xml" "$3" --threads "$THREADS" > "$OUT/render-$1-$3.txt"
+        cat "$OUT/render-$1-$3.txt"
+        rays=$(grep -o '[0-9]* rays,' "$OUT/render-$1-$3.txt" | cut -d' ' -f1)
+        mean=$(grep -o 'mean value [0-9.]*' "$OUT/render-$1-$3.txt" | cut -d' ' -f3)
+        read -r user sys wall rss < "$OUT/time-$1-$3.txt"
+        echo "$3 $1 $rays $user $sys $wall $rss $mean" |
+            awk '{ cpu = $4 + $5; printf "| %s | %s | %s | %.2f s | **%.2f** | %.1f s | %.1f MiB | %s |\n",
+                   $1, $2, $3, cpu, $3 / cpu / 1e6, $6, $7 / 1024, $8 }' >> "$OUT/frames.md"
+    }
+    : > "$OUT/frames.md"
+    for cam in ${CAMERAS:-whitted effects}; do
+        frame "$REV" "$BIN" "$cam"
+        [ -n "$BEFORE_BIN" ] && frame "$BEFORE_REV" "$BEFORE_BIN" "$cam"
+        [ "${SUBMIT:-1}" = 0 ] && continue
         # The same frame as users render it: trevi-submit's embedded farm,
         # tiles stitched into a streamed PNG.
         echo "trevi-submit $cam:"
-        /usr/bin/time -v "$SUBMIT" "$OUT/bundle/cornell-nefertiti.xml" --camera "$cam" \
+        /usr/bin/time -v "$SUBMIT_BIN" "$OUT/bundle/cornell-nefertiti.xml" --camera "$cam" \
             -o "$OUT/$cam.png" --threads "$THREADS" --quiet 2> "$OUT/time-submit-$cam.txt"
         grep -E "Elapsed|Maximum resident|User time|System time" "$OUT/time-submit-$cam.txt"
     done
+    echo "# the 3000x2250 frames, trevi-bench render --threads $THREADS (load average $(cut -d' ' -f1-3 /proc/loadavg) at the end):"
+    echo "| camera | build | rays | CPU (user + system) | M rays/CPU-s | wall | peak RSS | mean pixel value |"
+    echo "|---|---|---:|---:|---:|---:|---:|---:|"
+    cat "$OUT/frames.md"
     # Same ray mix: every 8th tile of the whitted frame, every 64th of the
     # effects frame (about 12 M and 28 M rays, recorded in memory).
-    "$BIN" mix "$OUT/bundle/cornell-nefertiti.xml" whitted --every 8 --reps 3 --threads "$THREADS"
-    "$BIN" mix "$OUT/bundle/cornell-nefertiti.xml" effects --every 64 --reps 3 --threads "$THREADS"
+    [ "${MIX:-1}" = 0 ] || for bin in "$BIN" $BEFORE_BIN; do
+        echo "# mix with $bin"
+        "$bin" mix "$OUT/bundle/cornell-nefertiti.xml" whitted --every 8 --reps 3 --threads "$THREADS"
+        "$bin" mix "$OUT/bundle/cornell-nefertiti.xml" effects --every 64 --reps 3 --threads "$THREADS"
+    done
 fi
-echo "# files in $OUT"
+echo "# load average at the end $(cut -d' ' -f1-3 /proc/loadavg); files in $OUT"

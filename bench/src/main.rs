@@ -30,6 +30,7 @@ use std::time::Instant;
 use trevi_core::bvh::Bvh;
 use trevi_core::geometry::{offset_ray_origin, Aabb};
 use trevi_core::integrator::{RayObserver, RenderOptions};
+use trevi_core::math;
 use trevi_core::mesh::Mesh;
 use trevi_core::scene::{Model, Surface};
 use trevi_core::world::HitKind;
@@ -119,15 +120,15 @@ fn procedural_torus(nu: u32, nv: u32) -> Mesh {
         for j in 0..nv {
             let ph = std::f64::consts::TAU * j as f64 / nv as f64;
             let bump = 1.0
-                + 0.12 * (9.0 * th).sin() * (7.0 * ph).cos()
-                + 0.04 * (37.0 * th + 3.0 * ph).sin() * (23.0 * ph).sin()
-                + 0.01 * (151.0 * th).cos() * (97.0 * ph).sin();
+                + 0.12 * math::sin(9.0 * th) * math::cos(7.0 * ph)
+                + 0.04 * math::sin(37.0 * th + 3.0 * ph) * math::sin(23.0 * ph)
+                + 0.01 * math::cos(151.0 * th) * math::sin(97.0 * ph);
             let r = 0.35 * bump;
-            let ring = 1.0 + r * ph.cos();
+            let ring = 1.0 + r * math::cos(ph);
             positions.push(Vec3::new(
-                (ring * th.cos()) as f32,
-                (r * ph.sin()) as f32,
-                (ring * th.sin()) as f32,
+                (ring * math::cos(th)) as f32,
+                (r * math::sin(ph)) as f32,
+                (ring * math::sin(th)) as f32,
             ));
         }
     }
@@ -616,6 +617,38 @@ fn print_report(reports: &[MeshReport], threads: usize, reps: usize, embree: boo
             } else {
                 "–".into()
             }
+        )
+        .unwrap();
+    }
+    if !embree {
+        return;
+    }
+    // The table of issue 17 (and of docs/performance.md's goals): every
+    // ratio Trevi / Embree per CPU-second, from the figures above.
+    writeln!(
+        o,
+        "\n### Trevi / Embree (per CPU-second), the issue's table\n"
+    )
+    .unwrap();
+    writeln!(
+        o,
+        "| mesh | primary | shadow | incoherent | build | bytes/triangle |"
+    )
+    .unwrap();
+    writeln!(o, "|---|---:|---:|---:|---:|---:|").unwrap();
+    for r in reports {
+        let ratio = |k: usize| r.embree[k].cpu / r.trevi[k].cpu;
+        writeln!(
+            o,
+            "| {} ({} tris) | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} (Embree {:.1}) |",
+            r.name,
+            r.tris,
+            ratio(0),
+            ratio(1),
+            ratio(2),
+            r.embree_scene_build.cpu / r.build.cpu,
+            r.bytes_per_tri,
+            r.embree_bytes / r.tris as f64
         )
         .unwrap();
     }

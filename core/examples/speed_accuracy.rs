@@ -29,6 +29,9 @@
 //! global rayon pool; the ray count is reported too as a machine-independent
 //! cost.
 
+// Statistics of measured figures, not pixels: std is fine (clippy.toml).
+#![allow(clippy::disallowed_methods)]
+
 use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::time::Instant;

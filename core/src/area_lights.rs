@@ -242,7 +242,7 @@ impl AreaLights {
                 let z = 1.0 - 2.0 * u[0];
                 let r = (1.0 - z * z).max(0.0).sqrt();
                 let phi = std::f32::consts::TAU * u[1];
-                let n = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                let n = Vec3::new(r * crate::math::cosf(phi), r * crate::math::sinf(phi), z);
                 (center + n * radius, n)
             }
         };

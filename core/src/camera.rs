@@ -43,7 +43,7 @@ impl Camera {
         let v = w.cross(u);
         let width = desc.render.width as f32;
         let height = desc.render.height as f32;
-        let s = 0.5 / (desc.fov.to_radians() * 0.5).tan();
+        let s = 0.5 / crate::math::tanf(desc.fov.to_radians() * 0.5);
         let a = u;
         let b = v * (height / width);
         let c = -0.5 * a - 0.5 * b - s * w;

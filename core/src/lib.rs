@@ -32,6 +32,7 @@ pub mod error;
 pub mod geometry;
 pub mod integrator;
 pub mod lights;
+pub mod math;
 pub mod mesh;
 pub mod output;
 pub mod sampling;

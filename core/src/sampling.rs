@@ -200,7 +200,7 @@ pub fn cosine_hemisphere(n: Vec3, u: [f32; 2]) -> Vec3 {
     let phi = std::f32::consts::TAU * u[1];
     let (t, b) = basis(n);
     let z = (1.0 - u[0]).max(0.0).sqrt();
-    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * z).normalize()
+    (t * (r * crate::math::cosf(phi)) + b * (r * crate::math::sinf(phi)) + n * z).normalize()
 }
 
 /// Maps the unit square onto the disk of radius 1 keeping strata compact
@@ -220,7 +220,7 @@ pub fn concentric_disk(u: [f32; 2]) -> [f32; 2] {
             std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a / b),
         )
     };
-    [r * phi.cos(), r * phi.sin()]
+    [r * crate::math::cosf(phi), r * crate::math::sinf(phi)]
 }
 
 #[cfg(test)]

@@ -160,6 +160,11 @@ pub struct Scene {
     /// (the build renumbers meshes): the tie rule ([`View::precedes`]) is
     /// stated in the numbering the scene file gives.
     loaded_index: Vec<Vec<u32>>,
+    /// Per mesh, each triangle's unit geometric normal in object space as
+    /// stored (`unit(unit(b − a) × unit(c − a))`, the very bits
+    /// [`View::surface_point`] computed on every hit before): 12 bytes a
+    /// triangle that take three normalisations off every triangle hit.
+    face_normals: Vec<Vec<Vec3>>,
     /// The world from each distinct camera position, built when first asked
     /// for: building every camera's up front would cost cameras × objects (a
     /// scene of 5,000 cameras and 5,000 spheres would build 25 million
@@ -222,6 +227,19 @@ impl Scene {
                     .collect();
             }
         }
+        let face_normals = desc
+            .meshes
+            .iter()
+            .map(|m| {
+                m.triangles
+                    .iter()
+                    .map(|t| {
+                        let [a, b, c] = t.map(|i| m.positions[i as usize]);
+                        face_normal(a, b, c)
+                    })
+                    .collect()
+            })
+            .collect();
         let has_translucency = desc
             .models
             .iter()
@@ -233,6 +251,7 @@ impl Scene {
             desc,
             blas,
             loaded_index: orders,
+            face_normals,
             from_eyes: Vec::new(),
             eyes: Vec::new(),
             camera_eye: Vec::new(),
@@ -415,10 +434,12 @@ impl<'a> View<'a> {
     }
 
     /// Calls `f` for hits along `origin + t·dir`, `t ∈ (0, t_max)`, nearest
-    /// boxes first, honouring `sided="front"`. `f` decides, as in
-    /// [`Bvh::traverse`], whether the ray shortens or stops.
+    /// boxes first (`ORDERED`; else in the trees' slot order, for visitors
+    /// whose answer does not depend on the order), honouring
+    /// `sided="front"`. `f` decides, as in [`Bvh::traverse`], whether the
+    /// ray shortens or stops.
     #[inline]
-    fn for_each_hit<F: FnMut(Hit) -> Visit>(
+    fn for_each_hit<F: FnMut(Hit) -> Visit, const ORDERED: bool>(
         &self,
         origin: Vec3,
         dir: Vec3,
@@ -427,7 +448,7 @@ impl<'a> View<'a> {
     ) -> (f32, bool) {
         let (scene, world) = (self.scene, self.world);
         let n_inst = world.instances.len() as u32;
-        let (t_max, hit_a) = world.tlas.traverse(origin, dir, t_max, |prim, t_max| {
+        let tlas_visit = |prim: u32, t_max: f32| {
             if prim < n_inst {
                 let inst = &world.instances[prim as usize];
                 let o = inst.to_object.transform_point3(origin);
@@ -436,7 +457,7 @@ impl<'a> View<'a> {
                 let mesh = &scene.desc.meshes[inst.mesh as usize];
                 let model = &scene.desc.models[inst.model as usize];
                 let mut result = Visit::Miss;
-                let (_, _) = scene.blas[inst.mesh as usize].traverse(o, d, t_max, |tri, t_max| {
+                let blas_visit = |tri: u32, t_max: f32| {
                     let [i0, i1, i2] = mesh.triangles[tri as usize];
                     let p = &mesh.positions;
                     let Some(h) = triangle::intersect(
@@ -479,7 +500,13 @@ impl<'a> View<'a> {
                         }
                         Visit::Miss => Visit::Miss,
                     }
-                });
+                };
+                let blas = &scene.blas[inst.mesh as usize];
+                if ORDERED {
+                    blas.traverse(o, d, t_max, blas_visit);
+                } else {
+                    blas.traverse_unordered(o, d, t_max, blas_visit);
+                }
                 result
             } else {
                 let i = prim - n_inst;
@@ -507,7 +534,14 @@ impl<'a> View<'a> {
                 }
                 result
             }
-        });
+        };
+        let (t_max, hit_a) = if ORDERED {
+            world.tlas.traverse(origin, dir, t_max, tlas_visit)
+        } else {
+            world
+                .tlas
+                .traverse_unordered(origin, dir, t_max, tlas_visit)
+        };
         let mut t_max = t_max;
         let mut hit = hit_a;
         for (i, pl) in scene.desc.planes.iter().enumerate() {
@@ -564,7 +598,7 @@ impl<'a> View<'a> {
     /// same distance, the first in the tie rule ([`View::precedes`]).
     pub fn intersect(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
         let mut best: Option<Hit> = None;
-        self.for_each_hit(origin, dir, t_max, |h| {
+        self.for_each_hit::<_, true>(origin, dir, t_max, |h| {
             let b = match best {
                 Some(b) if !self.precedes(&h, &b) => b,
                 _ => h,
@@ -583,11 +617,13 @@ impl<'a> View<'a> {
     /// a plain any-hit query.
     pub fn transmittance(&self, origin: Vec3, dir: Vec3, t_max: f32) -> f32 {
         if !self.scene.has_translucency {
-            let (_, hit) = self.for_each_hit(origin, dir, t_max, |_| Visit::Stop);
+            // Any hit at all: the order of the walk cannot matter.
+            let (_, hit) = self.for_each_hit::<_, false>(origin, dir, t_max, |_| Visit::Stop);
             return if hit { 0.0 } else { 1.0 };
         }
+        // The product is taken in the (nearest-first) visit order.
         let mut vis = 1.0f32;
-        self.for_each_hit(origin, dir, t_max, |h| {
+        self.for_each_hit::<_, true>(origin, dir, t_max, |h| {
             vis *= 1.0 - self.surface_of(h.kind).opacity;
             if vis <= 0.0 {
                 Visit::Stop
@@ -617,7 +653,9 @@ impl<'a> View<'a> {
                 // Barycentric interpolation is more accurate than o + t·d.
                 let p_obj = a * bary[0] + b * bary[1] + c * bary[2];
                 let p = inst.to_world.transform_point3(p_obj);
-                let ng = unit(inst.normal_matrix * unit(unit(b - a).cross(unit(c - a))));
+                let ng = unit(
+                    inst.normal_matrix * scene.face_normals[inst.mesh as usize][triangle as usize],
+                );
                 let ns = if surface.smooth {
                     let n = mesh.normals[i0] * bary[0]
                         + mesh.normals[i1] * bary[1]
@@ -877,6 +915,13 @@ fn unit(v: Vec3) -> Vec3 {
     } else {
         Vec3::ZERO
     }
+}
+
+/// The unit geometric normal of triangle `a b c` (winding order), zero for
+/// a degenerate one: the one formula of [`Scene::face_normals`].
+#[inline]
+fn face_normal(a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
+    unit(unit(b - a).cross(unit(c - a)))
 }
 
 /// Grows a box by a few ULPs of its coordinates, so that rounding its

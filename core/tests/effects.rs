@@ -5,6 +5,9 @@
 //! interreflection, adaptive sampling, determinism with every effect on, and
 //! the cost of a scene that uses no effect (rays traced).
 
+// Independent closed forms and test geometry, computed with std on purpose (clippy.toml).
+#![allow(clippy::disallowed_methods)]
+
 mod common;
 use common::*;
 use trevi_core::integrator::RenderOptions;

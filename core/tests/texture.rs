@@ -3,6 +3,9 @@
 //! lit by the ambient light alone (ka = diffuse = 1, ambient 1, no AO), so
 //! each pixel is the texture's value where its ray meets the quad.
 
+// Independent closed forms and test geometry, computed with std on purpose (clippy.toml).
+#![allow(clippy::disallowed_methods)]
+
 mod common;
 use common::*;
 use std::collections::BTreeMap;

@@ -2,6 +2,9 @@
 //! and at points on edges — where two or more triangles meet and a
 //! non-watertight test lets rays slip through — from inside and from outside.
 
+// Independent closed forms and test geometry, computed with std on purpose (clippy.toml).
+#![allow(clippy::disallowed_methods)]
+
 use glam::{DMat4, Vec3};
 use rayon::prelude::*;
 use trevi_core::mesh::Mesh;

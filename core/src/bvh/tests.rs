@@ -140,12 +140,36 @@ fn same_on_every_path(
     t_max: f32,
     mode: Mode,
 ) -> Trace {
-    let mut traces = Simd::available()
-        .iter()
-        .map(|&p| run(boxes, o, d, mode, |f| bvh.traverse_on(p, o, d, t_max, f)));
+    let mut traces = Simd::available().iter().map(|&p| {
+        run(boxes, o, d, mode, |f| {
+            bvh.traverse_on::<_, true>(p, o, d, t_max, f)
+        })
+    });
     let first = traces.next().expect("the scalar path");
     for t in traces {
         assert_eq!(t, first, "paths differ: {o} {d} {t_max} {mode:?}");
+    }
+    first
+}
+
+/// [`same_on_every_path`] for the unordered walk
+/// ([`Bvh::traverse_unordered`]).
+fn same_on_every_path_unordered(
+    bvh: &Bvh,
+    boxes: &[Aabb],
+    o: Vec3,
+    d: Vec3,
+    t_max: f32,
+    mode: Mode,
+) -> Trace {
+    let mut traces = Simd::available().iter().map(|&p| {
+        run(boxes, o, d, mode, |f| {
+            bvh.traverse_on::<_, false>(p, o, d, t_max, f)
+        })
+    });
+    let first = traces.next().expect("the scalar path");
+    for t in traces {
+        assert_eq!(t, first, "unordered paths differ: {o} {d} {t_max} {mode:?}");
     }
     first
 }
@@ -203,6 +227,18 @@ fn build_matches_the_reference_and_traversal_finds_what_it_finds() {
             assert_eq!((t_new, h_new), (t_old, h_old), "{what}: closest");
             let (_, _, h_new) = same_on_every_path(&new, boxes, o, d, t_max, Mode::StopAfter(0));
             assert_eq!(h_new, h_old, "{what}: any hit");
+            // The unordered walk (shadow rays): the same answer to any-hit,
+            // and the same set of primitives when it does not stop.
+            let (_, _, h_un) =
+                same_on_every_path_unordered(&new, boxes, o, d, t_max, Mode::StopAfter(0));
+            assert_eq!(h_un, h_old, "{what}: unordered any hit");
+            let (seen_un, ..) =
+                same_on_every_path_unordered(&new, boxes, o, d, t_max, Mode::Gather);
+            assert_eq!(
+                sorted(seen_un.iter().map(|s| s.0).collect()),
+                seen,
+                "{what}: unordered visits"
+            );
             same_on_every_path(&new, boxes, o, d, t_max, Mode::StopAfter(i % 4));
         }
     }

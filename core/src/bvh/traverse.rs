@@ -1,6 +1,9 @@
 //! Walking the wide tree: closest-hit, any-hit and every-hit queries through
 //! one generic walk, nearest child first, a node's four boxes tested at once
 //! on the path chosen in [`simd`](super::simd) (the same bits on each).
+//! Queries whose answer cannot depend on the visit order (opaque shadow
+//! rays: is anything hit at all?) skip the sort and take the entered
+//! children in slot order ([`Bvh::traverse_unordered`]).
 
 use super::simd::{self, NodeRay, Simd, Stack, SLACK};
 use super::{Bvh, Ref, Visit};
@@ -26,12 +29,29 @@ impl Bvh {
         t_max: f32,
         visit: F,
     ) -> (f32, bool) {
-        self.traverse_on(simd::current(), origin, dir, t_max, visit)
+        self.traverse_on::<F, true>(simd::current(), origin, dir, t_max, visit)
     }
 
-    /// [`Bvh::traverse`] on the given path (the same visits on each).
+    /// [`Bvh::traverse`] for a visitor whose answer cannot depend on the
+    /// order of its visits (an any-hit query that stops at the first hit):
+    /// the entered children are visited in slot order, without sorting them
+    /// by entry distance. Every primitive `traverse` would visit before a
+    /// `Stop` is still offered, so whether anything is hit is the same.
+    #[inline]
+    pub fn traverse_unordered<F: FnMut(u32, f32) -> Visit>(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        t_max: f32,
+        visit: F,
+    ) -> (f32, bool) {
+        self.traverse_on::<F, false>(simd::current(), origin, dir, t_max, visit)
+    }
+
+    /// [`Bvh::traverse`] (`ORDERED`) or [`Bvh::traverse_unordered`] on the
+    /// given path (the same visits on each).
     #[inline(always)]
-    pub(crate) fn traverse_on<F: FnMut(u32, f32) -> Visit>(
+    pub(crate) fn traverse_on<F: FnMut(u32, f32) -> Visit, const ORDERED: bool>(
         &self,
         path: Simd,
         origin: Vec3,
@@ -59,15 +79,16 @@ impl Bvh {
         }
         let w = match path {
             #[cfg(target_arch = "x86_64")]
-            Simd::Sse => self.walk::<F, true>(self.root, &ray, t_max, &mut visit),
-            _ => self.walk::<F, false>(self.root, &ray, t_max, &mut visit),
+            Simd::Sse => self.walk::<F, true, ORDERED>(self.root, &ray, t_max, &mut visit),
+            _ => self.walk::<F, false, ORDERED>(self.root, &ray, t_max, &mut visit),
         };
         (w.t_max, w.hit)
     }
 
-    /// The walk from `start` (already entered). `SSE`: which node test.
+    /// The walk from `start` (already entered). `SSE`: which node test;
+    /// `ORDERED`: entered children nearest first (else in slot order).
     #[inline]
-    fn walk<F: FnMut(u32, f32) -> Visit, const SSE: bool>(
+    fn walk<F: FnMut(u32, f32) -> Visit, const SSE: bool, const ORDERED: bool>(
         &self,
         start: Ref,
         ray: &NodeRay,
@@ -110,7 +131,7 @@ impl Bvh {
                         continue;
                     }
                     let mut j = k;
-                    while j > 0 && enter[order[j - 1]] > enter[i] {
+                    while ORDERED && j > 0 && enter[order[j - 1]] > enter[i] {
                         order[j] = order[j - 1];
                         j -= 1;
                     }
@@ -122,7 +143,7 @@ impl Bvh {
                     for &i in order[1..k].iter().rev() {
                         if !stack.push((n.child[i], enter[i])) {
                             // Stack full: walk that subtree now.
-                            let w = self.walk::<F, SSE>(n.child[i], ray, t_max, visit);
+                            let w = self.walk::<F, SSE, ORDERED>(n.child[i], ray, t_max, visit);
                             t_max = w.t_max;
                             hit |= w.hit;
                             if w.stop {

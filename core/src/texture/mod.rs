@@ -196,7 +196,7 @@ pub fn srgb_to_linear(c: f64) -> f64 {
     if c <= 0.04045 {
         c / 12.92
     } else {
-        ((c + 0.055) / 1.055).powf(2.4)
+        crate::math::pow((c + 0.055) / 1.055, 2.4)
     }
 }
 

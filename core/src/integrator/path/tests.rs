@@ -109,6 +109,8 @@ fn a_white_environment_is_seen_as_it_is_and_a_white_sphere_in_it_vanishes() {
     }
 }
 
+// An independent closed form: std is fine here (clippy.toml).
+#[allow(clippy::disallowed_methods)]
 /// The configuration factor from a differential area to a parallel
 /// rectangle a × b at distance c, the element below one corner (Howell's
 /// catalogue, C-11).

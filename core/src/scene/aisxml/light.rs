@@ -191,8 +191,8 @@ impl<'a> Resolver<'a> {
             }
             LightKind::Spot {
                 direction: direction.as_vec3().normalize_or(Vec3::NEG_Y),
-                cos_inner: inner.to_radians().cos() as f32,
-                cos_outer: outer.to_radians().cos() as f32,
+                cos_inner: crate::math::cos(inner.to_radians()) as f32,
+                cos_outer: crate::math::cos(outer.to_radians()) as f32,
             }
         } else {
             // Accepted and ignored on point lights, but still well-formed.

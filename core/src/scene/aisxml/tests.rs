@@ -98,6 +98,8 @@ const FULL: &str = r#"<?xml version="1.0" encoding="UTF-8"?>
 </scene>
 "#;
 
+// An independent closed form: std is fine here (clippy.toml).
+#[allow(clippy::disallowed_methods)]
 #[test]
 fn full_scene_resolves_with_defaults() {
     let s = parse(FULL).unwrap();
