@@ -42,7 +42,12 @@ impl Farm {
             return Ok(());
         };
         let (now, wall) = (Instant::now(), wall_ms());
-        for j in store.jobs()? {
+        let rows = store.jobs()?;
+        self.restore_sequences(&rows);
+        for j in rows {
+            if j.seq.frames.is_some() {
+                continue; // A sequence: restored above.
+            }
             let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
             let submitted = now.checked_sub(ago).unwrap_or(now);
             let done_tiles = if j.state.is_final() {
@@ -74,7 +79,7 @@ impl Farm {
             );
             let info = st.sched.info(id, now).expect("just restored");
             st.watchers.insert(id, watch::channel(info.clone()).0);
-            if !j.state.is_final() {
+            if !j.state.is_final() && j.seq.parent.is_none() {
                 st.submitters.insert(id, j.submitter.clone());
             }
             drop(st);
@@ -101,6 +106,7 @@ impl Farm {
                 Err(e) => self.end_job(id, Err(format!("resuming after a restart: {e}"))),
             }
         }
+        self.resume_sequences();
         Ok(())
     }
 
