@@ -760,7 +760,10 @@ impl Farm {
             if result.is_ok() {
                 if let Err(e) = self.file_frame(seq, job, &ending.spec) {
                     result = Err(e.to_string());
-                    ending = st.sched.finish_info(job, &result, now).expect("checked above");
+                    ending = st
+                        .sched
+                        .finish_info(job, &result, now)
+                        .expect("checked above");
                 }
             }
             if result.is_ok() {

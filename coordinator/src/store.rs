@@ -188,7 +188,13 @@ impl Store {
                 .map_err(db_err)?;
             names
         };
-        for col in ["frame", "parent", "first_frame", "last_frame", "frames_done"] {
+        for col in [
+            "frame",
+            "parent",
+            "first_frame",
+            "last_frame",
+            "frames_done",
+        ] {
             if !have.iter().any(|h| h == col) {
                 conn.execute(&format!("ALTER TABLE jobs ADD COLUMN {col} INTEGER"), [])
                     .map_err(db_err)?;
@@ -378,11 +384,7 @@ impl Store {
     /// Like [`Store::finish_job`], and for a frame of a sequence in the same
     /// transaction the sequence's count of finished frames (`(sequence,
     /// frames_done)`), so a restart never finds one without the other.
-    pub fn finish_frame(
-        &self,
-        j: &StoredJob,
-        seq: Option<(JobId, u32)>,
-    ) -> Result<(), FarmError> {
+    pub fn finish_frame(&self, j: &StoredJob, seq: Option<(JobId, u32)>) -> Result<(), FarmError> {
         let mut guard = self.lock();
         let inner = &mut *guard;
         let tx = inner.conn.transaction().map_err(db_err)?;

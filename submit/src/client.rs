@@ -473,12 +473,7 @@ impl Client {
         }
         let end = self.watch(s.id, progress).await?;
         if end.state() != JobState::Done {
-            bail!(
-                "sequence {} {}: {}",
-                s.id,
-                end.state().label(),
-                end.error
-            );
+            bail!("sequence {} {}: {}", s.id, end.state().label(), end.error);
         }
         for f in seq.frames.first..=seq.frames.last {
             let out = seq.output(f);
@@ -857,9 +852,7 @@ impl ProgressView {
             Progress::Bar => {
                 let bar = self.bar.get_or_insert_with(|| {
                     let b = ProgressBar::new(count);
-                    b.set_style(
-                        ProgressStyle::with_template("{msg}").expect("static template"),
-                    );
+                    b.set_style(ProgressStyle::with_template("{msg}").expect("static template"));
                     b
                 });
                 bar.set_message(line);

@@ -258,7 +258,10 @@ fn priorities_order_jobs_and_a_cancelled_job_stops_and_leaves_no_output() {
     let e = rt.block_on(async {
         let mut s = jobs(&c, None)
             .await
-            .download_output(pb::JobId { id: doomed, frame: None })
+            .download_output(pb::JobId {
+                id: doomed,
+                frame: None,
+            })
             .await?
             .into_inner();
         s.message().await

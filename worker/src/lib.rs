@@ -885,9 +885,9 @@ impl Session {
             scenes::Found::Reuse(s) => s,
             scenes::Found::Miss => self.build(hash).await?,
         };
-        let cam = scene
-            .camera_index(camera)
-            .ok_or_else(|| SceneLoadError::Frame(format!("the scene has no camera \"{camera}\"")))?;
+        let cam = scene.camera_index(camera).ok_or_else(|| {
+            SceneLoadError::Frame(format!("the scene has no camera \"{camera}\""))
+        })?;
         let start = std::time::Instant::now();
         let scene = tokio::task::spawn_blocking(move || {
             scene

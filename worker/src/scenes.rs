@@ -155,6 +155,9 @@ mod tests {
         c.put("g", "c", 1, Arc::new(built()));
         c.put("k", "c", 1, Arc::new(built()));
         assert_eq!(c.len(), 2);
-        assert!(matches!(c.take("h", "c", 12), Found::Miss), "the oldest went");
+        assert!(
+            matches!(c.take("h", "c", 12), Found::Miss),
+            "the oldest went"
+        );
     }
 }

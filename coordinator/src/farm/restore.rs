@@ -43,6 +43,10 @@ impl Farm {
         };
         let (now, wall) = (Instant::now(), wall_ms());
         let rows = store.jobs()?;
+        // A frame that completes while it is restored queues the next
+        // frames: their ids must not be those of rows not restored yet.
+        let max = store.max_job_id()?;
+        lock(&self.state).sched.skip_ids_through(max);
         self.restore_sequences(&rows);
         for j in rows {
             if j.seq.frames.is_some() {

@@ -146,6 +146,20 @@ impl State {
         }
     }
 
+    /// Ended jobs and sequences with when they ended, newest first (a
+    /// sequence's frames count as jobs of their own).
+    pub(super) fn ended(&self) -> Vec<(JobId, Instant)> {
+        let mut v = self.sched.ended();
+        v.extend(
+            self.seqs
+                .iter()
+                .filter(|(_, s)| s.state.is_final())
+                .map(|(&id, s)| (id, s.finished.unwrap_or(s.submitted))),
+        );
+        v.sort_unstable_by_key(|&(id, t)| std::cmp::Reverse((t, id)));
+        v
+    }
+
     /// Up to `limit` jobs and sequences by id from `from` on (frames of
     /// sequences are not listed: their sequence is), and where the next
     /// page starts.
@@ -167,7 +181,10 @@ impl State {
         ids.sort_unstable();
         let next = ids.get(limit).copied();
         ids.truncate(limit);
-        let page = ids.into_iter().filter_map(|id| self.info(id, now)).collect();
+        let page = ids
+            .into_iter()
+            .filter_map(|id| self.info(id, now))
+            .collect();
         (page, next)
     }
 }
@@ -307,17 +324,19 @@ impl Farm {
     }
 
     /// Moves a finished frame's output into its sequence's directory.
-    pub(super) fn file_frame(&self, seq: JobId, job: JobId, spec: &JobSpec) -> Result<(), FarmError> {
+    pub(super) fn file_frame(
+        &self,
+        seq: JobId,
+        job: JobId,
+        spec: &JobSpec,
+    ) -> Result<(), FarmError> {
         let from = self.output_path(job, &spec.output_name);
         let to = self.output_path(seq, &spec.output_name);
         let dir = to.parent().expect("jobs/<id>/name");
         std::fs::create_dir_all(dir)
             .map_err(|e| FarmError::io(format!("cannot create {}", dir.display()), e))?;
         std::fs::rename(&from, &to).map_err(|e| {
-            FarmError::io(
-                format!("moving {} to {}", from.display(), to.display()),
-                e,
-            )
+            FarmError::io(format!("moving {} to {}", from.display(), to.display()), e)
         })?;
         let _ = std::fs::remove_dir(from.parent().expect("jobs/<id>/name"));
         Ok(())

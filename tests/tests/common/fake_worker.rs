@@ -72,8 +72,8 @@ impl FakeWorker {
             rect: lease.rect,
             rays: 1,
             session: self.session.clone(),
-        },
-        frame: lease.frame,
+            frame: lease.frame,
+        }
     }
 
     /// Sends a tile result: `header`, then each of `chunks` as one pixels
