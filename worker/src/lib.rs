@@ -882,7 +882,7 @@ impl Session {
     ) -> Result<Arc<Scene>, SceneLoadError> {
         let mut scene = match cache.frames.take(hash, camera, frame) {
             scenes::Found::Ready(s) => return Ok(s),
-            scenes::Found::Reuse(s) => s,
+            scenes::Found::Reuse(s) => *s,
             scenes::Found::Miss => self.build(hash).await?,
         };
         let cam = scene.camera_index(camera).ok_or_else(|| {

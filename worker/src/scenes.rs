@@ -20,7 +20,7 @@ pub enum Found {
     Ready(Arc<Scene>),
     /// A scene of that bundle at another frame, no longer in use: move it
     /// with `Scene::set_frame` and [`FrameScenes::put`] it back.
-    Reuse(Scene),
+    Reuse(Box<Scene>),
     /// Nothing to reuse: build the scene.
     Miss,
 }
@@ -66,7 +66,7 @@ impl FrameScenes {
         if let Some(i) = free {
             let e = self.entries.remove(i);
             if let Ok(scene) = Arc::try_unwrap(e.scene) {
-                return Found::Reuse(scene);
+                return Found::Reuse(Box::new(scene));
             }
         }
         Found::Miss
@@ -144,7 +144,7 @@ mod tests {
         assert!(matches!(c.take("h", "c", 12), Found::Miss));
         drop(held);
         let mut s = match c.take("h", "c", 12) {
-            Found::Reuse(s) => s,
+            Found::Reuse(s) => *s,
             _ => panic!("the free scene is reused"),
         };
         s.set_frame(0, 12).unwrap();
