@@ -191,6 +191,7 @@ fn ingest(args: &[String]) {
                 priority: 0,
                 tile_size: tile,
                 output_format: String::new(),
+                frames: None,
             })
             .await
             .unwrap()
@@ -245,6 +246,7 @@ fn ingest(args: &[String]) {
                                 rect: lease.rect,
                                 rays: rect.pixel_count() as u64,
                                 session: session.clone(),
+                                frame: None,
                             })),
                         },
                         pb::TileUpload {
@@ -257,7 +259,7 @@ fn ingest(args: &[String]) {
         }
         // Wait for the job to end (workers stop when no lease comes in 2 s).
         let mut watch = jobs
-            .watch_job(pb::JobId { id: job.id })
+            .watch_job(pb::JobId { id: job.id, frame: None })
             .await
             .unwrap()
             .into_inner();
@@ -354,6 +356,7 @@ fn farm(args: &[String]) {
         let dir = tempfile::tempdir().unwrap();
         let farm = Farm::new(FarmConfig::new(dir.path())).unwrap();
         let spec = JobSpec {
+            frame: None,
             bundle_hash: "0".repeat(64),
             camera: "bench".into(),
             priority: 0,
@@ -524,11 +527,12 @@ fn scale(args: &[String]) {
                             priority: 0,
                             tile_size: tile,
                             output_format: String::new(),
+                            frames: None,
                         })
                         .await
                         .unwrap()
                         .into_inner();
-                    let mut watch = jobs.watch_job(pb::JobId { id: job.id }).await.unwrap().into_inner();
+                    let mut watch = jobs.watch_job(pb::JobId { id: job.id, frame: None }).await.unwrap().into_inner();
                     while let Ok(Some(_)) = watch.message().await {}
                 }
             }));
@@ -591,6 +595,7 @@ fn scale(args: &[String]) {
                                 rect: lease.rect,
                                 rays: px,
                                 session: session.clone(),
+                                frame: None,
                             })),
                         }];
                         msgs.extend(bytes.chunks(trevi_proto::CHUNK_SIZE).map(|c| pb::TileUpload {

@@ -17,6 +17,7 @@ mod checks;
 mod previews;
 mod restore;
 mod retention;
+pub mod sequences;
 mod upkeep;
 
 use checks::output_name;
@@ -34,7 +35,7 @@ use crate::scheduler::{
     Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth, Scheduler, WorkerId,
 };
 use crate::sink::TileSink;
-use crate::store::{wall_ms, Store, StoredJob};
+use crate::store::{wall_ms, SeqLink, Store, StoredJob};
 use crate::summaries::{SceneSummary, Summaries};
 use crate::workers::WorkerInfo;
 use std::collections::{HashMap, VecDeque};
@@ -176,15 +177,27 @@ struct State {
     /// Jobs that ended but whose end the database did not take (a full
     /// disk): held unfinished, as stored, until [`Farm::expire`] records it.
     unrecorded: HashMap<JobId, Result<(), String>>,
+    /// Sequences, by id (their frames are jobs of `sched`).
+    seqs: HashMap<JobId, sequences::Sequence>,
+    /// Each frame job's sequence.
+    parent_of: HashMap<JobId, JobId>,
 }
 
 impl State {
     fn publish(&self, job: JobId) {
-        if let (Some(tx), Some(info)) = (
-            self.watchers.get(&job),
-            self.sched.info(job, Instant::now()),
-        ) {
+        if let (Some(tx), Some(info)) = (self.watchers.get(&job), self.info(job, Instant::now())) {
             tx.send_replace(info);
+        }
+        if let Some(&seq) = self.parent_of.get(&job) {
+            self.publish(seq);
+        }
+    }
+
+    /// A job's or a sequence's status.
+    fn info(&self, job: JobId, now: Instant) -> Option<JobInfo> {
+        match self.seqs.get(&job) {
+            Some(seq) => Some(seq.info(job, &self.sched, now)),
+            None => self.sched.info(job, now),
         }
     }
 }
@@ -228,6 +241,8 @@ impl Farm {
                 submitters: HashMap::new(),
                 final_previews: VecDeque::new(),
                 unrecorded: HashMap::new(),
+                seqs: HashMap::new(),
+                parent_of: HashMap::new(),
             }),
             work: Notify::new(),
             bundles,
@@ -268,11 +283,18 @@ impl Farm {
     /// Removes the bundles no job uses that are older than
     /// [`Retention::bundle_grace`]; returns how many went.
     pub fn collect_bundles(&self) -> usize {
-        let keep = self
+        let mut keep: std::collections::HashSet<String> = self
             .list()
             .into_iter()
             .map(|j| j.spec.bundle_hash)
             .collect();
+        keep.extend(
+            lock(&self.state)
+                .seqs
+                .values()
+                .filter(|s| !s.state.is_final())
+                .map(|s| s.spec.bundle_hash.clone()),
+        );
         self.bundles.collect(&keep, self.cfg.retention.bundle_grace)
     }
 
@@ -330,6 +352,7 @@ impl Farm {
             )));
         }
         Ok(JobSpec {
+            frame: None,
             bundle_hash: bundle_hash.to_string(),
             camera: cam.id.clone(),
             priority,
@@ -374,7 +397,15 @@ impl Farm {
         }
         self.check_memory(&spec)?;
         let mut st = lock(&self.state);
-        let max = self.cfg.limits.max_jobs_per_submitter;
+        Self::check_submitter(&st, who, self.cfg.limits.max_jobs_per_submitter)?;
+        let info = self.submit_locked(&mut st, spec, make, who, None)?;
+        drop(st);
+        self.work.notify_waiters();
+        Ok(info)
+    }
+
+    /// Refuses a submission from `who` when it has `max` unfinished jobs.
+    fn check_submitter(st: &State, who: &str, max: usize) -> Result<(), FarmError> {
         let mine = st.submitters.values().filter(|s| s.as_str() == who).count();
         if mine >= max {
             let who = if who.is_empty() {
@@ -387,6 +418,19 @@ impl Farm {
                  (--max-jobs-per-submitter)"
             )));
         }
+        Ok(())
+    }
+
+    /// Queues a job with the state locked; a frame of sequence `parent` is
+    /// not counted against its submitter (its sequence is).
+    fn submit_locked(
+        &self,
+        st: &mut State,
+        spec: JobSpec,
+        make: MakeSink<'_>,
+        who: &str,
+        parent: Option<JobId>,
+    ) -> Result<JobInfo, FarmError> {
         let now = Instant::now();
         // The scene's memory estimate, from the summary `job_spec` made.
         let memory = self
@@ -415,6 +459,10 @@ impl Farm {
                 finish_order: 0,
                 tiles_done: 0,
                 rays: 0,
+                seq: SeqLink {
+                    parent,
+                    ..SeqLink::default()
+                },
             };
             if let Err(e) = store.insert_job(&stored) {
                 st.sched.finish(id, Err(e.to_string()), now);
@@ -426,11 +474,17 @@ impl Farm {
             Arc::new(Mutex::new(Output::new(sink, &info.spec, info.tiles_total))),
         );
         st.watchers.insert(id, watch::channel(info.clone()).0);
-        st.submitters.insert(id, who.to_string());
-        drop(st);
+        match parent {
+            None => {
+                st.submitters.insert(id, who.to_string());
+            }
+            Some(seq) => {
+                st.parent_of.insert(id, seq);
+            }
+        }
         tracing::info!(job = id, camera = %info.spec.camera, width = info.spec.width,
-            height = info.spec.height, priority = info.spec.priority, "job queued");
-        self.work.notify_waiters();
+            height = info.spec.height, priority = info.spec.priority, frame = ?info.spec.frame,
+            "job queued");
         Ok(info)
     }
 
@@ -725,14 +779,32 @@ impl Farm {
     /// database does not take it (a full disk), the job stays as stored:
     /// unfinished, taking no more work; [`Farm::expire`] records the end
     /// later, and a restart meanwhile resumes the job from its stored tiles.
-    fn end_job(&self, job: JobId, result: Result<(), String>) {
+    fn end_job(&self, job: JobId, mut result: Result<(), String>) {
         let image = self.final_preview(job);
         let mut st = lock(&self.state);
         let now = Instant::now();
-        let Some(ending) = st.sched.finish_info(job, &result, now) else {
+        let Some(mut ending) = st.sched.finish_info(job, &result, now) else {
             return; // Over already (cancelled meanwhile).
         };
-        if let Err(e) = self.persist_end(&ending) {
+        // A frame of a sequence: its output joins the sequence's.
+        let parent = st.parent_of.get(&job).copied();
+        let mut seq_done = None;
+        if let Some(seq) = parent {
+            if result.is_ok() {
+                if let Err(e) = self.file_frame(seq, job, &ending.spec) {
+                    result = Err(e.to_string());
+                    ending = st
+                        .sched
+                        .finish_info(job, &result, now)
+                        .expect("checked above");
+                }
+            }
+            if result.is_ok() {
+                let done = st.seqs.get(&seq).map_or(0, |s| s.done) + 1;
+                seq_done = Some((seq, done));
+            }
+        }
+        if let Err(e) = self.persist_frame_end(&ending, seq_done) {
             if st.unrecorded.insert(job, result).is_none() {
                 st.sched.hold(job);
                 tracing::error!(job, error = %e,
@@ -749,13 +821,29 @@ impl Farm {
         st.outputs.remove(&job);
         st.submitters.remove(&job);
         st.keep_final_preview(job, image, self.cfg.limits.kept_previews);
+        if let Some(seq) = parent {
+            st.frame_ended(seq, job, &ending, seq_done.is_some());
+        }
         st.publish(job);
         drop(st);
+        if let Some(seq) = parent {
+            self.advance(seq);
+        }
         self.prune();
     }
 
     /// Records a job's end in the database (and drops its tiles there).
     fn persist_end(&self, info: &JobInfo) -> Result<(), FarmError> {
+        self.persist_frame_end(info, None)
+    }
+
+    /// Like [`Farm::persist_end`], with a sequence's count of frames done
+    /// (see [`Store::finish_frame`]).
+    fn persist_frame_end(
+        &self,
+        info: &JobInfo,
+        seq: Option<(JobId, u32)>,
+    ) -> Result<(), FarmError> {
         let Some(store) = &self.store else {
             return Ok(());
         };
@@ -770,8 +858,12 @@ impl Farm {
             finish_order: info.finish_order,
             tiles_done: info.tiles_done,
             rays: info.rays,
+            seq: SeqLink {
+                frames_done: info.frames.map_or(0, |f| f.done),
+                ..SeqLink::default()
+            },
         };
-        store.finish_job(&j)
+        store.finish_frame(&j, seq)
     }
 
     /// Cancels a job: no more leases, workers drop theirs at the next
@@ -779,6 +871,9 @@ impl Farm {
     /// The cancellation is recorded first: when the database does not take
     /// it, the job goes on and the caller gets the error.
     pub fn cancel(&self, job: JobId) -> Result<JobInfo, FarmError> {
+        if lock(&self.state).seqs.contains_key(&job) {
+            return self.cancel_sequence(job);
+        }
         let image = self.final_preview(job);
         let mut st = lock(&self.state);
         let now = Instant::now();
@@ -816,7 +911,6 @@ impl Farm {
 
     pub fn info(&self, job: JobId) -> Result<JobInfo, FarmError> {
         lock(&self.state)
-            .sched
             .info(job, Instant::now())
             .ok_or(FarmError::UnknownJob(job))
     }
@@ -827,10 +921,9 @@ impl Farm {
 
     /// Up to `limit` jobs by id from id `from` on, and where the next page
     /// starts (`None`: this was the last).
+    /// Frames of sequences are not listed: their sequence is.
     pub fn list_from(&self, from: JobId, limit: usize) -> (Vec<JobInfo>, Option<JobId>) {
-        lock(&self.state)
-            .sched
-            .list_from(from, limit, Instant::now())
+        lock(&self.state).list_from(from, limit, Instant::now())
     }
 
     /// Progress of a job: the current status, then every change.
@@ -844,6 +937,9 @@ impl Farm {
 
     /// The finished output file of a job that is done.
     pub fn output_file(&self, job: JobId) -> Result<PathBuf, FarmError> {
+        if lock(&self.state).seqs.contains_key(&job) {
+            return self.frame_file(job, None);
+        }
         let info = self.info(job)?;
         if info.state != JobState::Done {
             return Err(FarmError::NoOutput(
@@ -856,6 +952,9 @@ impl Farm {
 
     /// Moves an unfinished job to another priority (higher runs first).
     pub fn set_priority(&self, job: JobId, priority: i32) -> Result<JobInfo, FarmError> {
+        if lock(&self.state).seqs.contains_key(&job) {
+            return self.set_sequence_priority(job, priority);
+        }
         let mut st = lock(&self.state);
         // Checked, stored, then applied: a change the database did not
         // take is not made.
@@ -895,7 +994,7 @@ impl Farm {
         FarmSnapshot {
             counters: st.sched.counters(),
             queue: st.sched.queue_depth(),
-            jobs: st.sched.list(now),
+            jobs: st.list_from(0, usize::MAX, now).0,
             workers: st.sched.workers(now),
             rays_per_second: st.sched.rays_per_second(now),
         }

@@ -50,6 +50,15 @@ pub fn job_status(info: &JobInfo) -> pb::JobStatus {
         error: info.error.clone().unwrap_or_default(),
         finish_order: info.finish_order,
         bundle_hash: info.spec.bundle_hash.clone(),
+        frames: info.frames.map(|f| pb::FrameRange {
+            first: f.first,
+            last: f.last,
+        }),
+        frames_done: info.frames.map_or(0, |f| f.done),
+        current_frame: info.frames.and_then(|f| f.current.map(|c| c.0)),
+        current_tiles_done: info.frames.and_then(|f| f.current).map_or(0, |c| c.1),
+        current_tiles_total: info.frames.and_then(|f| f.current).map_or(0, |c| c.2),
+        frames_in_progress: info.frames.map_or(0, |f| f.in_progress),
     }
 }
 
@@ -239,13 +248,16 @@ impl pb::jobs_server::Jobs for JobsService {
         let info = blocking(move || {
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
-            farm.submit(
-                spec,
-                SubmitOptions {
-                    who: &who,
-                    ..SubmitOptions::default()
-                },
-            )
+            match r.frames {
+                Some(f) => farm.submit_sequence(spec, f.first, f.last, &who),
+                None => farm.submit(
+                    spec,
+                    SubmitOptions {
+                        who: &who,
+                        ..SubmitOptions::default()
+                    },
+                ),
+            }
         })
         .await?;
         Ok(Response::new(job_status(&info)))
@@ -348,8 +360,12 @@ impl pb::jobs_server::Jobs for JobsService {
         &self,
         req: Request<pb::JobId>,
     ) -> Result<Response<Self::DownloadOutputStream>, Status> {
-        let id = req.into_inner().id;
-        let path = self.farm.output_file(id)?;
+        let r = req.into_inner();
+        let id = r.id;
+        let path = match r.frame {
+            Some(f) => self.farm.frame_file(id, Some(f))?,
+            None => self.farm.output_file(id)?,
+        };
         let file = tokio::fs::File::open(&path)
             .await
             .map_err(|e| Status::internal(format!("opening the output of job {id}: {e}")))?;
@@ -407,6 +423,7 @@ impl pb::workers_server::Workers for WorkersService {
                 rect: Some(l.rect.into()),
                 tiles: l.tiles,
                 memory_estimate: l.memory_estimate,
+                frame: l.frame,
             }),
         }))
     }
@@ -442,6 +459,7 @@ impl pb::workers_server::Workers for WorkersService {
         // them, at most `max_lease_pixels`) is refused before any pixel is
         // read (so a huge one cannot make us allocate).
         let parts = self.farm.span_tiles(header.job_id, rect)?;
+        self.farm.check_frame(header.job_id, header.frame)?;
         let expected = rect.pixel_count().saturating_mul(12);
         let mut bytes = Vec::with_capacity(expected.min(64 << 20));
         let mut oversized = false;

@@ -318,6 +318,20 @@ struct JobView {
     /// tiles done.
     eta_ms: Option<u64>,
     error: Option<String>,
+    /// A sequence's frames (see farm/sequences.rs); `null` for a still.
+    frames: Option<FramesView>,
+}
+
+#[derive(Serialize)]
+struct FramesView {
+    first: u32,
+    last: u32,
+    done: u32,
+    in_progress: u32,
+    /// The earliest frame in progress, its tiles done and its tiles.
+    current: Option<u32>,
+    current_tiles_done: u64,
+    current_tiles_total: u64,
 }
 
 /// Time left if the rest of the tiles go as fast as those done so far.
@@ -346,6 +360,15 @@ impl From<&JobInfo> for JobView {
             elapsed_ms: j.elapsed.as_millis() as u64,
             eta_ms: eta_ms(j),
             error: j.error.clone(),
+            frames: j.frames.map(|f| FramesView {
+                first: f.first,
+                last: f.last,
+                done: f.done,
+                in_progress: f.in_progress,
+                current: f.current.map(|c| c.0),
+                current_tiles_done: f.current.map_or(0, |c| c.1),
+                current_tiles_total: f.current.map_or(0, |c| c.2),
+            }),
         }
     }
 }

@@ -88,6 +88,9 @@ pub struct JobSpec {
     pub tile_size: u32,
     /// File name of the output; its extension selects the format.
     pub output_name: String,
+    /// For one frame of a sequence: the frame the workers render (see
+    /// `crate::farm::sequences`); `None` for a still.
+    pub frame: Option<u32>,
 }
 
 /// A snapshot of a job, for status and progress.
@@ -103,6 +106,21 @@ pub struct JobInfo {
     pub error: Option<String>,
     /// 1 for the first job to finish, and so on; 0 while unfinished.
     pub finish_order: u64,
+    /// For a sequence: its frames' progress.
+    pub frames: Option<FramesInfo>,
+}
+
+/// A sequence's progress (see `crate::farm::sequences`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct FramesInfo {
+    pub first: u32,
+    pub last: u32,
+    /// Frames finished.
+    pub done: u32,
+    /// Frames rendering now.
+    pub in_progress: u32,
+    /// The earliest frame in progress: its number, tiles done and tiles.
+    pub current: Option<(u32, u64, u64)>,
 }
 
 /// A tile handed to a worker, or a span of adjacent tiles of one band (see
@@ -119,6 +137,8 @@ pub struct Lease {
     pub tiles: u32,
     /// The job's memory estimate in bytes, 0 if none (see [`memory`]).
     pub memory_estimate: u64,
+    /// The job's frame, for a frame of a sequence.
+    pub frame: Option<u32>,
 }
 
 /// What became of a result handed to [`Scheduler::accept_tile`].
@@ -504,6 +524,7 @@ impl Scheduler {
                 rect,
                 tiles: span.len() as u32,
                 memory_estimate: self.memory.estimate(id),
+                frame: job.spec.frame,
             }));
         }
         if too_small {
@@ -964,6 +985,14 @@ impl Scheduler {
         v
     }
 
+    /// Takes the next job id for something that is not a scheduler job (a
+    /// sequence, whose frames are jobs).
+    pub fn reserve_id(&mut self) -> JobId {
+        let id = self.next_job;
+        self.next_job += 1;
+        id
+    }
+
     /// Never gives an id up to `id` (ids of an earlier run, or whose output
     /// directory exists).
     pub fn skip_ids_through(&mut self, id: JobId) {
@@ -1006,6 +1035,7 @@ impl Scheduler {
                 .saturating_duration_since(j.submitted),
             error: j.error.clone(),
             finish_order: j.finish_order,
+            frames: None,
         })
     }
 
@@ -1092,6 +1122,7 @@ mod tests {
 
     fn spec(priority: i32, w: u32, h: u32, tile: u32) -> JobSpec {
         JobSpec {
+            frame: None,
             bundle_hash: "h".into(),
             camera: "cam".into(),
             priority,

@@ -65,6 +65,21 @@ pub struct StoredJob {
     pub finish_order: u64,
     pub tiles_done: u64,
     pub rays: u64,
+    /// How the job belongs to a sequence, or is one.
+    pub seq: SeqLink,
+}
+
+/// A sequence's row, or a frame's link to its sequence (see
+/// `crate::farm::sequences`): a sequence is a row of its own, its frames
+/// jobs whose `parent` it is. Both `None` for a still.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SeqLink {
+    /// For a frame: its sequence.
+    pub parent: Option<JobId>,
+    /// For a sequence: its first and last frame.
+    pub frames: Option<(u32, u32)>,
+    /// For an ended sequence: how many frames it finished.
+    pub frames_done: u32,
 }
 
 /// A stored tile's row: (tile, rays, offset, len, crc) — where its pixels
@@ -162,6 +177,29 @@ impl Store {
              );",
         )
         .map_err(db_err)?;
+        // Sequences came later: a database of an earlier version gets
+        // their columns (NULL: a still).
+        let have: Vec<String> = {
+            let mut q = conn.prepare("PRAGMA table_info(jobs)").map_err(db_err)?;
+            let names = q
+                .query_map([], |r| r.get::<_, String>(1))
+                .map_err(db_err)?
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(db_err)?;
+            names
+        };
+        for col in [
+            "frame",
+            "parent",
+            "first_frame",
+            "last_frame",
+            "frames_done",
+        ] {
+            if !have.iter().any(|h| h == col) {
+                conn.execute(&format!("ALTER TABLE jobs ADD COLUMN {col} INTEGER"), [])
+                    .map_err(db_err)?;
+            }
+        }
         let tiles_dir = dir.join("tiles");
         std::fs::create_dir_all(&tiles_dir)
             .map_err(|e| FarmError::io(format!("cannot create {}", tiles_dir.display()), e))?;
@@ -210,8 +248,9 @@ impl Store {
             .conn
             .execute(
                 "INSERT INTO jobs (id, bundle_hash, camera, priority, width, height, tile_size,
-                     output_name, submitter, state, submitted_ms)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+                     output_name, submitter, state, submitted_ms, frame, parent, first_frame,
+                     last_frame)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
                 params![
                     j.id as i64,
                     s.bundle_hash,
@@ -224,6 +263,10 @@ impl Store {
                     j.submitter,
                     j.state.name(),
                     j.submitted_ms as i64,
+                    s.frame,
+                    j.seq.parent.map(|p| p as i64),
+                    j.seq.frames.map(|f| f.0),
+                    j.seq.frames.map(|f| f.1),
                 ],
             )
             .map_err(db_err)?;
@@ -335,12 +378,26 @@ impl Store {
 
     /// Records a job's end and drops its stored tiles.
     pub fn finish_job(&self, j: &StoredJob) -> Result<(), FarmError> {
+        self.finish_frame(j, None)
+    }
+
+    /// Like [`Store::finish_job`], and for a frame of a sequence in the same
+    /// transaction the sequence's count of finished frames (`(sequence,
+    /// frames_done)`), so a restart never finds one without the other.
+    pub fn finish_frame(&self, j: &StoredJob, seq: Option<(JobId, u32)>) -> Result<(), FarmError> {
         let mut guard = self.lock();
         let inner = &mut *guard;
         let tx = inner.conn.transaction().map_err(db_err)?;
+        if let Some((seq, done)) = seq {
+            tx.execute(
+                "UPDATE jobs SET frames_done = ?2 WHERE id = ?1",
+                params![seq as i64, done],
+            )
+            .map_err(db_err)?;
+        }
         tx.execute(
             "UPDATE jobs SET state = ?2, elapsed_ms = ?3, error = ?4, finish_order = ?5,
-                 tiles_done = ?6, rays = ?7 WHERE id = ?1",
+                 tiles_done = ?6, rays = ?7, frames_done = ?8 WHERE id = ?1",
             params![
                 j.id as i64,
                 j.state.name(),
@@ -349,6 +406,7 @@ impl Store {
                 j.finish_order as i64,
                 j.tiles_done as i64,
                 j.rays as i64,
+                j.seq.frames_done,
             ],
         )
         .map_err(db_err)?;
@@ -368,7 +426,8 @@ impl Store {
             .prepare(
                 "SELECT id, bundle_hash, camera, priority, width, height, tile_size, output_name,
                      submitter, state, submitted_ms, elapsed_ms, error, finish_order, tiles_done,
-                     rays FROM jobs ORDER BY id",
+                     rays, frame, parent, first_frame, last_frame, frames_done
+                 FROM jobs ORDER BY id",
             )
             .map_err(db_err)?;
         let rows = q
@@ -385,6 +444,7 @@ impl Store {
                         height: r.get(5)?,
                         tile_size: r.get(6)?,
                         output_name: r.get(7)?,
+                        frame: r.get(16)?,
                     },
                     submitter: r.get(8)?,
                     state: JobState::Queued,
@@ -396,6 +456,14 @@ impl Store {
                     finish_order: r.get::<_, i64>(13)? as u64,
                     tiles_done: r.get::<_, i64>(14)? as u64,
                     rays: r.get::<_, i64>(15)? as u64,
+                    seq: SeqLink {
+                        parent: r.get::<_, Option<i64>>(17)?.map(|p| p as u64),
+                        frames: match (r.get::<_, Option<u32>>(18)?, r.get::<_, Option<u32>>(19)?) {
+                            (Some(a), Some(b)) => Some((a, b)),
+                            _ => None,
+                        },
+                        frames_done: r.get::<_, Option<u32>>(20)?.unwrap_or(0),
+                    },
                 };
                 Ok((job, state))
             })
@@ -613,6 +681,7 @@ mod tests {
         StoredJob {
             id,
             spec: JobSpec {
+                frame: None,
                 bundle_hash: "h".into(),
                 camera: "c".into(),
                 priority: 0,
@@ -629,6 +698,7 @@ mod tests {
             finish_order: 0,
             tiles_done: 0,
             rays: 0,
+            seq: SeqLink::default(),
         }
     }
 

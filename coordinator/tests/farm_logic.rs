@@ -41,6 +41,7 @@ fn farm(dir: &Path, ttl: Duration, window_bytes: u64) -> Farm {
 
 fn spec(w: u32, h: u32, tile: u32, name: &str, priority: i32) -> JobSpec {
     JobSpec {
+        frame: None,
         bundle_hash: "0".repeat(64),
         camera: "cam".into(),
         priority,

@@ -16,6 +16,7 @@ use trevi_core::Rect;
 
 fn spec(w: u32, h: u32, tile: u32) -> JobSpec {
     JobSpec {
+        frame: None,
         bundle_hash: "0".repeat(64),
         camera: "cam".into(),
         priority: 0,

@@ -166,6 +166,7 @@ impl Client {
                 priority,
                 tile_size,
                 output_format: format.extension().to_string(),
+                frames: None,
             })
             .await
             .map_err(status_error)
@@ -184,7 +185,7 @@ impl Client {
         let mut backoff = Duration::from_millis(100);
         let mut lost_since: Option<std::time::Instant> = None;
         loop {
-            let why = match self.jobs.watch_job(pb::JobId { id }).await {
+            let why = match self.jobs.watch_job(pb::JobId { id, frame: None }).await {
                 Ok(r) => {
                     let mut stream = r.into_inner();
                     loop {
@@ -241,10 +242,21 @@ impl Client {
     /// `out` (through a temporary file beside it, renamed into place when
     /// complete; removed on failure, or when this future is dropped).
     pub async fn download(&mut self, id: u64, out: &Path, format: Format) -> Result<u64> {
+        self.download_frame(id, None, out, format).await
+    }
+
+    /// Like [`Client::download`], for frame `frame` of a sequence.
+    pub async fn download_frame(
+        &mut self,
+        id: u64,
+        frame: Option<u32>,
+        out: &Path,
+        format: Format,
+    ) -> Result<u64> {
         use tokio::io::AsyncWriteExt;
         let mut stream = self
             .jobs
-            .download_output(pb::JobId { id })
+            .download_output(pb::JobId { id, frame })
             .await
             .map_err(status_error)?
             .into_inner();
@@ -289,7 +301,7 @@ impl Client {
     pub async fn save_preview(&mut self, id: u64, out: &Path) -> Result<pb::Preview> {
         let p = self
             .jobs
-            .get_preview(pb::JobId { id })
+            .get_preview(pb::JobId { id, frame: None })
             .await
             .map_err(status_error)?
             .into_inner();
@@ -306,6 +318,9 @@ impl Client {
     /// Returns where it went and the job's status.
     pub async fn fetch(&mut self, id: u64, out: Option<&Path>) -> Result<(PathBuf, pb::JobStatus)> {
         let s = self.status(id).await?;
+        if s.frames.is_some() {
+            return self.fetch_frames(s, out).await;
+        }
         match s.state() {
             JobState::Done => {}
             JobState::Failed => bail!("job {id} failed, it has no image: {}", s.error),
@@ -339,10 +354,143 @@ impl Client {
         Ok((out, s))
     }
 
+    /// `fetch` of a sequence: every frame done, named by the sequence's
+    /// pattern (`shot.####.png`), into `out`: a pattern with a run of `#`,
+    /// or a directory (default: the current one). Returns the pattern.
+    async fn fetch_frames(
+        &mut self,
+        s: pb::JobStatus,
+        out: Option<&Path>,
+    ) -> Result<(PathBuf, pb::JobStatus)> {
+        let id = s.id;
+        let f = s.frames.expect("a sequence");
+        if s.state() != JobState::Done && s.frames_done == 0 {
+            bail!(
+                "sequence {id} is {} with no frame done yet (trevi-submit status {id})",
+                s.state().label()
+            );
+        }
+        let name = Path::new(&s.output_name)
+            .file_name()
+            .map(PathBuf::from)
+            .with_context(|| format!("job {id} names no output pattern ({:?})", s.output_name))?;
+        let pattern = match out {
+            Some(o) if o.to_string_lossy().contains('#') => o.to_path_buf(),
+            Some(dir) => dir.join(&name),
+            None => name,
+        };
+        let seq = crate::sequence::Sequence::new(
+            0,
+            s.camera.clone(),
+            trevi_core::scene::animation::Frames {
+                first: f.first,
+                last: f.last,
+            },
+            pattern.clone(),
+        )?;
+        let format = Format::from_path(&pattern)
+            .with_context(|| format!("{} is not .png or .exr", pattern.display()))?;
+        let mut got = 0;
+        for frame in f.first..=f.last {
+            let out = seq.output(frame);
+            match self.download_frame(id, Some(frame), &out, format).await {
+                Ok(_) => got += 1,
+                // A sequence that did not finish has frames without output.
+                Err(_) if s.state() != JobState::Done => {}
+                Err(e) => return Err(e.context(format!("frame {frame}"))),
+            }
+        }
+        if got == 0 {
+            bail!("sequence {id}: no frame could be fetched");
+        }
+        Ok((pattern, s))
+    }
+
+    /// Submits frames `first..=last` of `camera` as one sequence.
+    #[allow(clippy::too_many_arguments)]
+    pub async fn submit_sequence(
+        &mut self,
+        bundle_hash: &str,
+        camera: &str,
+        priority: i32,
+        tile_size: u32,
+        format: Format,
+        first: u32,
+        last: u32,
+    ) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: bundle_hash.to_string(),
+                camera: camera.to_string(),
+                priority,
+                tile_size,
+                output_format: format.extension().to_string(),
+                frames: Some(pb::FrameRange { first, last }),
+            })
+            .await
+            .map_err(status_error)
+            .with_context(|| format!("the coordinator refused camera \"{camera}\"'s sequence"))?
+            .into_inner())
+    }
+
+    /// Renders a sequence on the farm: uploads, submits, and unless
+    /// `detach` follows it (frames done, the current frame, an ETA) and
+    /// downloads every frame to `seq`'s outputs.
+    #[allow(clippy::too_many_arguments)]
+    pub async fn render_sequence(
+        &mut self,
+        bundle: &Encoded,
+        seq: &crate::sequence::Sequence,
+        priority: i32,
+        tile_size: u32,
+        detach: bool,
+        progress: Progress,
+    ) -> Result<()> {
+        let hash = self.upload(bundle).await?;
+        let format = Format::from_path(&seq.pattern)
+            .with_context(|| format!("{} is not .png or .exr", seq.pattern.display()))?;
+        let s = self
+            .submit_sequence(
+                &hash,
+                &seq.id,
+                priority,
+                tile_size,
+                format,
+                seq.frames.first,
+                seq.frames.last,
+            )
+            .await?;
+        if detach {
+            println!("{}", s.id);
+            return Ok(());
+        }
+        if progress != Progress::Quiet {
+            eprintln!(
+                "sequence {}: camera {}, frames {}-{}",
+                s.id, seq.id, seq.frames.first, seq.frames.last
+            );
+        }
+        let end = self.watch(s.id, progress).await?;
+        if end.state() != JobState::Done {
+            bail!("sequence {} {}: {}", s.id, end.state().label(), end.error);
+        }
+        for f in seq.frames.first..=seq.frames.last {
+            let out = seq.output(f);
+            self.download_frame(s.id, Some(f), &out, format)
+                .await
+                .with_context(|| format!("frame {f}"))?;
+            if progress != Progress::Quiet {
+                eprintln!("{}: frame {f} -> {}", seq.id, out.display());
+            }
+        }
+        Ok(())
+    }
+
     pub async fn status(&mut self, id: u64) -> Result<pb::JobStatus> {
         Ok(self
             .jobs
-            .get_job(pb::JobId { id })
+            .get_job(pb::JobId { id, frame: None })
             .await
             .map_err(status_error)?
             .into_inner())
@@ -381,7 +529,7 @@ impl Client {
     pub async fn cancel(&mut self, id: u64) -> Result<pb::JobStatus> {
         Ok(self
             .jobs
-            .cancel_job(pb::JobId { id })
+            .cancel_job(pb::JobId { id, frame: None })
             .await
             .map_err(status_error)?
             .into_inner())
@@ -600,6 +748,18 @@ pub fn describe(s: &pb::JobStatus) -> String {
         s.priority,
         s.elapsed_ms as f64 / 1e3
     );
+    if let Some(f) = s.frames {
+        line.push_str(&format!(
+            "  frames {}-{}: {} done",
+            f.first, f.last, s.frames_done
+        ));
+        if let Some(c) = s.current_frame {
+            line.push_str(&format!(
+                ", frame {c} {}/{} tiles",
+                s.current_tiles_done, s.current_tiles_total
+            ));
+        }
+    }
     if !s.error.is_empty() {
         line.push_str(&format!("  error: {}", s.error));
     }
@@ -624,6 +784,9 @@ impl ProgressView {
     fn show(&mut self, s: &pb::JobStatus) {
         let secs = s.elapsed_ms as f64 / 1e3;
         let rate = s.rays as f64 / secs.max(1e-9) / 1e6;
+        if let Some(f) = s.frames {
+            return self.show_frames(s, f, secs);
+        }
         let eta = if s.tiles_done > 0 && s.tiles_done < s.tiles_total {
             let left = secs * (s.tiles_total - s.tiles_done) as f64 / s.tiles_done as f64;
             format!("ETA {left:.0} s")
@@ -658,6 +821,47 @@ impl ProgressView {
                         "{}: {pct}% ({}/{} tiles, {rate:.2} M rays/s, {eta})",
                         s.camera, s.tiles_done, s.tiles_total
                     );
+                }
+            }
+        }
+    }
+
+    /// A sequence: frames done, the current frame's share, an ETA from the
+    /// tiles of every frame.
+    fn show_frames(&mut self, s: &pb::JobStatus, f: pb::FrameRange, secs: f64) {
+        let count = u64::from(f.last - f.first) + 1;
+        let eta = if s.tiles_done > 0 && s.tiles_done < s.tiles_total {
+            let left = secs * (s.tiles_total - s.tiles_done) as f64 / s.tiles_done as f64;
+            format!("ETA {left:.0} s")
+        } else {
+            "ETA -".to_string()
+        };
+        let current = match s.current_frame {
+            Some(c) => format!(
+                ", frame {c} {}%",
+                s.current_tiles_done * 100 / s.current_tiles_total.max(1)
+            ),
+            None => String::new(),
+        };
+        let line = format!(
+            "{}: {}/{count} frames done{current}, {eta}",
+            s.camera, s.frames_done
+        );
+        match self.mode {
+            Progress::Quiet => {}
+            Progress::Bar => {
+                let bar = self.bar.get_or_insert_with(|| {
+                    let b = ProgressBar::new(count);
+                    b.set_style(ProgressStyle::with_template("{msg}").expect("static template"));
+                    b
+                });
+                bar.set_message(line);
+            }
+            Progress::Lines => {
+                let pct = u64::from(s.frames_done);
+                if self.last_pct != Some(pct) {
+                    self.last_pct = Some(pct);
+                    eprintln!("{line}");
                 }
             }
         }

@@ -235,9 +235,6 @@ fn run(args: Args) -> Result<()> {
             .iter()
             .any(|&c| desc.cameras[c].render.frames.is_some());
     if is_sequence {
-        if args.coordinator.is_some() {
-            bail!("a sequence (frames= or --frames) renders on this machine only for now: drop --coordinator, or render one frame at a time as a still");
-        }
         let sequences = cameras
             .iter()
             .map(|&cam| {
@@ -256,6 +253,26 @@ fn run(args: Args) -> Result<()> {
                     .with_context(|| format!("camera \"{}\"", c.id))
             })
             .collect::<Result<Vec<_>>>()?;
+        if let Some(url) = &args.coordinator {
+            drop(desc);
+            return runtime.block_on(async {
+                let mut client =
+                    client::Client::connect_with(url, args.token.as_deref(), &tls(&args)).await?;
+                for seq in &sequences {
+                    client
+                        .render_sequence(
+                            &bundle,
+                            seq,
+                            args.priority,
+                            args.tile,
+                            args.detach,
+                            progress,
+                        )
+                        .await?;
+                }
+                Ok(())
+            });
+        }
         let signals = signals.as_mut().expect("caught for a local render");
         let (threads, tile) = (args.threads.unwrap_or(0), args.tile);
         return runtime.block_on(async {

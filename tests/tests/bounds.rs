@@ -169,7 +169,11 @@ fn seven_thousand_jobs_list_past_the_4_mib_message_limit() {
     const JOBS: u64 = 7000;
     runtime().block_on(async {
         let mut j = jobs(&c, None).await;
-        let first = j.get_job(pb::JobId { id: 1 }).await.unwrap().into_inner();
+        let first = j
+            .get_job(pb::JobId { id: 1, frame: None })
+            .await
+            .unwrap()
+            .into_inner();
         let mut tasks = Vec::new();
         for _ in 0..8 {
             let mut j = j.clone();
@@ -186,7 +190,12 @@ fn seven_thousand_jobs_list_past_the_4_mib_message_limit() {
                         .await
                         .unwrap()
                         .into_inner();
-                    j.cancel_job(pb::JobId { id: s.id }).await.unwrap();
+                    j.cancel_job(pb::JobId {
+                        id: s.id,
+                        frame: None,
+                    })
+                    .await
+                    .unwrap();
                 }
             }));
         }

@@ -120,7 +120,7 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
     rt.block_on(async {
         let mut s = jobs(&c, None)
             .await
-            .download_output(pb::JobId { id: 1 })
+            .download_output(pb::JobId { id: 1, frame: None })
             .await
             .unwrap()
             .into_inner();

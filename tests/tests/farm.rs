@@ -196,7 +196,7 @@ fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
         assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
         let s = jobs(&c, None)
             .await
-            .get_job(pb::JobId { id: 1 })
+            .get_job(pb::JobId { id: 1, frame: None })
             .await
             .unwrap()
             .into_inner();
@@ -258,7 +258,10 @@ fn priorities_order_jobs_and_a_cancelled_job_stops_and_leaves_no_output() {
     let e = rt.block_on(async {
         let mut s = jobs(&c, None)
             .await
-            .download_output(pb::JobId { id: doomed })
+            .download_output(pb::JobId {
+                id: doomed,
+                frame: None,
+            })
             .await?
             .into_inner();
         s.message().await

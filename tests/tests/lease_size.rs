@@ -31,7 +31,7 @@ const SCENE: &str = r#"<scene version="1">
 async fn download(c: &Coordinator, id: u64) -> Vec<u8> {
     let mut s = jobs(c, None)
         .await
-        .download_output(pb::JobId { id })
+        .download_output(pb::JobId { id, frame: None })
         .await
         .unwrap()
         .into_inner();
@@ -91,6 +91,7 @@ async fn render_all(c: &Coordinator, multi_tile: bool) -> (Vec<u32>, u64) {
             rect: lease.rect,
             rays: r.rays,
             session: reg.session.clone(),
+            frame: None,
         };
         let bytes = trevi_proto::pixels_to_bytes(&r.pixels);
         let chunks = bytes

@@ -295,7 +295,16 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
             .await
             .unwrap_err();
         assert_eq!(e.code(), Code::NotFound);
-        assert_eq!(code(j.get_job(pb::JobId { id: 999 }).await), Code::NotFound);
+        assert_eq!(
+            code(
+                j.get_job(pb::JobId {
+                    id: 999,
+                    frame: None
+                })
+                .await
+            ),
+            Code::NotFound
+        );
 
         // A bundle damaged on the coordinator's disk is never served.
         let hash = upload(&mut b, vec![good.clone()]).await.unwrap();
@@ -357,6 +366,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
                 rect: Some(rect),
                 rays: 1,
                 session: session.clone(),
+                frame: None,
             };
             let mut w = sender.clone();
             async move {
@@ -421,7 +431,10 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
         assert_eq!(
             jobs(&c, None)
                 .await
-                .get_job(pb::JobId { id: job })
+                .get_job(pb::JobId {
+                    id: job,
+                    frame: None
+                })
                 .await
                 .unwrap()
                 .into_inner()

@@ -2,8 +2,7 @@
 //! `trevi-submit` on this machine, as a user runs it: every frame is its own
 //! file, and each is the scene at t = frame / fps.
 //!
-//! Not here yet: sequences on a farm (a farm job is one frame; `trevi-submit`
-//! refuses `--coordinator` with a sequence, checked below).
+//! Sequences on a farm: tests/sequence_farm.rs.
 
 mod common;
 
@@ -119,16 +118,6 @@ fn bad_sequences_are_refused_before_anything_renders() {
             "one run of #",
         ),
         (&[scene.to_str().unwrap(), "--frames", "3-1"], "reversed"),
-        (
-            &[
-                scene.to_str().unwrap(),
-                "--frames",
-                "1-2",
-                "--coordinator",
-                "http://127.0.0.1:9",
-            ],
-            "this machine only",
-        ),
     ];
     for (args, needle) in cases {
         let out = submit(&dir, args);

@@ -139,7 +139,7 @@ fn a_busy_machine_hands_its_tiles_to_another_worker_and_comes_back_when_quiet() 
     let got = rt.block_on(async {
         let mut s = common::farm::jobs(&c, None)
             .await
-            .download_output(pb::JobId { id })
+            .download_output(pb::JobId { id, frame: None })
             .await
             .unwrap()
             .into_inner();

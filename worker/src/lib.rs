@@ -33,6 +33,7 @@ pub mod memory;
 pub mod pause;
 pub mod priority;
 pub use memory::MaxMemory;
+pub mod scenes;
 pub use pause::{Pause, PauseConfig};
 pub use priority::Priority;
 
@@ -242,6 +243,9 @@ pub enum SceneLoadError {
     #[error("the scene needs about {} of memory, more than --max-memory {}",
         trevi_core::scene::estimate::human_bytes(*.needs), trevi_core::scene::estimate::human_bytes(.limit.0))]
     TooBig { needs: u64, limit: MaxMemory },
+    /// The scene cannot be moved to the lease's frame.
+    #[error("cannot move the scene to the frame: {0}")]
+    Frame(String),
 }
 
 /// Why a session with the coordinator ended.
@@ -255,6 +259,8 @@ enum End {
 struct SceneCache {
     cap: NonZeroUsize,
     scenes: Vec<(String, Arc<Scene>)>,
+    /// Scenes at frames of sequences (see [`scenes`]).
+    frames: scenes::FrameScenes,
 }
 
 impl SceneCache {
@@ -306,6 +312,7 @@ pub async fn run(
     let mut scenes = SceneCache {
         cap: cfg.cache_size,
         scenes: Vec::new(),
+        frames: scenes::FrameScenes::new(cfg.cache_size),
     };
     for p in &cfg.preloaded {
         scenes.put(p.hash.clone(), p.scene.clone());
@@ -814,10 +821,14 @@ impl Session {
             let mut s = self.clone();
             let (cache, cancel) = (cache.clone(), cancel.clone());
             let (hash, camera) = (lease.bundle_hash.clone(), lease.camera.clone());
+            let frame = lease.frame;
             async move {
                 let scene = {
                     let mut cache = cache.lock().await;
-                    s.scene(&mut cache, &hash).await
+                    match frame {
+                        None => s.scene(&mut cache, &hash).await,
+                        Some(f) => s.frame_scene(&mut cache, &hash, &camera, f).await,
+                    }
                 };
                 let scene = match scene {
                     Ok(s) => s,
@@ -911,6 +922,47 @@ impl Session {
         if let Some(s) = cache.get(hash) {
             return Ok(s);
         }
+        let scene = Arc::new(self.build(hash).await?);
+        cache.put(hash.to_string(), scene.clone());
+        Ok(scene)
+    }
+
+    /// The scene for `hash` at frame `frame` of `camera`: kept from an
+    /// earlier lease, or a kept one moved to the frame, or built (see
+    /// [`scenes`]).
+    async fn frame_scene(
+        &mut self,
+        cache: &mut SceneCache,
+        hash: &str,
+        camera: &str,
+        frame: u32,
+    ) -> Result<Arc<Scene>, SceneLoadError> {
+        let mut scene = match cache.frames.take(hash, camera, frame) {
+            scenes::Found::Ready(s) => return Ok(s),
+            scenes::Found::Reuse(s) => *s,
+            scenes::Found::Miss => self.build(hash).await?,
+        };
+        let cam = scene.camera_index(camera).ok_or_else(|| {
+            SceneLoadError::Frame(format!("the scene has no camera \"{camera}\""))
+        })?;
+        let start = std::time::Instant::now();
+        let scene = tokio::task::spawn_blocking(move || {
+            scene
+                .set_frame(cam, frame)
+                .map(|()| scene)
+                .map_err(|e| SceneLoadError::Frame(e.to_string()))
+        })
+        .await??;
+        tracing::info!(bundle = %hash, frame, set_up_us = start.elapsed().as_micros() as u64,
+            "scene moved to the frame");
+        let scene = Arc::new(scene);
+        cache.frames.put(hash, camera, frame, scene.clone());
+        Ok(scene)
+    }
+
+    /// Fetches bundle `hash` and builds its scene.
+    async fn build(&mut self, hash: &str) -> Result<Scene, SceneLoadError> {
+        let start = std::time::Instant::now();
         let mut stream = self
             .bundles
             .download_bundle(pb::BundleRef {
@@ -942,15 +994,14 @@ impl Session {
             Ok(Scene::build(desc))
         })
         .await??;
-        let scene = Arc::new(scene);
         let memory = trevi_core::texture::SceneMemory::of(&scene.desc);
         tracing::info!(
             bundle = %hash,
             mesh_bytes = memory.meshes,
             texture_bytes = memory.textures,
+            set_up_us = start.elapsed().as_micros() as u64,
             "scene built"
         );
-        cache.put(hash.to_string(), scene.clone());
         Ok(scene)
     }
 
@@ -1001,6 +1052,7 @@ pub fn tile_messages(
             rect: Some(rect.into()),
             rays,
             session: session.to_vec(),
+            frame: lease.frame,
         })),
     }];
     msgs.extend(bytes.chunks(CHUNK_SIZE).map(|c| pb::TileUpload {

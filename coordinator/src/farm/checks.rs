@@ -70,6 +70,7 @@ impl Farm {
             )));
         }
         let need = band_bytes(&JobSpec {
+            frame: None,
             tile_size: tile,
             ..spec.clone()
         }) + encoder_bytes(spec);

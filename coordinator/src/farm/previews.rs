@@ -49,6 +49,7 @@ impl Farm {
     /// The job's preview: filling in while it runs, the last state once it
     /// ended (for the newest few finished jobs).
     pub fn preview(&self, job: JobId) -> Result<PreviewImage, FarmError> {
+        let job = self.preview_job(job);
         let st = lock(&self.state);
         if let Some((_, image)) = st.final_previews.iter().find(|(j, _)| *j == job) {
             return Ok(image.clone());

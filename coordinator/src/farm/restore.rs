@@ -42,7 +42,16 @@ impl Farm {
             return Ok(());
         };
         let (now, wall) = (Instant::now(), wall_ms());
-        for j in store.jobs()? {
+        let rows = store.jobs()?;
+        // A frame that completes while it is restored queues the next
+        // frames: their ids must not be those of rows not restored yet.
+        let max = store.max_job_id()?;
+        lock(&self.state).sched.skip_ids_through(max);
+        self.restore_sequences(&rows);
+        for j in rows {
+            if j.seq.frames.is_some() {
+                continue; // A sequence: restored above.
+            }
             let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
             let submitted = now.checked_sub(ago).unwrap_or(now);
             let done_tiles = if j.state.is_final() {
@@ -74,7 +83,7 @@ impl Farm {
             );
             let info = st.sched.info(id, now).expect("just restored");
             st.watchers.insert(id, watch::channel(info.clone()).0);
-            if !j.state.is_final() {
+            if !j.state.is_final() && j.seq.parent.is_none() {
                 st.submitters.insert(id, j.submitter.clone());
             }
             drop(st);
@@ -101,6 +110,7 @@ impl Farm {
                 Err(e) => self.end_job(id, Err(format!("resuming after a restart: {e}"))),
             }
         }
+        self.resume_sequences();
         Ok(())
     }
 

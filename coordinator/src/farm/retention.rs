@@ -80,7 +80,6 @@ impl Farm {
         let r = self.cfg.retention;
         let now = Instant::now();
         let doomed: Vec<JobId> = lock(&self.state)
-            .sched
             .ended()
             .into_iter()
             .enumerate()
@@ -104,6 +103,7 @@ impl Farm {
             let mut st = lock(&self.state);
             for id in &doomed {
                 st.sched.remove(*id);
+                st.seqs.remove(id);
                 st.watchers.remove(id);
             }
             st.final_previews.retain(|(j, _)| !doomed.contains(j));

@@ -189,6 +189,7 @@ mod tests {
         // 10 tiles of 10×10 a band, two bands.
         let job = s.submit(
             JobSpec {
+                frame: None,
                 bundle_hash: "h".into(),
                 camera: "c".into(),
                 priority: 0,

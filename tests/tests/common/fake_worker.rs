@@ -72,6 +72,7 @@ impl FakeWorker {
             rect: lease.rect,
             rays: 1,
             session: self.session.clone(),
+            frame: lease.frame,
         }
     }
 

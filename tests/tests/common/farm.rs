@@ -75,7 +75,7 @@ pub fn try_job(rt: &tokio::runtime::Runtime, c: &Coordinator, id: u64) -> Option
             .await
             .ok()?;
         JobsClient::new(ch)
-            .get_job(pb::JobId { id })
+            .get_job(pb::JobId { id, frame: None })
             .await
             .ok()
             .map(|r| r.into_inner())
@@ -87,7 +87,7 @@ pub fn job(rt: &tokio::runtime::Runtime, c: &Coordinator, id: u64) -> pb::JobSta
     rt.block_on(async {
         jobs(c, None)
             .await
-            .get_job(pb::JobId { id })
+            .get_job(pb::JobId { id, frame: None })
             .await
             .unwrap_or_else(|s| panic!("job {id}: {s:?}"))
             .into_inner()
@@ -99,7 +99,7 @@ pub fn cancel(rt: &tokio::runtime::Runtime, c: &Coordinator, id: u64) {
     rt.block_on(async {
         jobs(c, None)
             .await
-            .cancel_job(pb::JobId { id })
+            .cancel_job(pb::JobId { id, frame: None })
             .await
             .unwrap_or_else(|s| panic!("cancel {id}: {s:?}"));
     });

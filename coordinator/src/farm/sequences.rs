@@ -1,0 +1,583 @@
+//! Sequences: a camera over a frame range, each frame an output of its own.
+//!
+//! A sequence is not a scheduler job: it has an id from the same space, a
+//! row of its own in the database (its frame range and how many frames are
+//! done), and its frames are ordinary jobs (`JobSpec::frame` set, the
+//! sequence as their `parent` in the database), each leased, streamed,
+//! stitched, stored tile by tile and resumed after a restart exactly like a
+//! still. So a frame in progress holds what a still holds (the band window,
+//! see `crate::scheduler`), and a sequence has at most
+//! [`FRAMES_IN_PROGRESS`] frames in progress: the next frame is queued when
+//! one ends, in frame order, so a sequence's memory is that many stills'.
+//!
+//! A frame that is done has its output moved into the sequence's directory
+//! (`jobs/<sequence>/shot.0007.png`) before its end is recorded, in one
+//! transaction with the sequence's count of frames done: a restart finds
+//! every finished frame where it was, and the frames in progress resume
+//! from their stored tiles. A frame that fails fails its sequence (the
+//! other frames in progress are cancelled); cancelling a sequence cancels
+//! its frames in progress; its priority is its frames'.
+
+use super::{lock, Farm, MakeSink, State};
+use crate::error::FarmError;
+use crate::scheduler::{FramesInfo, JobId, JobInfo, JobSpec, JobState, Scheduler};
+use crate::store::{wall_ms, SeqLink, StoredJob};
+use std::collections::{BTreeMap, HashMap};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+use trevi_core::scene::animation::{frame_output, MAX_FRAME};
+use trevi_core::FrameWriter;
+
+/// Most frames of one sequence in progress at once. Each holds what a
+/// still in progress holds (docs/farm.md "Limits"); two let a second frame
+/// take workers while the first one's last tiles are out.
+pub const FRAMES_IN_PROGRESS: usize = 2;
+
+/// A sequence's bookkeeping.
+pub struct Sequence {
+    /// The camera's frame: `output_name` is the pattern, `frame` is `None`.
+    pub(super) spec: JobSpec,
+    pub(super) first: u32,
+    pub(super) last: u32,
+    /// Frames done.
+    pub(super) done: u32,
+    /// The next frame to queue.
+    pub(super) next: u32,
+    /// Frames in progress and their jobs.
+    pub(super) running: BTreeMap<u32, JobId>,
+    pub(super) state: JobState,
+    pub(super) submitted: Instant,
+    pub(super) finished: Option<Instant>,
+    pub(super) error: Option<String>,
+    /// Why a frame failed: the sequence fails at its next step.
+    pub(super) failed: Option<String>,
+    /// Rays of the frames done.
+    pub(super) rays: u64,
+    pub(super) who: String,
+}
+
+impl Sequence {
+    fn count(&self) -> u32 {
+        self.last - self.first + 1
+    }
+
+    fn tiles_per_frame(&self) -> u64 {
+        let t = u64::from(self.spec.tile_size.max(1));
+        u64::from(self.spec.width).div_ceil(t) * u64::from(self.spec.height).div_ceil(t)
+    }
+
+    /// The sequence's status: its frames' tiles as its tiles.
+    pub(super) fn info(&self, id: JobId, sched: &Scheduler, now: Instant) -> JobInfo {
+        let per = self.tiles_per_frame();
+        let mut tiles_done = u64::from(self.done) * per;
+        let mut rays = self.rays;
+        let mut current = None;
+        let mut started = self.done > 0;
+        for (&f, &job) in &self.running {
+            if let Some(i) = sched.info(job, now) {
+                tiles_done += i.tiles_done;
+                rays = rays.saturating_add(i.rays);
+                started |= i.state != JobState::Queued;
+                current.get_or_insert((f, i.tiles_done, i.tiles_total));
+            }
+        }
+        let state = match self.state {
+            JobState::Queued if started => JobState::Running,
+            s => s,
+        };
+        JobInfo {
+            id,
+            spec: self.spec.clone(),
+            state,
+            tiles_total: u64::from(self.count()) * per,
+            tiles_done,
+            rays,
+            elapsed: self
+                .finished
+                .unwrap_or(now)
+                .saturating_duration_since(self.submitted),
+            error: self.error.clone(),
+            finish_order: 0,
+            frames: Some(FramesInfo {
+                first: self.first,
+                last: self.last,
+                done: self.done,
+                in_progress: self.running.len() as u32,
+                current,
+            }),
+        }
+    }
+}
+
+/// The output pattern of a sequence from its camera's output name: kept
+/// when it has a run of `#`, else `.####` goes before the extension
+/// (`shot.png` → `shot.####.png`).
+pub fn sequence_pattern(output_name: &str) -> String {
+    if output_name.contains('#') {
+        return output_name.to_string();
+    }
+    match output_name.rfind('.') {
+        Some(i) => format!("{}.####{}", &output_name[..i], &output_name[i..]),
+        None => format!("{output_name}.####"),
+    }
+}
+
+impl State {
+    /// A frame job of sequence `seq` ended as `ending` says (`counted`: it
+    /// is done and counted in the database).
+    pub(super) fn frame_ended(&mut self, seq: JobId, job: JobId, ending: &JobInfo, counted: bool) {
+        self.parent_of.remove(&job);
+        let Some(s) = self.seqs.get_mut(&seq) else {
+            return;
+        };
+        if let Some(f) = ending.spec.frame {
+            s.running.remove(&f);
+        }
+        if counted {
+            s.done += 1;
+            s.rays = s.rays.saturating_add(ending.rays);
+        } else if !s.state.is_final() && s.failed.is_none() {
+            let f = ending.spec.frame.unwrap_or_default();
+            s.failed = Some(format!(
+                "frame {f}: {}",
+                ending.error.as_deref().unwrap_or("failed")
+            ));
+        }
+    }
+
+    /// Ended jobs and sequences with when they ended, newest first (a
+    /// sequence's frames count as jobs of their own).
+    pub(super) fn ended(&self) -> Vec<(JobId, Instant)> {
+        let mut v = self.sched.ended();
+        v.extend(
+            self.seqs
+                .iter()
+                .filter(|(_, s)| s.state.is_final())
+                .map(|(&id, s)| (id, s.finished.unwrap_or(s.submitted))),
+        );
+        v.sort_unstable_by_key(|&(id, t)| std::cmp::Reverse((t, id)));
+        v
+    }
+
+    /// Up to `limit` jobs and sequences by id from `from` on (frames of
+    /// sequences are not listed: their sequence is), and where the next
+    /// page starts.
+    pub(super) fn list_from(
+        &self,
+        from: JobId,
+        limit: usize,
+        now: Instant,
+    ) -> (Vec<JobInfo>, Option<JobId>) {
+        let mut ids: Vec<JobId> = self
+            .sched
+            .list_from(from, usize::MAX, now)
+            .0
+            .into_iter()
+            .filter(|i| i.spec.frame.is_none())
+            .map(|i| i.id)
+            .chain(self.seqs.keys().copied().filter(|&id| id >= from))
+            .collect();
+        ids.sort_unstable();
+        let next = ids.get(limit).copied();
+        ids.truncate(limit);
+        let page = ids
+            .into_iter()
+            .filter_map(|id| self.info(id, now))
+            .collect();
+        (page, next)
+    }
+}
+
+impl Farm {
+    /// Queues a sequence: frames `first..=last` of `spec`'s camera, each
+    /// output named from `spec.output_name` by [`sequence_pattern`]. It
+    /// counts as one job of its submitter.
+    pub fn submit_sequence(
+        &self,
+        mut spec: JobSpec,
+        first: u32,
+        last: u32,
+        who: &str,
+    ) -> Result<JobInfo, FarmError> {
+        if first > last || last > MAX_FRAME {
+            return Err(FarmError::Invalid(format!(
+                "frames {first}-{last}: a range is first-last, both in [0, {MAX_FRAME}]"
+            )));
+        }
+        if spec.width == 0 || spec.height == 0 {
+            return Err(FarmError::BadScene("the frame is empty".into()));
+        }
+        self.check_memory(&spec)?;
+        spec.output_name = sequence_pattern(&spec.output_name);
+        spec.frame = None;
+        let now = Instant::now();
+        let mut st = lock(&self.state);
+        Self::check_submitter(&st, who, self.cfg.limits.max_jobs_per_submitter)?;
+        let id = st.sched.reserve_id();
+        if let Some(store) = &self.store {
+            store.insert_job(&StoredJob {
+                id,
+                spec: spec.clone(),
+                submitter: who.to_string(),
+                state: JobState::Queued,
+                submitted_ms: wall_ms(),
+                elapsed: None,
+                error: None,
+                finish_order: 0,
+                tiles_done: 0,
+                rays: 0,
+                seq: SeqLink {
+                    frames: Some((first, last)),
+                    ..SeqLink::default()
+                },
+            })?;
+        }
+        let seq = Sequence {
+            spec,
+            first,
+            last,
+            done: 0,
+            next: first,
+            running: BTreeMap::new(),
+            state: JobState::Queued,
+            submitted: now,
+            finished: None,
+            error: None,
+            failed: None,
+            rays: 0,
+            who: who.to_string(),
+        };
+        let info = seq.info(id, &st.sched, now);
+        st.seqs.insert(id, seq);
+        st.watchers.insert(id, watch::channel(info.clone()).0);
+        st.submitters.insert(id, who.to_string());
+        drop(st);
+        tracing::info!(job = id, first, last, camera = %info.spec.camera, "sequence queued");
+        self.advance(id);
+        self.info(id)
+    }
+
+    /// Moves a sequence on: queues its next frames while fewer than
+    /// [`FRAMES_IN_PROGRESS`] are in progress, ends it when every frame is
+    /// done, or fails it when a frame failed.
+    pub(super) fn advance(&self, seq: JobId) {
+        loop {
+            let mut st = lock(&self.state);
+            let Some(s) = st.seqs.get(&seq) else {
+                return;
+            };
+            if s.state.is_final() {
+                return;
+            }
+            if let Some(why) = s.failed.clone() {
+                let running: Vec<JobId> = s.running.values().copied().collect();
+                drop(st);
+                self.end_sequence(seq, Err(why));
+                for job in running {
+                    let _ = self.cancel(job);
+                }
+                return;
+            }
+            if s.done >= s.count() {
+                drop(st);
+                self.end_sequence(seq, Ok(()));
+                return;
+            }
+            if s.running.len() >= FRAMES_IN_PROGRESS || s.next > s.last {
+                return;
+            }
+            let f = s.next;
+            let spec = JobSpec {
+                frame: Some(f),
+                output_name: frame_output(&s.spec.output_name, f),
+                ..s.spec.clone()
+            };
+            let who = s.who.clone();
+            let make = self.writer_sink(&spec);
+            let queued = self.submit_locked(&mut st, spec, make, &who, Some(seq));
+            let s = st.seqs.get_mut(&seq).expect("checked above");
+            s.next = f + 1;
+            match queued {
+                Ok(info) => {
+                    s.running.insert(f, info.id);
+                    st.publish(seq);
+                    drop(st);
+                    self.work.notify_waiters();
+                }
+                Err(e) => s.failed = Some(format!("frame {f}: {e}")),
+            }
+        }
+    }
+
+    /// A [`FrameWriter`] writing the job's output where
+    /// [`Farm::output_path`] says.
+    fn writer_sink(&self, spec: &JobSpec) -> MakeSink<'_> {
+        let name = spec.output_name.clone();
+        let (w, h) = (spec.width, spec.height);
+        Box::new(move |id| {
+            let path = self.output_path(id, &name);
+            let writer = FrameWriter::create(&path, w, h)
+                .map_err(|e| FarmError::io("cannot create the output", e))?;
+            Ok(Box::new(writer))
+        })
+    }
+
+    /// Moves a finished frame's output into its sequence's directory.
+    pub(super) fn file_frame(
+        &self,
+        seq: JobId,
+        job: JobId,
+        spec: &JobSpec,
+    ) -> Result<(), FarmError> {
+        let from = self.output_path(job, &spec.output_name);
+        let to = self.output_path(seq, &spec.output_name);
+        let dir = to.parent().expect("jobs/<id>/name");
+        std::fs::create_dir_all(dir)
+            .map_err(|e| FarmError::io(format!("cannot create {}", dir.display()), e))?;
+        std::fs::rename(&from, &to).map_err(|e| {
+            FarmError::io(format!("moving {} to {}", from.display(), to.display()), e)
+        })?;
+        let _ = std::fs::remove_dir(from.parent().expect("jobs/<id>/name"));
+        Ok(())
+    }
+
+    /// Ends a sequence and records it.
+    fn end_sequence(&self, seq: JobId, result: Result<(), String>) {
+        let mut st = lock(&self.state);
+        let now = Instant::now();
+        let Some(s) = st.seqs.get_mut(&seq) else {
+            return;
+        };
+        if s.state.is_final() {
+            return;
+        }
+        s.finished = Some(now);
+        match result {
+            Ok(()) => s.state = JobState::Done,
+            Err(e) => {
+                s.state = JobState::Failed;
+                s.error = Some(e);
+            }
+        }
+        let info = st.info(seq, now).expect("just ended");
+        match &info.error {
+            None => tracing::info!(job = seq, "sequence done"),
+            Some(e) => tracing::error!(job = seq, error = %e, "sequence failed"),
+        }
+        // Not recorded (a full disk): a restart finds it unfinished and
+        // ends it again from its frames.
+        if let Err(e) = self.persist_end(&info) {
+            tracing::error!(job = seq, error = %e, "cannot record the end of the sequence");
+        }
+        st.submitters.remove(&seq);
+        st.publish(seq);
+    }
+
+    /// Cancels a sequence and its frames in progress (their partial outputs
+    /// are removed; finished frames stay).
+    pub(super) fn cancel_sequence(&self, seq: JobId) -> Result<JobInfo, FarmError> {
+        let running: Vec<JobId> = {
+            let mut st = lock(&self.state);
+            let now = Instant::now();
+            let Some(s) = st.seqs.get(&seq) else {
+                return Err(FarmError::UnknownJob(seq));
+            };
+            if s.state.is_final() {
+                return Ok(st.info(seq, now).expect("exists"));
+            }
+            let mut ending = st.info(seq, now).expect("exists");
+            ending.state = JobState::Cancelled;
+            self.persist_end(&ending).map_err(|e| {
+                FarmError::io(format!("cannot record the cancellation of job {seq}"), e)
+            })?;
+            let s = st.seqs.get_mut(&seq).expect("exists");
+            s.state = JobState::Cancelled;
+            s.finished = Some(now);
+            let running = s.running.values().copied().collect();
+            st.submitters.remove(&seq);
+            running
+        };
+        for job in running {
+            let _ = self.cancel(job);
+        }
+        tracing::info!(job = seq, "sequence cancelled");
+        let info = self.info(seq);
+        lock(&self.state).publish(seq);
+        info
+    }
+
+    /// Moves a sequence and its frames in progress to `priority`.
+    pub(super) fn set_sequence_priority(
+        &self,
+        seq: JobId,
+        priority: i32,
+    ) -> Result<JobInfo, FarmError> {
+        let running: Vec<JobId> = {
+            let mut st = lock(&self.state);
+            let s = st.seqs.get(&seq).ok_or(FarmError::UnknownJob(seq))?;
+            if s.state.is_final() {
+                return Err(FarmError::JobOver(seq));
+            }
+            if let Some(store) = &self.store {
+                store.set_priority(seq, priority)?;
+            }
+            let s = st.seqs.get_mut(&seq).expect("exists");
+            s.spec.priority = priority;
+            s.running.values().copied().collect()
+        };
+        for job in running {
+            // A frame that just ended is over: nothing to move.
+            match self.set_priority(job, priority) {
+                Ok(_) | Err(FarmError::JobOver(_)) | Err(FarmError::UnknownJob(_)) => {}
+                Err(e) => return Err(e),
+            }
+        }
+        tracing::info!(job = seq, priority, "sequence priority changed");
+        self.info(seq)
+    }
+
+    /// The output file of frame `frame` of a sequence, once that frame is
+    /// done; without a frame, its last frame done.
+    pub fn frame_file(&self, seq: JobId, frame: Option<u32>) -> Result<PathBuf, FarmError> {
+        let (pattern, first, last) = {
+            let st = lock(&self.state);
+            let s = st.seqs.get(&seq).ok_or(FarmError::UnknownJob(seq))?;
+            (s.spec.output_name.clone(), s.first, s.last)
+        };
+        let path = |f: u32| self.output_path(seq, &frame_output(&pattern, f));
+        match frame {
+            Some(f) if f < first || f > last => Err(FarmError::NoOutput(
+                seq,
+                format!("frame {f} is not in its frames {first}-{last}"),
+            )),
+            Some(f) if path(f).is_file() => Ok(path(f)),
+            Some(f) => Err(FarmError::NoOutput(seq, format!("frame {f} is not done"))),
+            None => (first..=last)
+                .rev()
+                .map(path)
+                .find(|p| p.is_file())
+                .ok_or_else(|| FarmError::NoOutput(seq, "no frame is done yet".into())),
+        }
+    }
+
+    /// Whether a result for `frame` fits `job` (a frame of a sequence must
+    /// say its frame; a still's result says none).
+    pub fn check_frame(&self, job: JobId, frame: Option<u32>) -> Result<(), FarmError> {
+        let st = lock(&self.state);
+        let Some(info) = st.sched.info(job, Instant::now()) else {
+            return Ok(()); // Unknown jobs are refused further on.
+        };
+        if info.spec.frame != frame {
+            return Err(FarmError::BadTile(format!(
+                "the result is for frame {frame:?}, job {job} renders frame {:?}",
+                info.spec.frame
+            )));
+        }
+        Ok(())
+    }
+
+    /// The job whose preview stands for `job`: a sequence's earliest frame
+    /// in progress; any other job itself.
+    pub(super) fn preview_job(&self, job: JobId) -> JobId {
+        let st = lock(&self.state);
+        st.seqs
+            .get(&job)
+            .and_then(|s| s.running.values().next().copied())
+            .unwrap_or(job)
+    }
+
+    /// Picks up the sequences among `rows` (the database's jobs): each
+    /// sequence with its count of frames done, its frames in progress and
+    /// failures. Called before the jobs themselves are restored, so a frame
+    /// that completes while it is restored moves its sequence on correctly.
+    pub(super) fn restore_sequences(&self, rows: &[StoredJob]) {
+        let (now, wall) = (Instant::now(), wall_ms());
+        let mut st = lock(&self.state);
+        for j in rows {
+            let Some((first, last)) = j.seq.frames else {
+                continue;
+            };
+            let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
+            let submitted = now.checked_sub(ago).unwrap_or(now);
+            let seq = Sequence {
+                spec: j.spec.clone(),
+                first,
+                last,
+                done: j.seq.frames_done,
+                next: first,
+                running: BTreeMap::new(),
+                state: j.state,
+                submitted,
+                finished: j
+                    .elapsed
+                    .filter(|_| j.state.is_final())
+                    .map(|e| submitted + e),
+                error: j.error.clone(),
+                failed: None,
+                rays: j.rays,
+                who: j.submitter.clone(),
+            };
+            st.sched.skip_ids_through(j.id);
+            if !seq.state.is_final() {
+                st.submitters.insert(j.id, j.submitter.clone());
+            }
+            st.seqs.insert(j.id, seq);
+        }
+        let mut rays: HashMap<JobId, u64> = HashMap::new();
+        for j in rows {
+            let (Some(p), Some(f)) = (j.seq.parent, j.spec.frame) else {
+                continue;
+            };
+            let Some(s) = st.seqs.get_mut(&p) else {
+                continue;
+            };
+            if s.state.is_final() {
+                continue;
+            }
+            if j.state == JobState::Done {
+                *rays.entry(p).or_default() += j.rays;
+            } else if j.state.is_final() {
+                s.failed.get_or_insert_with(|| {
+                    format!(
+                        "frame {f}: {}",
+                        j.error.as_deref().unwrap_or(j.state.name())
+                    )
+                });
+            } else {
+                s.running.insert(f, j.id);
+                st.parent_of.insert(j.id, p);
+            }
+        }
+        let ids: Vec<JobId> = st.seqs.keys().copied().collect();
+        for id in ids {
+            let s = st.seqs.get_mut(&id).expect("listed");
+            if !s.state.is_final() {
+                s.next = s.first + s.done + s.running.len() as u32;
+                s.rays = rays.get(&id).copied().unwrap_or(0);
+            }
+            let info = st.info(id, now).expect("listed");
+            st.watchers.insert(id, watch::channel(info).0);
+        }
+    }
+
+    /// Moves every unfinished sequence on after a restart.
+    pub(super) fn resume_sequences(&self) {
+        let ids: Vec<JobId> = lock(&self.state).seqs.keys().copied().collect();
+        for id in ids {
+            self.advance(id);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn patterns() {
+        assert_eq!(sequence_pattern("shot.##.png"), "shot.##.png");
+        assert_eq!(sequence_pattern("shot.png"), "shot.####.png");
+        assert_eq!(sequence_pattern("out"), "out.####");
+    }
+}
