@@ -368,6 +368,8 @@ mod tests {
     /// (Le·cos θ_y·cos θ_x/d² per patch): π·A·Le for a one-sided light,
     /// twice that for a two-sided one, as [`AreaLights::power`] says.
     #[test]
+    // An independent quadrature (std's sin and cos): it feeds no pixel.
+    #[allow(clippy::disallowed_methods)]
     fn a_rect_lights_power_is_the_integral_of_its_irradiance_over_a_sphere() {
         let (w, d, le) = (1.0f64, 0.5f64, 3.0f64);
         let r = 2.0f64;

@@ -15,6 +15,7 @@ use std::fmt::Write as _;
 use trevi_core::scene::estimate::{estimate, human_bytes};
 
 /// A flat grid of `n × n` quads (2n² triangles) in OBJ.
+#[allow(clippy::disallowed_methods)] // test geometry, written to a file both renders read
 fn grid_obj(n: usize) -> String {
     let mut s = String::new();
     for j in 0..=n {

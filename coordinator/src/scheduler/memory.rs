@@ -168,6 +168,7 @@ mod tests {
             height: 32,
             tile_size: 16,
             output_name: "out.png".into(),
+            frame: None,
         }
     }
 

@@ -1,3 +1,6 @@
+// The closed forms are an independent computation: std's maths (clippy.toml).
+#![allow(clippy::disallowed_methods)]
+
 use crate::integrator::{Integrator, RenderOptions};
 use crate::{Bundle, Scene};
 use std::collections::BTreeMap;

@@ -345,7 +345,9 @@ fn read_strips(
     Ok(())
 }
 
+// Test geometry only: std's maths is fine here (clippy.toml).
 #[cfg(test)]
+#[allow(clippy::disallowed_methods)]
 mod tests {
     use super::super::test_files::*;
     use glam::{Vec2, Vec3};
