@@ -368,4 +368,4 @@ fn mirror(sp: &SurfacePoint, v: Vec3) -> Vec3 {
 }
 
 #[cfg(test)]
-mod tests;
+pub(super) mod tests;
