@@ -33,8 +33,11 @@
 // Statistics of measured figures (interpolating times), not pixels: std is fine (clippy.toml).
 #![allow(clippy::disallowed_methods)]
 
+mod common;
+
+use common::rmse;
 use glam::Vec3;
-use plotters::prelude::*;
+use plotters::prelude::SeriesLabelPosition;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -83,15 +86,6 @@ fn render(desc: &SceneDesc, best_of: u32) -> Render {
         pixels: t.pixels,
         rays: t.rays,
     }
-}
-
-fn rmse(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
-    let sum: f64 = a
-        .iter()
-        .zip(b)
-        .flat_map(|(p, q)| (0..3).map(move |c| (p[c] as f64 - q[c] as f64).powi(2)))
-        .sum();
-    (sum / (3 * a.len()) as f64).sqrt()
 }
 
 fn mean(a: &[[f32; 3]]) -> f64 {
@@ -333,21 +327,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// Time a log–log piecewise-linear curve (sorted by time) needs to reach `e`.
+/// [`common::time_at_rmse`], and for a curve that starts at or below `e`
+/// its first time (the truth reaches `e` no later than that).
 fn time_at_rmse(curve: &[(f64, f64)], e: f64) -> Option<f64> {
-    if let Some(&(t, e0)) = curve.first() {
-        if e0 <= e {
-            return Some(t);
-        }
+    match curve.first() {
+        Some(&(t, e0)) if e0 <= e => Some(t),
+        _ => common::time_at_rmse(curve, e),
     }
-    for w in curve.windows(2) {
-        let ((t0, e0), (t1, e1)) = (w[0], w[1]);
-        if (e0 >= e && e1 <= e) && e0 != e1 {
-            let f = (e.ln() - e0.ln()) / (e1.ln() - e0.ln());
-            return Some((t0.ln() + f * (t1.ln() - t0.ln())).exp());
-        }
-    }
-    None
 }
 
 fn summarise(out: &mut String, scene: &str, rows: &[Row], floor: f64) -> std::fmt::Result {
@@ -410,76 +396,26 @@ fn summarise(out: &mut String, scene: &str, rows: &[Row], floor: f64) -> std::fm
     writeln!(out, "[{scene}] noise of the ground truth {floor:.3e}")
 }
 
-/// An axis label: the value to 3 decimals, without trailing float noise.
-fn tick(v: &f64) -> String {
-    format!("{}", (v * 1e3).round() / 1e3)
-}
-
 fn plot(rows: &[Row], scenes: &[&str]) -> Result<(), Box<dyn std::error::Error>> {
-    plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular())
-        .map_err(|_| "font registration failed")?;
-    let root = BitMapBackend::new("docs/ground-truth.png", (700 * scenes.len() as u32, 620))
-        .into_drawing_area();
-    root.fill(&WHITE)?;
-    let panels = root.split_evenly((1, scenes.len()));
-    for (panel, scene) in panels.iter().zip(scenes) {
-        let sel: Vec<&Row> = rows.iter().filter(|r| r.scene == *scene).collect();
-        let mut strategies: Vec<String> = Vec::new();
-        for r in &sel {
-            if !strategies.contains(&r.strategy) {
-                strategies.push(r.strategy.clone());
-            }
-        }
-        let (t0, t1) = sel.iter().fold((f64::MAX, 0f64), |(a, b), r| {
-            (a.min(r.seconds), b.max(r.seconds))
-        });
-        let (e0, e1) = sel
-            .iter()
-            .fold((f64::MAX, 0f64), |(a, b), r| (a.min(r.rmse), b.max(r.rmse)));
-        let mut chart = ChartBuilder::on(panel)
-            .caption(
-                format!("{scene}: RMSE vs path-traced truth"),
-                ("sans-serif", 20),
-            )
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(
-                (t0 / 1.5..t1 * 1.5).log_scale(),
-                (e0 / 1.5..e1 * 1.5).log_scale(),
-            )?;
-        chart
-            .configure_mesh()
-            .x_desc("wall time (s), 2 cores")
-            .y_desc("RMSE (linear RGB)")
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
-            .label_style(("sans-serif", 14))
-            .draw()?;
-        for (i, s) in strategies.iter().enumerate() {
-            let color = Palette99::pick(i).to_rgba();
-            let mut pts: Vec<(f64, f64)> = sel
+    let panels: Vec<common::Panel> = scenes
+        .iter()
+        .map(|scene| common::Panel {
+            title: format!("{scene}: RMSE vs path-traced truth"),
+            points: rows
                 .iter()
-                .filter(|r| &r.strategy == s)
-                .map(|r| (r.seconds, r.rmse))
-                .collect();
-            pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-            chart
-                .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))?
-                .label(s.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-                });
-            chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))?;
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 13))
-            .position(SeriesLabelPosition::LowerLeft)
-            .draw()?;
-    }
-    root.present()?;
-    Ok(())
+                .filter(|r| r.scene == *scene)
+                .map(|r| (r.strategy.as_str(), r.seconds, r.rmse))
+                .collect(),
+        })
+        .collect();
+    common::plot(
+        "docs/ground-truth.png",
+        &panels,
+        &common::Style {
+            caption_size: 20,
+            x_desc: "wall time (s), 2 cores",
+            legend: SeriesLabelPosition::LowerLeft,
+            round_ticks: true,
+        },
+    )
 }

@@ -32,7 +32,10 @@
 // Statistics of measured figures, not pixels: std is fine (clippy.toml).
 #![allow(clippy::disallowed_methods)]
 
-use plotters::prelude::*;
+mod common;
+
+use common::{rmse, time_at_rmse};
+use plotters::prelude::SeriesLabelPosition;
 use std::fmt::Write as _;
 use std::time::Instant;
 use trevi_core::bundle::DirSource;
@@ -76,15 +79,6 @@ fn render(desc: &SceneDesc, sampler: SamplerKind) -> Render {
         pixels: t.pixels,
         rays: t.rays,
     }
-}
-
-fn rmse(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
-    let sum: f64 = a
-        .iter()
-        .zip(b)
-        .flat_map(|(p, q)| (0..3).map(move |c| (p[c] as f64 - q[c] as f64).powi(2)))
-        .sum();
-    (sum / (3 * a.len()) as f64).sqrt()
 }
 
 /// Settings of one render: everything the ladders vary.
@@ -195,18 +189,6 @@ fn loglog_slope(pts: &[(f64, f64)]) -> f64 {
         sxx += (t.ln() - mx).powi(2);
     }
     sxy / sxx
-}
-
-/// Time a log–log piecewise-linear curve (sorted by time) needs to reach `e`.
-fn time_at_rmse(curve: &[(f64, f64)], e: f64) -> Option<f64> {
-    for w in curve.windows(2) {
-        let ((t0, e0), (t1, e1)) = (w[0], w[1]);
-        if (e0 >= e && e1 <= e) && e0 != e1 {
-            let f = (e.ln() - e0.ln()) / (e1.ln() - e0.ln());
-            return Some((t0.ln() + f * (t1.ln() - t0.ln())).exp());
-        }
-    }
-    None
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -502,70 +484,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 }
 
 fn plot(rows: &[Row]) -> Result<(), Box<dyn std::error::Error>> {
-    plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular())
-        .map_err(|_| "font registration failed")?;
-    let root = BitMapBackend::new("docs/speed-accuracy.png", (1400, 620)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let panels = root.split_evenly((1, 2));
-    for (panel, (title, groups)) in panels.iter().zip([
-        ("Every effect on (Cornell box)", &["all"][..]),
-        (
-            "One effect at a time",
-            &["iso-ao", "iso-shadow", "iso-diffuse", "iso-dof"][..],
-        ),
-    ]) {
-        let mut strategies: Vec<String> = Vec::new();
-        for r in rows.iter().filter(|r| groups.contains(&r.group)) {
-            if !strategies.contains(&r.strategy) {
-                strategies.push(r.strategy.clone());
-            }
-        }
-        let sel: Vec<&Row> = rows.iter().filter(|r| groups.contains(&r.group)).collect();
-        let (t0, t1) = sel.iter().fold((f64::MAX, 0f64), |(a, b), r| {
-            (a.min(r.seconds), b.max(r.seconds))
-        });
-        let (e0, e1) = sel
+    let panel = |title: &str, groups: &[&str]| common::Panel {
+        title: title.to_string(),
+        points: rows
             .iter()
-            .fold((f64::MAX, 0f64), |(a, b), r| (a.min(r.rmse), b.max(r.rmse)));
-        let mut chart = ChartBuilder::on(panel)
-            .caption(title, ("sans-serif", 22))
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(
-                (t0 / 1.5..t1 * 1.5).log_scale(),
-                (e0 / 1.5..e1 * 1.5).log_scale(),
-            )?;
-        chart
-            .configure_mesh()
-            .x_desc("wall time (s)")
-            .y_desc("RMSE (linear RGB)")
-            .label_style(("sans-serif", 14))
-            .draw()?;
-        for (i, s) in strategies.iter().enumerate() {
-            let color = Palette99::pick(i).to_rgba();
-            let mut pts: Vec<(f64, f64)> = sel
-                .iter()
-                .filter(|r| &r.strategy == s)
-                .map(|r| (r.seconds, r.rmse))
-                .collect();
-            pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-            chart
-                .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))?
-                .label(s.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-                });
-            chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))?;
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 13))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()?;
-    }
-    root.present()?;
-    Ok(())
+            .filter(|r| groups.contains(&r.group))
+            .map(|r| (r.strategy.as_str(), r.seconds, r.rmse))
+            .collect(),
+    };
+    common::plot(
+        "docs/speed-accuracy.png",
+        &[
+            panel("Every effect on (Cornell box)", &["all"]),
+            panel(
+                "One effect at a time",
+                &["iso-ao", "iso-shadow", "iso-diffuse", "iso-dof"],
+            ),
+        ],
+        &common::Style {
+            caption_size: 22,
+            x_desc: "wall time (s)",
+            legend: SeriesLabelPosition::UpperRight,
+            round_ticks: false,
+        },
+    )
 }

@@ -11,17 +11,6 @@ use trevi_proto::pb;
 const TILES_IN_FLIGHT: usize = 2;
 const WORKERS: usize = 2;
 
-/// Tiles the workers rendered, from their logs.
-fn rendered(dir: &Dir) -> usize {
-    (0..WORKERS)
-        .map(|i| {
-            dir.read_log(&format!("worker{i}"))
-                .matches("tile rendered")
-                .count()
-        })
-        .sum()
-}
-
 #[test]
 fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
     let dir = Dir::new();
@@ -45,18 +34,7 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
         })
         .collect();
     let out = dir.path().join("farm.png");
-    let mut sub = submit_cmd(&[
-        scene.to_str().unwrap(),
-        "--coordinator",
-        &url,
-        "-o",
-        out.to_str().unwrap(),
-        "--tile",
-        "16",
-    ])
-    .stderr(dir.log("submit"))
-    .spawn()
-    .unwrap();
+    let mut sub = spawn_farm_submit(&dir, &url, &scene, &out, 16);
     let rt = runtime();
     let total = 8 * 6;
     let mut kills = 0;
@@ -96,7 +74,7 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
     let s = try_job(&rt, &c, 1).unwrap();
     assert_eq!(s.state, pb::JobState::Done as i32);
     assert_eq!(s.tiles_done, total);
-    let n = rendered(&dir);
+    let n = tiles_rendered(&dir, WORKERS);
     // A lease spans at most one band of tiles (8 here, lease sizing), so a
     // kill can cost each worker at most its leases in flight of a band each.
     const BAND: usize = 8;
@@ -232,13 +210,7 @@ fn five_submitters_fifty_jobs_four_workers() {
         assert_eq!(s.tiles_done, s.tiles_total, "{s:?}");
     }
     // Every tile rendered once: none lost, none done twice.
-    let rendered: usize = (0..4)
-        .map(|i| {
-            dir.read_log(&format!("worker{i}"))
-                .matches("tile rendered")
-                .count()
-        })
-        .sum();
+    let rendered = tiles_rendered(&dir, 4);
     assert_eq!(rendered as u64, tiles, "{}", dir.logs());
     drop(workers);
 }

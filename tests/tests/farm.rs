@@ -125,18 +125,7 @@ fn a_worker_killed_mid_job_does_not_stop_the_job() {
     let c = coordinator(&dir, 700);
     let mut doomed = worker(&dir, &c.url, "doomed");
     let out = dir.path().join("farm.png");
-    let mut sub = submit_cmd(&[
-        scene.to_str().unwrap(),
-        "--coordinator",
-        &c.url,
-        "-o",
-        out.to_str().unwrap(),
-        "--tile",
-        "16",
-    ])
-    .stderr(dir.log("submit"))
-    .spawn()
-    .unwrap();
+    let mut sub = spawn_farm_submit(&dir, &c.url, &scene, &out, 16);
     let rt = runtime();
     wait_for(&dir, "the first tiles", 60, || {
         try_job(&rt, &c, 1).is_some_and(|s| s.tiles_done >= 3)
@@ -165,18 +154,7 @@ fn wrong_size_and_nan_tiles_are_rejected_requeued_and_the_job_completes() {
     let expected = embedded(&dir, &scene, "embedded.png");
     let c = coordinator(&dir, 10_000);
     let out = dir.path().join("farm.png");
-    let mut sub = submit_cmd(&[
-        scene.to_str().unwrap(),
-        "--coordinator",
-        &c.url,
-        "-o",
-        out.to_str().unwrap(),
-        "--tile",
-        "16",
-    ])
-    .stderr(dir.log("submit"))
-    .spawn()
-    .unwrap();
+    let mut sub = spawn_farm_submit(&dir, &c.url, &scene, &out, 16);
     let rt = runtime();
     rt.block_on(async {
         let mut w = FakeWorker::register(&workers(&c, None).await, "liar").await;
@@ -328,18 +306,7 @@ fn sigterm_makes_a_worker_give_its_tiles_back_and_exit() {
     let c = coordinator(&dir, 60_000);
     let mut first = worker(&dir, &c.url, "first");
     let out = dir.path().join("farm.png");
-    let mut sub = submit_cmd(&[
-        scene.to_str().unwrap(),
-        "--coordinator",
-        &c.url,
-        "-o",
-        out.to_str().unwrap(),
-        "--tile",
-        "16",
-    ])
-    .stderr(dir.log("submit"))
-    .spawn()
-    .unwrap();
+    let mut sub = spawn_farm_submit(&dir, &c.url, &scene, &out, 16);
     let rt = runtime();
     wait_for(&dir, "the first tiles", 60, || {
         try_job(&rt, &c, 1).is_some_and(|s| s.tiles_done >= 2)

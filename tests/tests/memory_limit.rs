@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::http::get;
+use common::http::{get, monitor_worker};
 use common::*;
 use std::fmt::Write as _;
 use trevi_core::scene::estimate::{estimate, human_bytes};
@@ -62,16 +62,7 @@ fn estimate_of(path: &std::path::Path) -> u64 {
 /// The monitor's view of worker `name`: (tiles done, paused reason,
 /// memory limit).
 fn worker_view(c: &Coordinator, name: &str) -> (u64, Option<String>, Option<u64>) {
-    let (code, text) = get(c.http.as_deref().unwrap(), "/api/state", None);
-    assert_eq!(code, 200, "{text}");
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let w = v["workers"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|w| w["name"] == name)
-        .unwrap_or_else(|| panic!("no worker {name}: {text}"))
-        .clone();
+    let w = monitor_worker(c, name);
     (
         w["tiles_done"].as_u64().unwrap(),
         w["paused"].as_str().map(str::to_string),

@@ -52,17 +52,6 @@ fn frame(dir: &Dir, sub: &str, n: u64) -> Vec<u8> {
     std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}\n{}", p.display(), dir.logs()))
 }
 
-/// Tiles the workers rendered, from their logs.
-fn rendered(dir: &Dir) -> usize {
-    (0..WORKERS)
-        .map(|i| {
-            dir.read_log(&format!("worker{i}"))
-                .matches("tile rendered")
-                .count()
-        })
-        .sum()
-}
-
 #[test]
 fn a_sequence_survives_a_worker_and_the_coordinator_killed_mid_way_byte_for_byte() {
     let dir = Dir::new();
@@ -97,18 +86,7 @@ fn a_sequence_survives_a_worker_and_the_coordinator_killed_mid_way_byte_for_byte
         })
         .collect();
     let out = dir.path().join("farm/shot.####.png");
-    let mut sub = submit_cmd(&[
-        scene.to_str().unwrap(),
-        "--coordinator",
-        &url,
-        "-o",
-        out.to_str().unwrap(),
-        "--tile",
-        "16",
-    ])
-    .stderr(dir.log("submit"))
-    .spawn()
-    .unwrap();
+    let mut sub = spawn_farm_submit(&dir, &url, &scene, &out, 16);
     let rt = runtime();
     let seq = 1;
     wait_for(&dir, "3 frames done", 120, || {
@@ -158,7 +136,7 @@ fn a_sequence_survives_a_worker_and_the_coordinator_killed_mid_way_byte_for_byte
     assert_eq!(s.tiles_done, FRAMES * TILES_PER_FRAME);
     // Finished tiles are not rendered again: only what the killed worker
     // held and what each worker had in flight at the coordinator's kill.
-    let n = rendered(&dir);
+    let n = tiles_rendered(&dir, WORKERS);
     let total = (FRAMES * TILES_PER_FRAME) as usize;
     let bound = total + (1 + WORKERS) * BAND;
     assert!(

@@ -6,7 +6,7 @@
 mod common;
 
 use common::farm::job;
-use common::http::get;
+use common::http::{get, monitor_worker};
 use common::*;
 use std::process::{Command, Stdio};
 use trevi_proto::pb;
@@ -63,16 +63,7 @@ fn paused_line(c: &Coordinator, name: &str) -> Option<String> {
 
 /// The worker `name`'s state on the monitor's `/api/state`.
 fn monitor_state(c: &Coordinator, name: &str) -> (String, Option<String>) {
-    let (code, text) = get(c.http.as_deref().unwrap(), "/api/state", None);
-    assert_eq!(code, 200, "{text}");
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let w = v["workers"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|w| w["name"] == name)
-        .unwrap_or_else(|| panic!("no worker {name}: {text}"))
-        .clone();
+    let w = monitor_worker(c, name);
     (
         w["state"].as_str().unwrap().to_string(),
         w["paused"].as_str().map(str::to_string),

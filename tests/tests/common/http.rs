@@ -54,3 +54,17 @@ pub fn parse_response(raw: &str) -> (u16, String) {
         .unwrap_or(0);
     (code, body.to_string())
 }
+
+/// Worker `name` as the monitor's `/api/state` shows it (its JSON object).
+pub fn monitor_worker(c: &super::Coordinator, name: &str) -> serde_json::Value {
+    let (code, text) = get(c.http.as_deref().unwrap(), "/api/state", None);
+    assert_eq!(code, 200, "{text}");
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["name"] == name)
+        .unwrap_or_else(|| panic!("no worker {name}: {text}"))
+        .clone()
+}

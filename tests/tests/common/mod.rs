@@ -423,6 +423,36 @@ pub fn farm_render(dir: &Dir, url: &str, scene: &Path, out: &str, tile: u32) -> 
     std::fs::read(out).unwrap()
 }
 
+/// Starts `trevi-submit scene --coordinator url -o out --tile tile`, which
+/// waits for the job (its stderr in the log "submit"); the caller kills or
+/// waits for it.
+pub fn spawn_farm_submit(dir: &Dir, url: &str, scene: &Path, out: &Path, tile: u32) -> Child {
+    submit_cmd(&[
+        scene.to_str().unwrap(),
+        "--coordinator",
+        url,
+        "-o",
+        out.to_str().unwrap(),
+        "--tile",
+        &tile.to_string(),
+    ])
+    .stderr(dir.log("submit"))
+    .spawn()
+    .unwrap()
+}
+
+/// Tiles the workers `worker0` .. `worker{workers - 1}` rendered, from their
+/// logs (one "tile rendered" line per tile).
+pub fn tiles_rendered(dir: &Dir, workers: usize) -> usize {
+    (0..workers)
+        .map(|i| {
+            dir.read_log(&format!("worker{i}"))
+                .matches("tile rendered")
+                .count()
+        })
+        .sum()
+}
+
 /// The embedded (one-process) render of a scene.
 pub fn embedded(dir: &Dir, scene: &Path, out: &str) -> Vec<u8> {
     let out = dir.path().join(out);
