@@ -235,7 +235,7 @@ pub(super) fn test_sse(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) 
     }
 }
 
-/// The four lanes of a triangle pack's test ([`triangles_sse`]).
+/// The four lanes of a leaf's triangle test ([`triangles_sse`]).
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub(super) struct Tri4 {
     pub t: [f32; 4],
@@ -268,7 +268,8 @@ impl Tri4 {
 }
 
 /// The watertight test of [`triangle::intersect`] on four triangles at once:
-/// `p` as [`Pack::p`](super::leaves::Pack), every lane against `t_max`. Each
+/// the lanes of `leaf` (lanes past its `n` are computed on whatever floats
+/// follow and must be masked off), every lane against `t_max`. Each
 /// lane performs that function's f32 operations in its order (the origin
 /// subtracted, the shear `x − s·z`, the edge functions `c·b − c·b`, the
 /// determinant `(u + v) + w`, `t_scaled = (u·az + v·bz) + w·cz`, the early
@@ -280,23 +281,29 @@ impl Tri4 {
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(super) fn triangles_sse(
-    p: &[[f32; 4]; 9],
+    leaf: super::leaves::Leaf,
     r: &crate::geometry::triangle::ShearedRay,
     t_max: f32,
 ) -> Tri4 {
     use crate::geometry::triangle::T_MARGIN;
     use std::arch::x86_64::*;
+    let (p, n) = (leaf.p, leaf.n);
+    // The loads below read `p[(3·v + k)·n ..][..4]` for `v, k < 3`: at most
+    // up to `p[8·n + 3]`, which is below `9·n + 3` for `n ≥ 1`.
+    assert!(n >= 1 && p.len() >= 9 * n + 3);
     // SAFETY: the obligations are that SSE/SSE2 exist, which the x86_64
     // baseline guarantees (this is compiled for x86_64 only), and that each
-    // unaligned load reads 16 valid bytes and each store writes 16: every
-    // pointer comes from a `[f32; 4]` (16 bytes), of `p` for the loads (its
-    // indices `3·v + k` are below 9 for `v < 3` and `k = r.kx, r.ky, r.kz`,
-    // which `ShearedRay::new` makes a permutation of 0..3; bounds-checked
-    // anyway) and of the arrays below for the stores.
+    // unaligned load reads 16 valid bytes and each store writes 16. Loads:
+    // `k < 3` is checked by indexing `o[k]` before the load and `v < 3` at
+    // every call, so the offset `(3·v + k)·n` is at most `8·n` and the four
+    // floats from it end at `8·n + 3 < 9·n + 3 ≤ p.len()` (asserted above).
+    // Stores: into the `[f32; 4]`s of `out`.
     unsafe {
         let o = r.origin.to_array();
-        let ld =
-            |v: usize, k: usize| _mm_sub_ps(_mm_loadu_ps(p[3 * v + k].as_ptr()), _mm_set1_ps(o[k]));
+        let ld = |v: usize, k: usize| {
+            let ok = _mm_set1_ps(o[k]);
+            _mm_sub_ps(_mm_loadu_ps(p.as_ptr().add((3 * v + k) * n)), ok)
+        };
         let (sx, sy, sz) = (_mm_set1_ps(r.sx), _mm_set1_ps(r.sy), _mm_set1_ps(r.sz));
         let (kx, ky, kz) = (r.kx, r.ky, r.kz);
         let (a_z, b_z, c_z) = (ld(0, kz), ld(1, kz), ld(2, kz));

@@ -412,13 +412,15 @@ fn pack_triangles(seed: u64, n: usize) -> Vec<[Vec3; 3]> {
     out
 }
 
-fn pack_of(tris: &[[Vec3; 3]]) -> leaves::Pack {
-    let mut p = leaves::Pack { p: [[0.0; 4]; 9] };
-    for lane in 0..4 {
-        let t = tris[lane.min(tris.len() - 1)];
+/// The leaf copies of `tris` as `MeshBvh` lays them out, followed by
+/// `tail` floats (the next leaf's, or the padding).
+fn leaf_floats(tris: &[[Vec3; 3]], tail: f32) -> Vec<f32> {
+    let n = tris.len();
+    let mut p = vec![tail; 9 * n + leaves::PAD];
+    for (lane, t) in tris.iter().enumerate() {
         for v in 0..3 {
             for a in 0..3 {
-                p.p[3 * v + a][lane] = t[v][a];
+                p[(3 * v + a) * n + lane] = t[v][a];
             }
         }
     }
@@ -442,8 +444,20 @@ fn sse_triangle_lanes_are_the_scalar_tests_bits() {
     let mut s = 99u64;
     let mut edge_lanes = 0;
     let mut hits = 0;
-    for (i, quad) in tris.chunks(4).enumerate() {
-        let pack = pack_of(quad);
+    // Leaves of 1, 2, 3, 4, 1, … triangles, followed by zeros, NaNs or huge
+    // numbers in the lanes past their count.
+    let mut start = 0;
+    for i in 0usize.. {
+        if start >= tris.len() {
+            break;
+        }
+        let quad = &tris[start..(start + 1 + i % 4).min(tris.len())];
+        start += quad.len();
+        let floats = leaf_floats(quad, [0.0, f32::NAN, 1e30][i % 3]);
+        let leaf = leaves::Leaf {
+            p: &floats,
+            n: quad.len(),
+        };
         for j in 0..40 {
             let mut o = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * 6.0 - 1.0;
             let target = match j % 4 {
@@ -462,13 +476,13 @@ fn sse_triangle_lanes_are_the_scalar_tests_bits() {
             }
             let r = ShearedRay::new(o, d);
             for t_max in [f32::INFINITY, 1.0, 0.5, 1e-3] {
-                let l = simd::triangles_sse(&pack.p, &r, t_max);
-                for lane in 0..4 {
+                let l = simd::triangles_sse(leaf, &r, t_max);
+                for lane in 0..leaf.n {
                     let want = triangle::intersect(
                         &r,
-                        pack.vertex(0, lane),
-                        pack.vertex(1, lane),
-                        pack.vertex(2, lane),
+                        leaf.vertex(0, lane),
+                        leaf.vertex(1, lane),
+                        leaf.vertex(2, lane),
                         t_max,
                     );
                     if l.edge & (1 << lane) != 0 {
@@ -523,17 +537,21 @@ fn mesh_leaves_find_brute_forces_closest_hit_on_every_path() {
     let loaded = soup(3, 600);
     let mut mesh = loaded.clone();
     let (bvh, order) = MeshBvh::build(&mut mesh);
-    // Packs are in triangle order and cover every triangle once.
-    let mut firsts = bvh.pack_first.clone();
-    assert!(firsts.windows(2).all(|w| w[0] < w[1]));
-    firsts.push(mesh.triangles.len() as u32);
-    assert_eq!(firsts[0], 0);
-    assert!(firsts.windows(2).all(|w| (1..=4).contains(&(w[1] - w[0]))));
-    let full = firsts.windows(2).filter(|w| w[1] - w[0] == 4).count();
+    // Leaves of one to four cover every triangle once, most of them full.
+    let mut ranges = bvh.tree.leaf_ranges();
+    ranges.sort_unstable();
+    let mut next = 0;
+    for &(first, n) in &ranges {
+        assert_eq!(first, next);
+        assert!((1..=4).contains(&n));
+        next += n;
+    }
+    assert_eq!(next as usize, mesh.triangles.len());
+    let full = ranges.iter().filter(|r| r.1 == 4).count();
     assert!(
-        2 * full > bvh.packs(),
-        "{full} of {} packs full",
-        bvh.packs()
+        2 * full > ranges.len(),
+        "{full} of {} leaves full",
+        ranges.len()
     );
     let tri = |m: &Mesh, t: usize| m.triangles[t].map(|i| m.positions[i as usize]);
     let boxes: Vec<Aabb> = (0..loaded.triangles.len())

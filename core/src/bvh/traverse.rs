@@ -80,9 +80,8 @@ impl Bvh {
 
     /// The walk under every query: `leaf(first, count, t_max)` is called
     /// for each leaf the ray enters (nearest first when `ORDERED`, else in
-    /// slot order), with the leaf's reference as stored (leaf positions
-    /// `first..first + count`, or what [`Bvh::number_leaves`] made of it),
-    /// and answers for the leaf as a whole.
+    /// slot order), with its leaf positions `first..first + count`, and
+    /// answers for the leaf as a whole.
     #[inline(always)]
     pub(super) fn traverse_leaves_on<F: FnMut(u32, u32, f32) -> Visit, const ORDERED: bool>(
         &self,
