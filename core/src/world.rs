@@ -21,7 +21,7 @@
 
 use crate::area_lights::AreaLights;
 use crate::bundle::{Bundle, FileSource};
-use crate::bvh::{Bvh, Visit};
+use crate::bvh::{simd, Bvh, MeshBvh, Visit};
 use crate::camera::Camera;
 use crate::error::SceneError;
 use crate::geometry::{offset_from_surface, plane, sphere, triangle, Aabb};
@@ -155,16 +155,11 @@ impl SurfacePoint<'_> {
 /// A scene ready to render.
 pub struct Scene {
     pub desc: SceneDesc,
-    blas: Vec<Bvh>,
+    blas: Vec<MeshBvh>,
     /// Per mesh, the triangle's index as loaded for each triangle as stored
     /// (the build renumbers meshes): the tie rule ([`View::precedes`]) is
     /// stated in the numbering the scene file gives.
     loaded_index: Vec<Vec<u32>>,
-    /// Per mesh, each triangle's unit geometric normal in object space as
-    /// stored (`unit(unit(b − a) × unit(c − a))`, the very bits
-    /// [`View::surface_point`] computed on every hit before): 12 bytes a
-    /// triangle that take three normalisations off every triangle hit.
-    face_normals: Vec<Vec<Vec3>>,
     /// The world from each distinct camera position, built when first asked
     /// for: building every camera's up front would cost cameras × objects (a
     /// scene of 5,000 cameras and 5,000 spheres would build 25 million
@@ -200,24 +195,10 @@ impl Scene {
     /// Builds the acceleration structures of a parsed scene.
     pub fn build(mut desc: SceneDesc) -> Scene {
         // Each mesh is renumbered in its BVH's leaf order (see
-        // `Bvh::take_leaf_order`): the triangles a leaf visits, and mostly
-        // their vertices, then share cache lines, and no index array sits
-        // between leaf and triangle. Per-triangle surfaces follow.
-        let (blas, orders): (Vec<Bvh>, Vec<Vec<u32>>) = desc
-            .meshes
-            .iter_mut()
-            .map(|m| {
-                let boxes: Vec<Aabb> = m
-                    .triangles
-                    .iter()
-                    .map(|t| Aabb::from_points(&t.map(|i| m.positions[i as usize])))
-                    .collect();
-                let mut bvh = Bvh::build(&boxes, 4);
-                let order = bvh.take_leaf_order();
-                m.reorder_triangles(&order);
-                (bvh, order)
-            })
-            .unzip();
+        // `MeshBvh::build`): a leaf's triangles are consecutive, and its
+        // vertices are copied into the leaf. Per-triangle surfaces follow.
+        let (blas, orders): (Vec<MeshBvh>, Vec<Vec<u32>>) =
+            desc.meshes.iter_mut().map(MeshBvh::build).unzip();
         for model in &mut desc.models {
             if !model.triangle_surface.is_empty() {
                 let old = std::mem::take(&mut model.triangle_surface);
@@ -227,19 +208,6 @@ impl Scene {
                     .collect();
             }
         }
-        let face_normals = desc
-            .meshes
-            .iter()
-            .map(|m| {
-                m.triangles
-                    .iter()
-                    .map(|t| {
-                        let [a, b, c] = t.map(|i| m.positions[i as usize]);
-                        face_normal(a, b, c)
-                    })
-                    .collect()
-            })
-            .collect();
         let has_translucency = desc
             .models
             .iter()
@@ -251,7 +219,6 @@ impl Scene {
             desc,
             blas,
             loaded_index: orders,
-            face_normals,
             from_eyes: Vec::new(),
             eyes: Vec::new(),
             camera_eye: Vec::new(),
@@ -448,27 +415,15 @@ impl<'a> View<'a> {
     ) -> (f32, bool) {
         let (scene, world) = (self.scene, self.world);
         let n_inst = world.instances.len() as u32;
+        let path = simd::current();
         let tlas_visit = |prim: u32, t_max: f32| {
             if prim < n_inst {
                 let inst = &world.instances[prim as usize];
                 let o = inst.to_object.transform_point3(origin);
                 let d = inst.to_object.transform_vector3(dir);
-                let sheared = triangle::ShearedRay::new(o, d);
-                let mesh = &scene.desc.meshes[inst.mesh as usize];
                 let model = &scene.desc.models[inst.model as usize];
-                let mut result = Visit::Miss;
-                let blas_visit = |tri: u32, t_max: f32| {
-                    let [i0, i1, i2] = mesh.triangles[tri as usize];
-                    let p = &mesh.positions;
-                    let Some(h) = triangle::intersect(
-                        &sheared,
-                        p[i0 as usize],
-                        p[i1 as usize],
-                        p[i2 as usize],
-                        t_max,
-                    ) else {
-                        return Visit::Miss;
-                    };
+                let mut stopped = false;
+                let mesh_visit = |tri: u32, h: triangle::TriangleHit| {
                     let front = h.front != inst.mirrored;
                     if inst.any_front_only && !front {
                         let s = if model.triangle_surface.is_empty() {
@@ -489,25 +444,18 @@ impl<'a> View<'a> {
                         },
                         front,
                     });
-                    match v {
-                        Visit::Hit(t) => {
-                            result = Visit::Hit(t);
-                            Visit::Hit(t)
-                        }
-                        Visit::Stop => {
-                            result = Visit::Stop;
-                            Visit::Stop
-                        }
-                        Visit::Miss => Visit::Miss,
-                    }
+                    stopped = matches!(v, Visit::Stop);
+                    v
                 };
                 let blas = &scene.blas[inst.mesh as usize];
-                if ORDERED {
-                    blas.traverse(o, d, t_max, blas_visit);
+                let (t, hit) = blas.traverse_on::<_, ORDERED>(path, o, d, t_max, mesh_visit);
+                if stopped {
+                    Visit::Stop
+                } else if hit {
+                    Visit::Hit(t)
                 } else {
-                    blas.traverse_unordered(o, d, t_max, blas_visit);
+                    Visit::Miss
                 }
-                result
             } else {
                 let i = prim - n_inst;
                 let s = &scene.desc.spheres[i as usize];
@@ -653,9 +601,7 @@ impl<'a> View<'a> {
                 // Barycentric interpolation is more accurate than o + t·d.
                 let p_obj = a * bary[0] + b * bary[1] + c * bary[2];
                 let p = inst.to_world.transform_point3(p_obj);
-                let ng = unit(
-                    inst.normal_matrix * scene.face_normals[inst.mesh as usize][triangle as usize],
-                );
+                let ng = unit(inst.normal_matrix * face_normal(a, b, c));
                 let ns = if surface.smooth {
                     let n = mesh.normals[i0] * bary[0]
                         + mesh.normals[i1] * bary[1]
@@ -786,7 +732,7 @@ pub fn log2(x: f32) -> f32 {
 
 /// The world seen from `eye`: instance transforms composed with the shift
 /// by −eye in f64 before rounding, and every position likewise.
-fn build_world_from_eye(desc: &SceneDesc, blas: &[Bvh], eye: DVec3) -> WorldFromEye {
+fn build_world_from_eye(desc: &SceneDesc, blas: &[MeshBvh], eye: DVec3) -> WorldFromEye {
     let shift = DMat4::from_translation(-eye);
     let instances: Vec<Instance> = desc
         .models
@@ -918,7 +864,9 @@ fn unit(v: Vec3) -> Vec3 {
 }
 
 /// The unit geometric normal of triangle `a b c` (winding order), zero for
-/// a degenerate one: the one formula of [`Scene::face_normals`].
+/// a degenerate one: the one formula of a triangle hit's geometric normal
+/// (recomputed per hit: the leaves' copies of the vertices leave no room in
+/// the memory goal for 12 more bytes a triangle; see docs/performance.md).
 #[inline]
 fn face_normal(a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
     unit(unit(b - a).cross(unit(c - a)))

@@ -21,6 +21,7 @@ struct Input<'a> {
     boxes: &'a [Aabb],
     centroids: &'a [Vec3],
     max_leaf: usize,
+    block: usize,
 }
 
 /// A split: `mid` primitives go left; the children's boxes and centroid boxes.
@@ -33,9 +34,16 @@ struct Split {
 }
 
 impl Bvh {
-    /// Builds the tree; `max_leaf` bounds a leaf's primitive count except
-    /// where primitives cannot be told apart at all.
+    /// Builds the tree; `max_leaf` bounds a leaf's primitive count.
     pub fn build(boxes: &[Aabb], max_leaf: usize) -> Bvh {
+        Bvh::build_blocks(boxes, max_leaf, 1)
+    }
+
+    /// [`Bvh::build`] for leaves whose primitives are tested `block` at a
+    /// time (triangle packs): the SAH prices a leaf or a side of a split by
+    /// its number of blocks, `⌈count / block⌉`, not of primitives (Embree's
+    /// `sahBlockSize`), so that leaves fill up to `block`.
+    pub fn build_blocks(boxes: &[Aabb], max_leaf: usize, block: usize) -> Bvh {
         use rayon::prelude::*;
         let n = boxes.len();
         let mut prims: Vec<u32> = (0..n as u32).collect();
@@ -60,6 +68,7 @@ impl Bvh {
             boxes,
             centroids: &centroids,
             max_leaf,
+            block: block.max(1),
         };
         let mut bins = vec![0u8; n];
         let mut pairs = Vec::with_capacity(n / 2 + 1);
@@ -294,8 +303,8 @@ fn find_split(
     };
     let bin_box = &stats.boxes;
     let bin_count = &stats.count;
-    let best = cheapest_split(bin_box, bin_count);
-    let leaf_cost = bounds.half_area() * count as f32 * INTERSECT_COST;
+    let best = cheapest_split(bin_box, bin_count, input.block);
+    let leaf_cost = bounds.half_area() * blocks(count, input.block) * INTERSECT_COST;
     let split_cost = TRAVERSAL_COST * bounds.half_area() + INTERSECT_COST * best.0;
     if !best.0.is_finite() {
         return (count > max_leaf).then(|| middle_split(input, prims));
@@ -336,10 +345,22 @@ fn find_split(
     Some(s)
 }
 
+/// The number of `block`-sized tests `count` primitives take, as the SAH
+/// weighs them.
+#[inline]
+pub(super) fn blocks(count: usize, block: usize) -> f32 {
+    count.div_ceil(block) as f32
+}
+
 /// The cheapest split between the bins: `(SAH cost of both sides, last bin
 /// of the left side)`, or an infinite cost when every split leaves a side
-/// empty. Shared by the build and the reference tree, so both split alike.
-pub(super) fn cheapest_split(bin_box: &[Aabb; BINS], bin_count: &[usize; BINS]) -> (f32, usize) {
+/// empty; each side is weighed by its [`blocks`]. Shared by the build and
+/// the reference tree, so both split alike.
+pub(super) fn cheapest_split(
+    bin_box: &[Aabb; BINS],
+    bin_count: &[usize; BINS],
+    block: usize,
+) -> (f32, usize) {
     // Sweep from the right to get suffix areas, then from the left.
     let mut right_area = [0.0f32; BINS];
     let mut acc = Aabb::EMPTY;
@@ -360,7 +381,8 @@ pub(super) fn cheapest_split(bin_box: &[Aabb; BINS], bin_count: &[usize; BINS]) 
         if n == 0 || right_count[i + 1] == 0 {
             continue;
         }
-        let cost = acc.half_area() * n as f32 + right_area[i + 1] * right_count[i + 1] as f32;
+        let cost = acc.half_area() * blocks(n, block)
+            + right_area[i + 1] * blocks(right_count[i + 1], block);
         if cost < best.0 {
             best = (cost, i);
         }

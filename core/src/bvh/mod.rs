@@ -3,14 +3,17 @@
 //!
 //! One builder serves both levels of the acceleration structure: the bottom
 //! level (triangles of one mesh, in object space) and the top level (model
-//! instances and spheres, in world space). The tree only stores indices; the
-//! caller's closure intersects the primitives, so traversal is generic and
-//! statically dispatched.
+//! instances and spheres, in world space). At the top level the tree only
+//! stores indices and the caller's closure intersects the primitives, so
+//! traversal is generic and statically dispatched; a mesh's tree
+//! ([`MeshBvh`], `leaves.rs`) holds its triangles in the leaves, four to a
+//! leaf, copied, and tests them four at a time.
 //!
 //! `build.rs` makes a binary tree by binned SAH, `wide.rs` collapses it into
 //! nodes of up to four children (the largest child opened first, as
 //! Embree's BVH4 does), `traverse.rs` walks that, nearest child first, and
-//! `simd.rs` (the only `unsafe` code) tests a node's four boxes at once.
+//! `simd.rs` (the only `unsafe` code) tests a node's four boxes, or a leaf's
+//! four triangles, at once.
 //!
 //! Layout: a [`Node`] holds its four children's boxes plane by plane (one
 //! SSE register per plane: 96 bytes) and their references, 128 bytes, two
@@ -23,6 +26,7 @@
 //! shadows, which multiply factors in visit order, are deterministic too.
 
 mod build;
+mod leaves;
 #[cfg(test)]
 mod reference;
 pub mod simd;
@@ -31,6 +35,7 @@ mod tests;
 mod traverse;
 mod wide;
 
+pub use leaves::{MeshBvh, PACK};
 pub use simd::Simd;
 
 use crate::geometry::Aabb;

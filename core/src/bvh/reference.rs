@@ -3,7 +3,7 @@
 //! (`tests.rs` compares the leaves), and its walk must find what this one
 //! finds. Its stack is shallow, so its recursion past it is exercised.
 
-use super::build::{cheapest_split, BINS, INTERSECT_COST, TRAVERSAL_COST};
+use super::build::{blocks, cheapest_split, BINS, INTERSECT_COST, TRAVERSAL_COST};
 use super::Visit;
 use crate::geometry::{ray_box, Aabb};
 use glam::Vec3;
@@ -30,6 +30,12 @@ impl RefBvh {
     /// Builds the tree; `max_leaf` bounds a leaf's primitive count except
     /// where primitives cannot be told apart at all.
     pub fn build(boxes: &[Aabb], max_leaf: usize) -> RefBvh {
+        RefBvh::build_blocks(boxes, max_leaf, 1)
+    }
+
+    /// [`RefBvh::build`] with leaves priced by blocks of `block` primitives
+    /// (as `Bvh::build_blocks`).
+    pub fn build_blocks(boxes: &[Aabb], max_leaf: usize, block: usize) -> RefBvh {
         let mut bvh = RefBvh {
             nodes: Vec::with_capacity(boxes.len().max(1) * 2),
             prims: (0..boxes.len() as u32).collect(),
@@ -61,6 +67,7 @@ impl RefBvh {
                     &centroids,
                     bounds,
                     max_leaf,
+                    block,
                 )
             };
             match split {
@@ -260,6 +267,7 @@ fn find_split(
     centroids: &[Vec3],
     bounds: Aabb,
     max_leaf: usize,
+    block: usize,
 ) -> Option<usize> {
     let count = prims.len();
     let cb = prims
@@ -294,8 +302,8 @@ fn find_split(
         bin_box[b] = bin_box[b].union(boxes[p as usize]);
         bin_count[b] += 1;
     }
-    let best = cheapest_split(&bin_box, &bin_count);
-    let leaf_cost = bounds.half_area() * count as f32 * INTERSECT_COST;
+    let best = cheapest_split(&bin_box, &bin_count, block);
+    let leaf_cost = bounds.half_area() * blocks(count, block) * INTERSECT_COST;
     let split_cost = TRAVERSAL_COST * bounds.half_area() + INTERSECT_COST * best.0;
     if !best.0.is_finite() {
         return if count > max_leaf {

@@ -1,6 +1,8 @@
 //! The one module of the tree with `unsafe` code: the SSE test of a wide
-//! node's four boxes, its scalar twin, the choice between them, and the
-//! traversal stack.
+//! node's four boxes, its scalar twin, the choice between them, the SSE
+//! test of a leaf's four triangles (whose scalar twin is
+//! [`triangle::intersect`](crate::geometry::triangle::intersect) itself,
+//! lane by lane), and the traversal stack.
 //!
 //! **Bit-identical paths.** The scalar test performs, lane by lane, exactly
 //! the operations of the SSE test, in the same order: `(plane − o) · inv`
@@ -18,6 +20,7 @@
 //! so that slab is treated as unbounded: conservative, never a missed box.
 
 use super::{Node, Ref};
+use crate::geometry::triangle::TriangleHit;
 use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -229,6 +232,149 @@ pub(super) fn test_sse(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) 
         let mut e = [0.0f32; 4];
         _mm_storeu_ps(e.as_mut_ptr(), enter);
         (e, mask as u32)
+    }
+}
+
+/// The four lanes of a leaf's triangle test ([`triangles_sse`]).
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+pub(super) struct Tri4 {
+    pub t: [f32; 4],
+    pub u: [f32; 4],
+    pub v: [f32; 4],
+    pub w: [f32; 4],
+    pub inv: [f32; 4],
+    /// Lanes whose determinant is positive (the front side).
+    pub front: u32,
+    /// Lanes hit within `(0, t_max)` (edge lanes excluded).
+    pub hit: u32,
+    /// Lanes where an edge function came out exactly zero: the scalar test
+    /// decides them (it redoes the edge functions in f64).
+    pub edge: u32,
+}
+
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+impl Tri4 {
+    /// The hit of lane `i` of [`Tri4::hit`], as `triangle::intersect`
+    /// makes it from the same numbers.
+    #[inline(always)]
+    pub fn hit_of(&self, i: usize) -> TriangleHit {
+        let inv = self.inv[i];
+        TriangleHit {
+            t: self.t[i],
+            bary: [self.u[i] * inv, self.v[i] * inv, self.w[i] * inv],
+            front: self.front & (1 << i) != 0,
+        }
+    }
+}
+
+/// The watertight test of [`triangle::intersect`] on four triangles at once:
+/// the lanes of `leaf` (lanes past its `n` are computed on whatever floats
+/// follow and must be masked off), every lane against `t_max`. Each
+/// lane performs that function's f32 operations in its order (the origin
+/// subtracted, the shear `x − s·z`, the edge functions `c·b − c·b`, the
+/// determinant `(u + v) + w`, `t_scaled = (u·az + v·bz) + w·cz`, the early
+/// out `t_scaled` against `(t_max·det)·(1 + 2⁻²⁰)` on the determinant's
+/// side, `t = t_scaled · (1/det)`, then `0 < t < t_max`), with IEEE
+/// `subps`/`mulps`/`addps`/`divps`, never fused, so a lane that is not
+/// [`Tri4::edge`] is hit exactly when the scalar test hits it, with the same
+/// bits. NaN compares false in both, lane by lane alike.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(super) fn triangles_sse(
+    leaf: super::leaves::Leaf,
+    r: &crate::geometry::triangle::ShearedRay,
+    t_max: f32,
+) -> Tri4 {
+    use crate::geometry::triangle::T_MARGIN;
+    use std::arch::x86_64::*;
+    let (p, n) = (leaf.p, leaf.n);
+    // The loads below read `p[(3·v + k)·n ..][..4]` for `v, k < 3`: at most
+    // up to `p[8·n + 3]`, which is below `9·n + 3` for `n ≥ 1`.
+    assert!(n >= 1 && p.len() >= 9 * n + 3);
+    // SAFETY: the obligations are that SSE/SSE2 exist, which the x86_64
+    // baseline guarantees (this is compiled for x86_64 only), and that each
+    // unaligned load reads 16 valid bytes and each store writes 16. Loads:
+    // `k < 3` is checked by indexing `o[k]` before the load and `v < 3` at
+    // every call, so the offset `(3·v + k)·n` is at most `8·n` and the four
+    // floats from it end at `8·n + 3 < 9·n + 3 ≤ p.len()` (asserted above).
+    // Stores: into the `[f32; 4]`s of `out`.
+    unsafe {
+        let o = r.origin.to_array();
+        let ld = |v: usize, k: usize| {
+            let ok = _mm_set1_ps(o[k]);
+            _mm_sub_ps(_mm_loadu_ps(p.as_ptr().add((3 * v + k) * n)), ok)
+        };
+        let (sx, sy, sz) = (_mm_set1_ps(r.sx), _mm_set1_ps(r.sy), _mm_set1_ps(r.sz));
+        let (kx, ky, kz) = (r.kx, r.ky, r.kz);
+        let (a_z, b_z, c_z) = (ld(0, kz), ld(1, kz), ld(2, kz));
+        let ax = _mm_sub_ps(ld(0, kx), _mm_mul_ps(sx, a_z));
+        let ay = _mm_sub_ps(ld(0, ky), _mm_mul_ps(sy, a_z));
+        let bx = _mm_sub_ps(ld(1, kx), _mm_mul_ps(sx, b_z));
+        let by = _mm_sub_ps(ld(1, ky), _mm_mul_ps(sy, b_z));
+        let cx = _mm_sub_ps(ld(2, kx), _mm_mul_ps(sx, c_z));
+        let cy = _mm_sub_ps(ld(2, ky), _mm_mul_ps(sy, c_z));
+        let u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
+        let v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
+        let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
+        let zero = _mm_setzero_ps();
+        let edge = _mm_or_ps(
+            _mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(v, zero)),
+            _mm_cmpeq_ps(w, zero),
+        );
+        let neg = _mm_or_ps(
+            _mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)),
+            _mm_cmplt_ps(w, zero),
+        );
+        let pos = _mm_or_ps(
+            _mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)),
+            _mm_cmpgt_ps(w, zero),
+        );
+        let outside = _mm_and_ps(neg, pos);
+        let det = _mm_add_ps(_mm_add_ps(u, v), w);
+        // `det != 0 && det.is_finite()`: |det| < ∞ is false for NaN and ±∞.
+        let abs = _mm_andnot_ps(_mm_set1_ps(-0.0), det);
+        let det_ok = _mm_and_ps(
+            _mm_cmpneq_ps(det, zero),
+            _mm_cmplt_ps(abs, _mm_set1_ps(f32::INFINITY)),
+        );
+        let az = _mm_mul_ps(sz, a_z);
+        let bz = _mm_mul_ps(sz, b_z);
+        let cz = _mm_mul_ps(sz, c_z);
+        let ts = _mm_add_ps(
+            _mm_add_ps(_mm_mul_ps(u, az), _mm_mul_ps(v, bz)),
+            _mm_mul_ps(w, cz),
+        );
+        let bound = _mm_mul_ps(_mm_mul_ps(_mm_set1_ps(t_max), det), _mm_set1_ps(T_MARGIN));
+        let front = _mm_cmpgt_ps(det, zero);
+        let early_pos = _mm_or_ps(_mm_cmple_ps(ts, zero), _mm_cmpgt_ps(ts, bound));
+        let early_neg = _mm_or_ps(_mm_cmpge_ps(ts, zero), _mm_cmplt_ps(ts, bound));
+        let early = _mm_or_ps(
+            _mm_and_ps(front, early_pos),
+            _mm_andnot_ps(front, early_neg),
+        );
+        let inv = _mm_div_ps(_mm_set1_ps(1.0), det);
+        let t = _mm_mul_ps(ts, inv);
+        let t_ok = _mm_and_ps(_mm_cmpgt_ps(t, zero), _mm_cmplt_ps(t, _mm_set1_ps(t_max)));
+        let hit = _mm_andnot_ps(
+            _mm_or_ps(_mm_or_ps(edge, outside), early),
+            _mm_and_ps(det_ok, t_ok),
+        );
+        let mut out = Tri4 {
+            t: [0.0; 4],
+            u: [0.0; 4],
+            v: [0.0; 4],
+            w: [0.0; 4],
+            inv: [0.0; 4],
+            front: _mm_movemask_ps(front) as u32,
+            hit: _mm_movemask_ps(hit) as u32,
+            edge: _mm_movemask_ps(edge) as u32,
+        };
+        _mm_storeu_ps(out.t.as_mut_ptr(), t);
+        _mm_storeu_ps(out.u.as_mut_ptr(), u);
+        _mm_storeu_ps(out.v.as_mut_ptr(), v);
+        _mm_storeu_ps(out.w.as_mut_ptr(), w);
+        _mm_storeu_ps(out.inv.as_mut_ptr(), inv);
+        out
     }
 }
 

@@ -352,3 +352,249 @@ fn large_builds_take_the_parallel_path_and_still_match() {
     let leaves: Vec<Vec<u32>> = new.leaves().iter().map(|l| l.1.to_vec()).collect();
     assert_eq!(leaves, ref_leaves(&old));
 }
+
+// ------------------------------------------------------------ triangle leaves
+
+use crate::geometry::triangle::{self, ShearedRay, TriangleHit};
+use crate::mesh::Mesh;
+
+/// Leaves priced in blocks of four: the same tree as the reference's, and
+/// most leaves full (the point of pricing by blocks; with per-triangle
+/// pricing, the same scene has far fewer full leaves).
+#[test]
+fn block_sah_matches_the_reference_and_fills_the_leaves() {
+    for (k, boxes) in [
+        random_boxes(3000, 11),
+        lattice_boxes(400),
+        random_boxes(7, 12),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let new = Bvh::build_blocks(boxes, 4, 4);
+        let old = reference::RefBvh::build_blocks(boxes, 4, 4);
+        let leaves: Vec<Vec<u32>> = new.leaves().iter().map(|l| l.1.to_vec()).collect();
+        assert_eq!(leaves, ref_leaves(&old), "scene {k}: leaves");
+        let sah_old = old.sah_cost();
+        assert!((new.sah_cost() - sah_old).abs() <= 1e-4 * sah_old.max(1.0));
+        assert!(leaves.iter().all(|l| (1..=4).contains(&l.len())));
+        if boxes.len() >= 400 {
+            let full = |t: &Bvh| t.leaves().iter().filter(|l| l.1.len() == 4).count();
+            let per_prim = Bvh::build(boxes, 4);
+            let (f_new, n_new) = (full(&new), new.leaves().len());
+            assert!(
+                2 * f_new > n_new,
+                "scene {k}: {f_new} of {n_new} leaves full"
+            );
+            assert!(f_new > 2 * full(&per_prim), "scene {k}");
+        }
+    }
+}
+
+/// Triangles for the pack tests: random ones, ones sharing edges and
+/// vertices with rays through them (edge functions exactly zero), slivers,
+/// degenerate and huge ones.
+fn pack_triangles(seed: u64, n: usize) -> Vec<[Vec3; 3]> {
+    let mut s = seed;
+    let mut r3 = |k: f32| Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * k;
+    let mut out = Vec::new();
+    while out.len() < n {
+        let a = r3(4.0).round() * 0.5;
+        let b = a + r3(2.0).round() - Vec3::ONE;
+        let c = a + r3(2.0) - Vec3::ONE;
+        out.push([a, b, c]);
+        out.push([a, c, b + Vec3::X]);
+        out.push([a, a, b]);
+        out.push([a * 1e20, b * 1e20, c * 1e20]);
+        out.push([a, b, a + (b - a) * 0.5 + Vec3::splat(1e-7)]);
+    }
+    out.truncate(n);
+    out
+}
+
+/// The leaf copies of `tris` as `MeshBvh` lays them out, followed by
+/// `tail` floats (the next leaf's, or the padding).
+fn leaf_floats(tris: &[[Vec3; 3]], tail: f32) -> Vec<f32> {
+    let n = tris.len();
+    let mut p = vec![tail; 9 * n + leaves::PAD];
+    for (lane, t) in tris.iter().enumerate() {
+        for v in 0..3 {
+            for a in 0..3 {
+                p[(3 * v + a) * n + lane] = t[v][a];
+            }
+        }
+    }
+    p
+}
+
+fn same_hit(a: Option<TriangleHit>, b: Option<TriangleHit>) -> bool {
+    let bits =
+        |h: Option<TriangleHit>| h.map(|h| (h.t.to_bits(), h.bary.map(f32::to_bits), h.front));
+    bits(a) == bits(b)
+}
+
+/// The SSE test of four triangles gives, lane by lane, the bits of the
+/// scalar watertight test (or hands the lane to it, when an edge function
+/// is exactly zero), for rays from lattice points and along axes, through
+/// shared edges and vertices, and every bound.
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn sse_triangle_lanes_are_the_scalar_tests_bits() {
+    let tris = pack_triangles(5, 400);
+    let mut s = 99u64;
+    let mut edge_lanes = 0;
+    let mut hits = 0;
+    // Leaves of 1, 2, 3, 4, 1, … triangles, followed by zeros, NaNs or huge
+    // numbers in the lanes past their count.
+    let mut start = 0;
+    for i in 0usize.. {
+        if start >= tris.len() {
+            break;
+        }
+        let quad = &tris[start..(start + 1 + i % 4).min(tris.len())];
+        start += quad.len();
+        let floats = leaf_floats(quad, [0.0, f32::NAN, 1e30][i % 3]);
+        let leaf = leaves::Leaf {
+            p: &floats,
+            n: quad.len(),
+        };
+        for j in 0..40 {
+            let mut o = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * 6.0 - 1.0;
+            let target = match j % 4 {
+                // A vertex, an edge's midpoint: edge functions of zero.
+                0 => quad[j / 4 % quad.len()][0],
+                1 => (quad[0][0] + quad[0][1]) * 0.5,
+                _ => Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * 2.0,
+            };
+            if j % 7 == 0 {
+                o = o.round();
+            }
+            let mut d = target - o;
+            if j % 9 == 0 {
+                d = Vec3::new(0.0, -1.0, 0.0);
+                o = quad[0][0] + Vec3::Y;
+            }
+            let r = ShearedRay::new(o, d);
+            for t_max in [f32::INFINITY, 1.0, 0.5, 1e-3] {
+                let l = simd::triangles_sse(leaf, &r, t_max);
+                for lane in 0..leaf.n {
+                    let want = triangle::intersect(
+                        &r,
+                        leaf.vertex(0, lane),
+                        leaf.vertex(1, lane),
+                        leaf.vertex(2, lane),
+                        t_max,
+                    );
+                    if l.edge & (1 << lane) != 0 {
+                        edge_lanes += 1;
+                        assert_eq!(l.hit & (1 << lane), 0);
+                        continue;
+                    }
+                    let got = (l.hit & (1 << lane) != 0).then(|| l.hit_of(lane));
+                    hits += usize::from(got.is_some());
+                    assert!(
+                        same_hit(got, want),
+                        "pack {i}, ray {j}, lane {lane}, t_max {t_max}: {got:?} vs {want:?}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(
+        edge_lanes > 0 && hits > 100,
+        "{edge_lanes} edge lanes, {hits} hits"
+    );
+}
+
+/// A random triangle mesh, as loaded.
+fn soup(seed: u64, n: usize) -> Mesh {
+    let mut s = seed;
+    let mut m = Mesh::default();
+    for i in 0..n {
+        let c = Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) * 10.0;
+        for _ in 0..3 {
+            m.positions
+                .push(c + Vec3::new(lcg(&mut s), lcg(&mut s), lcg(&mut s)) - 0.5);
+        }
+        let k = 3 * i as u32;
+        m.triangles.push([k, k + 1, k + 2]);
+    }
+    // Coincident copies of some triangles (ties at equal `t`) and a shared edge.
+    for i in 0..n as u32 / 10 {
+        m.triangles.push(m.triangles[(7 * i) as usize % n]);
+        let [a, b, _] = m.triangles[(3 * i) as usize % n];
+        m.triangles.push([b, a, (a + 5) % (3 * n as u32)]);
+    }
+    m
+}
+
+/// The mesh tree finds, on every path, the same hits in the same order as
+/// the scalar path, and its closest hit is brute force's (the smallest `t`,
+/// then the smallest triangle as loaded); the any-hit walk agrees on
+/// whether anything is hit.
+#[test]
+fn mesh_leaves_find_brute_forces_closest_hit_on_every_path() {
+    let loaded = soup(3, 600);
+    let mut mesh = loaded.clone();
+    let (bvh, order) = MeshBvh::build(&mut mesh);
+    // Leaves of one to four cover every triangle once, most of them full.
+    let mut ranges = bvh.tree.leaf_ranges();
+    ranges.sort_unstable();
+    let mut next = 0;
+    for &(first, n) in &ranges {
+        assert_eq!(first, next);
+        assert!((1..=4).contains(&n));
+        next += n;
+    }
+    assert_eq!(next as usize, mesh.triangles.len());
+    let full = ranges.iter().filter(|r| r.1 == 4).count();
+    assert!(
+        2 * full > ranges.len(),
+        "{full} of {} leaves full",
+        ranges.len()
+    );
+    let tri = |m: &Mesh, t: usize| m.triangles[t].map(|i| m.positions[i as usize]);
+    let boxes: Vec<Aabb> = (0..loaded.triangles.len())
+        .map(|t| Aabb::from_points(&tri(&loaded, t)))
+        .collect();
+    for (i, (o, d, t_max)) in rays(17, 500, &boxes).into_iter().enumerate() {
+        let r = ShearedRay::new(o, d);
+        // Brute force over the mesh as loaded.
+        let mut want: Option<(f32, u32)> = None;
+        for t in 0..loaded.triangles.len() {
+            let [a, b, c] = tri(&loaded, t);
+            if let Some(h) = triangle::intersect(&r, a, b, c, t_max) {
+                if want.is_none_or(|(wt, _)| h.t < wt) {
+                    want = Some((h.t, t as u32));
+                }
+            }
+        }
+        let mut traces = Vec::new();
+        for &path in Simd::available() {
+            let mut seen = Vec::new();
+            let mut best: Option<(f32, u32)> = None;
+            let (_, hit) = bvh.traverse_on::<_, true>(path, o, d, t_max, |t, h| {
+                seen.push((t, h.t.to_bits(), h.bary.map(f32::to_bits), h.front));
+                let key = (h.t, order[t as usize]);
+                if best.is_none_or(|b| key.0 < b.0 || (key.0 == b.0 && key.1 < b.1)) {
+                    best = Some(key);
+                }
+                let bt = best.unwrap().0;
+                Visit::Hit(f32::from_bits(bt.to_bits() + 1))
+            });
+            assert_eq!(hit, best.is_some());
+            assert_eq!(
+                best.map(|(t, k)| (t.to_bits(), k)),
+                want.map(|(t, k)| (t.to_bits(), k)),
+                "ray {i} on {path:?}"
+            );
+            let (_, any) = bvh.traverse_on::<_, false>(path, o, d, t_max, |_, _| Visit::Stop);
+            assert_eq!(any, want.is_some(), "ray {i} on {path:?}: any hit");
+            traces.push(seen);
+        }
+        assert!(
+            traces.windows(2).all(|w| w[0] == w[1]),
+            "ray {i}: paths differ"
+        );
+    }
+}

@@ -59,6 +59,38 @@ impl Bvh {
         t_max: f32,
         mut visit: F,
     ) -> (f32, bool) {
+        self.traverse_leaves_on::<_, ORDERED>(path, origin, dir, t_max, |first, count, t_max| {
+            let mut t_max = t_max;
+            let mut result = Visit::Miss;
+            for i in first as usize..(first + count) as usize {
+                match visit(self.prim(i), t_max) {
+                    Visit::Miss => {}
+                    Visit::Hit(t) => {
+                        if t < t_max {
+                            t_max = t;
+                        }
+                        result = Visit::Hit(t_max);
+                    }
+                    Visit::Stop => return Visit::Stop,
+                }
+            }
+            result
+        })
+    }
+
+    /// The walk under every query: `leaf(first, count, t_max)` is called
+    /// for each leaf the ray enters (nearest first when `ORDERED`, else in
+    /// slot order), with its leaf positions `first..first + count`, and
+    /// answers for the leaf as a whole.
+    #[inline(always)]
+    pub(super) fn traverse_leaves_on<F: FnMut(u32, u32, f32) -> Visit, const ORDERED: bool>(
+        &self,
+        path: Simd,
+        origin: Vec3,
+        dir: Vec3,
+        t_max: f32,
+        mut leaf: F,
+    ) -> (f32, bool) {
         if self.len == 0 {
             return (t_max, false);
         }
@@ -79,8 +111,8 @@ impl Bvh {
         }
         let w = match path {
             #[cfg(target_arch = "x86_64")]
-            Simd::Sse => self.walk::<F, true, ORDERED>(self.root, &ray, t_max, &mut visit),
-            _ => self.walk::<F, false, ORDERED>(self.root, &ray, t_max, &mut visit),
+            Simd::Sse => self.walk::<F, true, ORDERED>(self.root, &ray, t_max, &mut leaf),
+            _ => self.walk::<F, false, ORDERED>(self.root, &ray, t_max, &mut leaf),
         };
         (w.t_max, w.hit)
     }
@@ -88,7 +120,7 @@ impl Bvh {
     /// The walk from `start` (already entered). `SSE`: which node test;
     /// `ORDERED`: entered children nearest first (else in slot order).
     #[inline]
-    fn walk<F: FnMut(u32, f32) -> Visit, const SSE: bool, const ORDERED: bool>(
+    fn walk<F: FnMut(u32, u32, f32) -> Visit, const SSE: bool, const ORDERED: bool>(
         &self,
         start: Ref,
         ray: &NodeRay,
@@ -100,22 +132,19 @@ impl Bvh {
         let mut node = start;
         loop {
             if node.count > 0 {
-                let first = node.first as usize;
-                for i in first..first + node.count as usize {
-                    match visit(self.prim(i), t_max) {
-                        Visit::Miss => {}
-                        Visit::Hit(t) => {
-                            hit = true;
-                            if t < t_max {
-                                t_max = t;
-                            }
+                match visit(node.first, node.count, t_max) {
+                    Visit::Miss => {}
+                    Visit::Hit(t) => {
+                        hit = true;
+                        if t < t_max {
+                            t_max = t;
                         }
-                        Visit::Stop => {
-                            return Walked {
-                                t_max,
-                                hit: true,
-                                stop: true,
-                            }
+                    }
+                    Visit::Stop => {
+                        return Walked {
+                            t_max,
+                            hit: true,
+                            stop: true,
                         }
                     }
                 }

@@ -13,12 +13,12 @@ use glam::Vec3;
 #[derive(Debug, Clone, Copy)]
 pub struct ShearedRay {
     pub origin: Vec3,
-    kx: usize,
-    ky: usize,
-    kz: usize,
-    sx: f32,
-    sy: f32,
-    sz: f32,
+    pub(crate) kx: usize,
+    pub(crate) ky: usize,
+    pub(crate) kz: usize,
+    pub(crate) sx: f32,
+    pub(crate) sy: f32,
+    pub(crate) sz: f32,
 }
 
 impl ShearedRay {
@@ -62,11 +62,15 @@ pub struct TriangleHit {
 }
 
 /// Margin of the early out in [`intersect`] (1 + 2⁻²⁰).
-const T_MARGIN: f32 = 1.0 + 1.0 / (1 << 20) as f32;
+pub(crate) const T_MARGIN: f32 = 1.0 + 1.0 / (1 << 20) as f32;
 
 /// Intersects the ray with triangle `a b c` for `t` in `(0, t_max)`: a hit
 /// is reported exactly when its computed `t` satisfies `0 < t < t_max`.
 /// Zero-area triangles and rays in the triangle's plane never hit.
+///
+/// `bvh/simd.rs` (`triangles_sse`) performs these very operations on four
+/// triangles at once; a change here must be made there too (the tests in
+/// `bvh/tests.rs` compare the two bit for bit).
 #[inline(always)]
 pub fn intersect(r: &ShearedRay, a: Vec3, b: Vec3, c: Vec3, t_max: f32) -> Option<TriangleHit> {
     // Plain arrays: indexing one by the ray's axes is a load, where indexing

@@ -8,7 +8,8 @@
 //!
 //! ```text
 //! estimate = Σ meshes  ( V·(12 + 12 + 8·uv) + T·(12 + 4 + BVH_BYTES_PER_TRIANGLE) )
-//!          + max meshes T·BUILD_BYTES_PER_TRIANGLE            (the one being built)
+//!          + max meshes T·(BUILD_BYTES_PER_TRIANGLE            (the one being built)
+//!                          + PARALLEL_BUILD_BYTES_PER_TRIANGLE if T ≥ PARALLEL_BUILD_TRIANGLES)
 //!          + Σ textures Σ levels w·h·12                        (the MIP chain, linear f32 RGB)
 //!          + Σ models   ( MODEL_BYTES + surfaces·SURFACE_BYTES + 2·T if per-triangle surfaces )
 //!          + (spheres + planes + lights + cameras)·OBJECT_BYTES
@@ -21,12 +22,15 @@
 //! texture coordinates), and `views` the distinct camera positions plus one
 //! (each camera position gets its own top-level view when one of its cameras
 //! renders, and the world-space queries one more). The per-triangle
-//! constants are the BVH's measured cost with a margin: docs/performance.md
-//! measures 54.6–60.6 bytes per triangle for a closed mesh *including* its
-//! positions, normals and indices (about 28 of them), so the trees take
-//! about 27–33; [`BVH_BYTES_PER_TRIANGLE`] allows 40. While a mesh's trees
-//! are built, their input boxes, centroids, indices, bins and binary nodes
-//! are held too ([`BUILD_BYTES_PER_TRIANGLE`]), one mesh at a time.
+//! constants are the BVH's cost with a margin: a mesh's tree holds its
+//! triangles copied into leaves of up to four (144 bytes a leaf, 36 a
+//! triangle when full, plus 4 bytes a leaf for its first triangle) and wide
+//! nodes of 128 bytes for about every three leaves;
+//! [`BVH_BYTES_PER_TRIANGLE`] allows 56. While a mesh's trees are built,
+//! their input boxes, centroids, indices, bins and binary nodes are held too
+//! ([`BUILD_BYTES_PER_TRIANGLE`]), one mesh at a time, and a mesh large
+//! enough for the parallel build holds its subtrees' binary nodes twice for
+//! a while ([`PARALLEL_BUILD_BYTES_PER_TRIANGLE`]).
 //!
 //! The test `core/tests/memory_estimate.rs` builds real scenes (the
 //! examples, Nefertiti, textured Spot and Bob) under a counting allocator
@@ -43,17 +47,27 @@
 use super::SceneDesc;
 use std::collections::HashSet;
 
-/// Bytes per triangle the trees of a mesh hold once built (measured 27–33,
-/// see the module's documentation).
-pub const BVH_BYTES_PER_TRIANGLE: u64 = 40;
+/// Bytes per triangle the trees of a mesh hold once built (see the
+/// module's documentation).
+pub const BVH_BYTES_PER_TRIANGLE: u64 = 56;
 
 /// Bytes per triangle held only while a mesh's trees are built: its
-/// triangles' boxes (24), centroids (12), indices (4) and bins (1), the
-/// binary tree before it is collapsed (up to one 32-byte node per two
-/// triangles, reserved as such), the renumbering's maps (8) and the
-/// renumbered copies of the triangles and vertices (about 40), with a
-/// margin.
-pub const BUILD_BYTES_PER_TRIANGLE: u64 = 160;
+/// triangles' boxes (24; freed before the leaves are filled), centroids
+/// (12), indices (4) and bins (1), the binary tree before it is collapsed
+/// (a 64-byte node per two triangles reserved, about one per three and a
+/// half used with leaves of four), the wide nodes' reservation, the
+/// renumbering's maps (8) and the renumbered copies of the triangles and
+/// vertices, with a margin. Measured by `core/tests/memory_estimate.rs`.
+pub const BUILD_BYTES_PER_TRIANGLE: u64 = 64;
+
+/// Meshes of at least this many triangles are built in parallel
+/// (`bvh/build.rs`: subtrees of 8,192 or more on both sides).
+pub const PARALLEL_BUILD_TRIANGLES: u64 = 16_384;
+
+/// What a parallel build holds on top of [`BUILD_BYTES_PER_TRIANGLE`]: each
+/// subtree built on its own reserves its binary nodes (up to 32 bytes a
+/// triangle) before they are appended to the whole tree's, with a margin.
+pub const PARALLEL_BUILD_BYTES_PER_TRIANGLE: u64 = 48;
 
 /// A model's record with its transform (the [`super::Model`] and its id).
 pub const MODEL_BYTES: u64 = std::mem::size_of::<super::Model>() as u64 + 64;
@@ -111,9 +125,14 @@ pub fn estimate(desc: &SceneDesc) -> MemoryEstimate {
         meshes = meshes
             .saturating_add(v.saturating_mul(24 + uv))
             .saturating_add(t.saturating_mul(16 + BVH_BYTES_PER_TRIANGLE));
-        largest = largest.max(t);
+        let per = if t >= PARALLEL_BUILD_TRIANGLES {
+            BUILD_BYTES_PER_TRIANGLE + PARALLEL_BUILD_BYTES_PER_TRIANGLE
+        } else {
+            BUILD_BYTES_PER_TRIANGLE
+        };
+        largest = largest.max(t.saturating_mul(per));
     }
-    let build = largest.saturating_mul(BUILD_BYTES_PER_TRIANGLE);
+    let build = largest;
     let textures = desc
         .textures
         .iter()
