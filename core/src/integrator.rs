@@ -585,7 +585,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                     if let Some(v) = v {
                         let refl = reflect(-inc.l, sp.ns);
                         let rv = refl.dot(v).max(0.0);
-                        term += surf.specular * crate::math::powf(rv, surf.shininess);
+                        term += surf.specular * crate::math::pow_shading(rv, surf.shininess);
                     }
                 }
                 sum.add(inc.e * saturate(term) * vis);

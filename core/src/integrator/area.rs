@@ -97,7 +97,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             if let Some(v) = v {
                 if surf.specular != Vec3::ZERO {
                     let rv = reflect(-l, sp.ns).dot(v).max(0.0);
-                    term += surf.specular * crate::math::powf(rv, surf.shininess);
+                    term += surf.specular * crate::math::pow_shading(rv, surf.shininess);
                 }
             }
             sum.add(saturate(e * saturate(term) * vis));
