@@ -16,6 +16,12 @@
 //! `mul_add` and `powi` stay in `std`: IEEE 754 defines the first ones exactly,
 //! and `powi` is plain multiplications (LLVM's `powi` intrinsic or
 //! compiler-builtins' `__powisf2`, not the system library).
+//!
+//! Two functions here are not `libm`'s but cheaper arithmetic for the
+//! per-hit path, as deterministic (products and sums only):
+//! [`pow_shading`] (whole Phong exponents by square and multiply) and
+//! [`sin_cos_turns`] (the sine and cosine of a sampled angle 2π·u by
+//! polynomial).
 
 /// `x` to the power `y` (f32).
 #[inline]
@@ -89,10 +95,11 @@ pub fn sin_cos_turns(t: f32) -> (f32, f32) {
         * a2
         * (-1.0 / 6.0
             + a2 * (1.0 / 120.0
-                + a2 * (-1.0 / 5040.0 + a2 * (1.0 / 362_880.0 - a2 / 39_916_800.0))));
+                + a2 * (-1.0 / 5040.0 + a2 * (1.0 / 362_880.0 - a2 * (1.0 / 39_916_800.0)))));
     let c = 1.0
         + a2 * (-0.5
-            + a2 * (1.0 / 24.0 + a2 * (-1.0 / 720.0 + a2 * (1.0 / 40_320.0 - a2 / 3_628_800.0))));
+            + a2 * (1.0 / 24.0
+                + a2 * (-1.0 / 720.0 + a2 * (1.0 / 40_320.0 - a2 * (1.0 / 3_628_800.0)))));
     // Octant k: the angle is kπ/4 + a (k even) or (k+1)π/4 − a (k odd):
     // sine and cosine swap in octants 1, 2, 5, 6; the sine is negative in
     // the lower half turn, the cosine in octants 2 to 5.
