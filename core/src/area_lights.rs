@@ -241,8 +241,9 @@ impl AreaLights {
             Shape::Sphere { center, radius } => {
                 let z = 1.0 - 2.0 * u[0];
                 let r = (1.0 - z * z).max(0.0).sqrt();
-                let phi = std::f32::consts::TAU * u[1];
-                let n = Vec3::new(r * crate::math::cosf(phi), r * crate::math::sinf(phi), z);
+                // φ = 2π·u[1].
+                let (sin_phi, cos_phi) = crate::math::sin_cos_turns(u[1]);
+                let n = Vec3::new(r * cos_phi, r * sin_phi, z);
                 (center + n * radius, n)
             }
         };

@@ -25,10 +25,11 @@ pub struct Camera {
     pub u: Vec3,
     pub v: Vec3,
     pub w: Vec3,
-    a: Vec3,
-    b: Vec3,
     c: Vec3,
-    width: f32,
+    /// a/width and b/height: one pixel's step along each (the divisions of
+    /// the view-plane point, taken once per camera instead of per ray).
+    a_px: Vec3,
+    b_px: Vec3,
     height: f32,
     aperture: f32,
     focus: f32,
@@ -54,10 +55,9 @@ impl Camera {
             u,
             v,
             w,
-            a,
-            b,
             c,
-            width,
+            a_px: a / width,
+            b_px: b / height,
             height,
             aperture: desc.aperture,
             focus: desc.focus,
@@ -73,9 +73,7 @@ impl Camera {
     /// (column `i`, row `r`), normalised.
     #[inline]
     pub fn direction(&self, i: u32, r: u32, sx: f32, sy: f32) -> Vec3 {
-        (self.c
-            + self.a * ((i as f32 + sx) / self.width)
-            + self.b * ((self.height - r as f32 - sy) / self.height))
+        (self.c + self.a_px * (i as f32 + sx) + self.b_px * (self.height - r as f32 - sy))
             .normalize()
     }
 

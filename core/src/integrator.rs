@@ -202,6 +202,27 @@ struct Pending {
     awaiting: Child,
 }
 
+/// The sample streams of one gather level, named once per level rather than
+/// once per direction: the directions' stream `hash(stream, level)` and the
+/// stream the shadow rays at the hits take theirs from,
+/// `hash(hash(stream, TAG_GATHER_SHADOW), level)`.
+struct GatherStreams {
+    level: u32,
+    directions: crate::sampling::Stream,
+    shadows: u64,
+}
+
+impl GatherStreams {
+    #[inline]
+    fn new(ctx: &PixelContext, stream: u64, level: u32) -> Self {
+        GatherStreams {
+            level,
+            directions: ctx.sampler.stream(hash2(stream, level as u64)),
+            shadows: hash2(hash2(stream, TAG_GATHER_SHADOW), level as u64),
+        }
+    }
+}
+
 /// One level of a diffuse gather chain below the first: D(q) without G'(q)
 /// yet, kd_q, and the distance weight f(s).
 #[derive(Clone, Copy)]
@@ -438,7 +459,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         };
         let mut sp = self.view.surface_point(origin, dir, &hit);
         self.apply_texture(&mut sp, &hit, dir, cone, self.spread);
-        let v = -dir.normalize();
+        // Every ray of the tree is unit already: camera rays and refracted
+        // ones are normalised, reflected ones are mirror images of unit
+        // vectors about a unit normal.
+        let v = -dir;
         let surf = sp.surface;
         let c = saturate(self.local(ctx, &sp, v, node));
         let max_depth = self.desc.render.max_depth;
@@ -555,12 +579,12 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             } else {
                 1
             };
-            let light_stream = hash2(stream, j as u64);
+            let points = (light.radius > 0.0).then(|| ctx.sampler.stream(hash2(stream, j as u64)));
             let mut sum = Sum::<Vec3>::default();
             for k in 0..samples {
-                let pos = if light.radius > 0.0 {
+                let pos = if let Some(points) = &points {
                     let i = index * u64::from(samples) + u64::from(k);
-                    let u = ctx.sampler.get2_wide(light_stream, i);
+                    let u = points.get2_wide(i);
                     jittered_position(light, self.view.light_position(j), sp.p, u)
                 } else {
                     self.view.light_position(j)
@@ -585,7 +609,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                     if let Some(v) = v {
                         let refl = reflect(-inc.l, sp.ns);
                         let rv = refl.dot(v).max(0.0);
-                        term += surf.specular * crate::math::powf(rv, surf.shininess);
+                        term += surf.specular * crate::math::pow_shading(rv, surf.shininess);
                     }
                 }
                 sum.add(inc.e * saturate(term) * vis);
@@ -609,9 +633,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
     fn ambient_occlusion(&self, ctx: &mut PixelContext, sp: &SurfacePoint, stream: u64) -> f32 {
         let n = self.desc.render.ao_samples;
         let mut sum = Sum::<f32>::default();
+        let points = ctx.sampler.stream(stream);
         for k in 0..n {
             let i = u64::from(ctx.sample) * u64::from(n) + u64::from(k);
-            let u = ctx.sampler.get2_wide(stream, i);
+            let u = points.get2_wide(i);
             let d = cosine_hemisphere(sp.ns, u);
             if d.dot(sp.ng) <= 0.0 {
                 // Into the surface itself (a smooth normal's hemisphere dips
@@ -641,9 +666,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         index: u64,
     ) -> Vec3 {
         let mut sum = Sum::<Vec3>::default();
+        let at = GatherStreams::new(ctx, stream, level);
         for k in 0..count {
             let idx = index * u64::from(count) + u64::from(k);
-            let Some((link, q)) = self.gather_direction(ctx, sp, level, stream, idx) else {
+            let Some((link, q)) = self.gather_direction(ctx, sp, &at, idx) else {
                 continue;
             };
             let mut d_q = link.direct;
@@ -662,11 +688,11 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         &self,
         ctx: &mut PixelContext,
         sp: &SurfacePoint,
-        level: u32,
-        stream: u64,
+        at: &GatherStreams,
         idx: u64,
     ) -> Option<(Link, SurfacePoint<'a>)> {
-        let u = ctx.sampler.get2_wide(hash2(stream, level as u64), idx);
+        let level = at.level;
+        let u = at.directions.get2_wide(idx);
         let d = cosine_hemisphere(sp.ns, u);
         if d.dot(sp.ng) <= 0.0 {
             // Into the surface itself: nothing gathered (see AO).
@@ -693,9 +719,8 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         if q.kd == Vec3::ZERO {
             return None;
         }
-        let shadow_stream = hash2(hash2(stream, TAG_GATHER_SHADOW), level as u64);
         // `direct` already weights by kd_q, so D(q) = direct + kd_q ⊙ G'(q).
-        let direct = self.direct(ctx, &q, None, shadow_stream, idx);
+        let direct = self.direct(ctx, &q, None, at.shadows, idx);
         Some((
             Link {
                 direct,
@@ -728,7 +753,8 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         };
         let (mut sp, mut level) = (sp, level);
         let mut g = loop {
-            match self.gather_direction(ctx, &sp, level, stream, idx) {
+            let at = GatherStreams::new(ctx, stream, level);
+            match self.gather_direction(ctx, &sp, &at, idx) {
                 None => break saturate(Sum::<Vec3>::default().mean(1)),
                 Some((link, q)) if level < self.desc.render.diffuse_depth => {
                     links.push(link);

@@ -21,7 +21,8 @@ pub fn incident(light: &Light, from: Vec3, p: Vec3) -> Option<Incident> {
     if !(dist > 0.0) || !dist.is_finite() {
         return None;
     }
-    let l = to_light / dist;
+    // One division for the three components (a product by the reciprocal).
+    let l = to_light * (1.0 / dist);
     let [c, lin, q] = light.attenuation.to_array();
     let denom = c + lin * dist + q * dist * dist;
     if !(denom > 0.0) {
@@ -98,21 +99,42 @@ pub fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
 /// (x when w is parallel to y), v = w × u. `center` is the light's position
 /// in the coordinates of `p` (the renderer works relative to the camera, so
 /// it is not `light.position`, which is in world space).
+///
+/// With d = light − p (not normalised), y × d = (d_z, 0, −d_x) and
+/// d × (y × d) = (−d_x·d_y, d_x² + d_z², −d_y·d_z), of lengths h and |d|·h
+/// (h² = d_x² + d_z²): u and v are those two vectors times 1/h and
+/// 1/h · 1/|d|, two square roots and two divisions that do not wait for one
+/// another, where normalising w, then u, chained them.
 #[inline]
 pub fn jittered_position(light: &Light, center: Vec3, p: Vec3, u: [f32; 2]) -> Vec3 {
     if light.radius <= 0.0 {
         return center;
     }
-    let w = (center - p).normalize_or_zero();
-    if w == Vec3::ZERO {
-        return center;
-    }
-    let mut uu = Vec3::Y.cross(w);
-    if uu.length_squared() < 1e-12 {
-        uu = Vec3::X.cross(w);
-    }
-    let uu = uu.normalize();
-    let vv = w.cross(uu);
+    let d = center - p;
+    let l2 = d.length_squared();
+    let h2 = d.x * d.x + d.z * d.z;
+    // |y × w|² = h²/|d|²: w nearly parallel to y takes x as the up vector.
+    // Lengths whose squares leave f32's normal range (overflow, underflow)
+    // take the normalising path as well.
+    let (uu, vv) = if l2.is_finite() && l2 > 1e-30 && h2 >= 1e-12 * l2 && h2 > 1e-30 {
+        let inv_h = 1.0 / h2.sqrt();
+        let inv_l = 1.0 / l2.sqrt();
+        (
+            Vec3::new(d.z, 0.0, -d.x) * inv_h,
+            Vec3::new(-d.x * d.y, h2, -d.y * d.z) * (inv_h * inv_l),
+        )
+    } else {
+        let w = d.normalize_or_zero();
+        if w == Vec3::ZERO {
+            return center;
+        }
+        let mut uu = Vec3::Y.cross(w);
+        if uu.length_squared() < 1e-12 {
+            uu = Vec3::X.cross(w);
+        }
+        let uu = uu.normalize();
+        (uu, w.cross(uu))
+    };
     let r = light.radius;
     center + uu * ((2.0 * u[0] - 1.0) * r) + vv * ((2.0 * u[1] - 1.0) * r)
 }
@@ -221,6 +243,60 @@ mod tests {
         let (c0, c1) = (30f32.to_radians().cos(), 20f32.to_radians().cos());
         let t = (c - c0) / (c1 - c0);
         assert!((at(25.0) - t * t * (3.0 - 2.0 * t)).abs() < 1e-5);
+    }
+
+    /// The jitter square's axes as first written (normalise w, then y × w,
+    /// then w × u), against the unnormalised form `jittered_position` uses:
+    /// the same points to within rounding, in every direction, including
+    /// near ±y (where x is the up vector) and at tiny and huge distances.
+    #[test]
+    fn the_jitter_axes_are_the_normalised_cross_products() {
+        let reference = |center: Vec3, p: Vec3, u: [f32; 2], r: f32| {
+            let w = (center - p).normalize_or_zero();
+            if w == Vec3::ZERO {
+                return center;
+            }
+            let mut uu = Vec3::Y.cross(w);
+            if uu.length_squared() < 1e-12 {
+                uu = Vec3::X.cross(w);
+            }
+            let uu = uu.normalize();
+            let vv = w.cross(uu);
+            center + uu * ((2.0 * u[0] - 1.0) * r) + vv * ((2.0 * u[1] - 1.0) * r)
+        };
+        let mut l = point(Vec3::new(1.0, 0.0, 0.0));
+        let mut x = 0x1234_5678_9abc_def0u64;
+        let mut next = || {
+            x = crate::sampling::mix64(x);
+            (x >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for i in 0..2000 {
+            let scale = [1e-12f32, 1e-3, 1.0, 1e4, 1e15][i % 5];
+            let mut d = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);
+            if i % 7 == 0 {
+                d = Vec3::new(d.x * 1e-7, 1.0, d.z * 1e-7); // about the y axis
+            }
+            // At the origin half the time: the offsets are then compared
+            // relative to the radius, not to the ulp of the centre.
+            let center = if i % 2 == 0 {
+                Vec3::ZERO
+            } else {
+                Vec3::new(0.3, 2.0, -1.0)
+            };
+            let p = center - d * scale;
+            l.radius = 0.1 * scale;
+            let u = [next(), next()];
+            let (a, b) = (
+                jittered_position(&l, center, p, u),
+                reference(center, p, u, l.radius),
+            );
+            let tol = 1e-5 * l.radius + 1e-6 * center.length();
+            assert!((a - b).length() <= tol, "{d} × {scale}: {a} vs {b}");
+        }
+        // On the light itself: the light's centre.
+        l.radius = 0.5;
+        let c = Vec3::new(1.0, 2.0, 3.0);
+        assert_eq!(jittered_position(&l, c, c, [0.9, 0.1]), c);
     }
 
     #[test]

@@ -61,12 +61,13 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         let surf = sp.surface;
         let samples = self.desc.render.shadow_samples.max(1);
         let base = hash2(stream, TAG_AREA);
-        let (point_stream, pick_stream) = (hash2(base, 0), hash2(base, 1));
+        let points = ctx.sampler.stream(hash2(base, 0));
+        let picks = ctx.sampler.stream(hash2(base, 1));
         let mut sum = Sum::<Vec3>::default();
         for k in 0..samples {
             let i = index * u64::from(samples) + u64::from(k);
-            let u = ctx.sampler.get2_wide(point_stream, i);
-            let [u_pick, _] = ctx.sampler.get2_wide(pick_stream, i);
+            let u = points.get2_wide(i);
+            let [u_pick, _] = picks.get2_wide(i);
             let Some(s) = lights.sample(u_pick, u, sp.p) else {
                 continue;
             };
@@ -97,7 +98,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             if let Some(v) = v {
                 if surf.specular != Vec3::ZERO {
                     let rv = reflect(-l, sp.ns).dot(v).max(0.0);
-                    term += surf.specular * crate::math::powf(rv, surf.shininess);
+                    term += surf.specular * crate::math::pow_shading(rv, surf.shininess);
                 }
             }
             sum.add(saturate(e * saturate(term) * vis));

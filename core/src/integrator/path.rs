@@ -103,7 +103,7 @@ impl Bsdf {
         if self.ks != Vec3::ZERO {
             let c = reflect(-l, sp.ns).dot(v).max(0.0);
             let n = self.shininess;
-            f += self.ks * ((n + 2.0) / TAU * crate::math::powf(c, n));
+            f += self.ks * ((n + 2.0) / TAU * crate::math::pow_shading(c, n));
         }
         self.w_local * f
     }
@@ -118,7 +118,7 @@ impl Bsdf {
         if self.p_diffuse < 1.0 {
             let c = reflect(-v, sp.ns).dot(l).max(0.0);
             let n = self.shininess;
-            pdf += (1.0 - self.p_diffuse) * ((n + 1.0) / TAU * crate::math::powf(c, n));
+            pdf += (1.0 - self.p_diffuse) * ((n + 1.0) / TAU * crate::math::pow_shading(c, n));
         }
         self.p_local * pdf
     }
@@ -128,10 +128,10 @@ impl Bsdf {
 fn phong_lobe(axis: Vec3, n: f32, u: [f32; 2]) -> Vec3 {
     let cos = crate::math::powf(u[0], 1.0 / (n + 1.0));
     let sin = (1.0 - cos * cos).max(0.0).sqrt();
-    let phi = TAU * u[1];
+    // φ = 2π·u[1].
+    let (sin_phi, cos_phi) = crate::math::sin_cos_turns(u[1]);
     let (t, b) = basis(axis);
-    (t * (sin * crate::math::cosf(phi)) + b * (sin * crate::math::sinf(phi)) + axis * cos)
-        .normalize()
+    (t * (sin * cos_phi) + b * (sin * sin_phi) + axis * cos).normalize()
 }
 
 /// Fresnel reflectance of a smooth dielectric, cos_i the cosine on the
