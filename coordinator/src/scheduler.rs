@@ -841,6 +841,22 @@ impl Scheduler {
         rays: u64,
         now: Instant,
     ) -> Result<Accepted, SchedError> {
+        self.accept_rendered(job, rect, rays, None, now)
+    }
+
+    /// [`Scheduler::accept_tile`] for a result whose worker said how long
+    /// it spent rendering its lease (`render`; `None`: an older worker that
+    /// does not say). The job's measured cost comes from that time rather
+    /// than from grant to result, which on a busy coordinator is mostly
+    /// queueing (see [`lease_size::render_time`]).
+    pub fn accept_rendered(
+        &mut self,
+        job: JobId,
+        rect: Rect,
+        rays: u64,
+        render: Option<Duration>,
+        now: Instant,
+    ) -> Result<Accepted, SchedError> {
         let j = self.jobs.get_mut(&job).ok_or(SchedError::UnknownJob(job))?;
         if j.state.is_final() {
             self.counters.tiles_ignored += 1;
@@ -856,7 +872,8 @@ impl Scheduler {
             TileState::Pending if j.window.is_fresh(idx) => None,
             TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| {
                 let threads = self.workers.threads(e.worker).unwrap_or(1);
-                let took = now.saturating_duration_since(e.granted);
+                let took =
+                    lease_size::render_time(now.saturating_duration_since(e.granted), render);
                 self.sizer.observe(job, took, threads, e.span_pixels);
                 e.worker
             })),
