@@ -146,13 +146,16 @@ pub struct TileResult<'a> {
     pub worker: Option<WorkerId>,
 }
 
+/// A running job's output, shared by the uploads writing to it.
+type SharedOutput = Arc<Mutex<Output>>;
+
 /// A tile result the scheduler took, on its way to the store and the output.
 struct Admitted<P> {
     idx: u32,
     rect: Rect,
     rays: u64,
     pixels: P,
-    out: Arc<Mutex<Output>>,
+    out: SharedOutput,
 }
 
 struct Output {
@@ -776,7 +779,7 @@ impl Farm {
         &self,
         r: TileResult,
         render: Option<Duration>,
-    ) -> Result<Option<(u32, Arc<Mutex<Output>>)>, FarmError> {
+    ) -> Result<Option<(u32, SharedOutput)>, FarmError> {
         let TileResult {
             lease,
             job,

@@ -370,6 +370,17 @@ impl Scheduler {
     pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
         let id = self.next_job;
         self.next_job += 1;
+        // An unfinished job of the same scene and camera that has a
+        // measured cost (another frame of a sequence, the same scene again)
+        // gives the new one its first estimate (see [`lease_size`]).
+        let seed = self.queue.iter().find_map(|&(_, other)| {
+            let o = self.jobs.get(&other)?;
+            let same = o.spec.bundle_hash == spec.bundle_hash && o.spec.camera == spec.camera;
+            same.then(|| self.sizer.cost(other)).flatten()
+        });
+        if let Some(cost) = seed {
+            self.sizer.seed(id, cost);
+        }
         let job = self.new_job(spec, now);
         self.queue.insert((Reverse(job.spec.priority), id));
         self.jobs.insert(id, job);

@@ -31,7 +31,7 @@ pub fn validate_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), FarmError>
     let all_good = pixels
         .iter()
         .flatten()
-        .fold(true, |ok, &c| ok & (c >= 0.0) & (c <= f32::MAX));
+        .fold(true, |ok, &c| ok & (0.0..=f32::MAX).contains(&c));
     if all_good {
         return Ok(());
     }

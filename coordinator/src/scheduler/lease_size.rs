@@ -22,8 +22,12 @@
 //! above that ([`render_time`]). A lease then gets as many
 //! tiles as `threads` cores render in about [`Limits::lease_target`], at
 //! least one, at most [`Limits::max_lease_pixels`] pixels and never more
-//! than the band has left. Until a job has a measurement its leases are
-//! single tiles (they make the first measurements). A worker that does not
+//! than the band has left. A job submitted while an unfinished job of the
+//! same bundle and camera has a measured cost (the next frame of a
+//! sequence, the same scene again) starts from that cost; otherwise, until
+//! it has a measurement, its leases are single tiles (they make the first
+//! measurements): on a busy farm every worker asking meanwhile got one, and
+//! a new frame began with hundreds of single-tile leases. A worker that does not
 //! announce `multi_tile` always gets one tile per lease.
 //!
 //! [`Limits::lease_target`]: crate::limits::Limits::lease_target
@@ -105,6 +109,13 @@ impl LeaseSizer {
             .entry(job)
             .and_modify(|c| *c += SMOOTHING * (sample - *c))
             .or_insert(sample);
+    }
+
+    /// Starts `job` from `cost` (that of a job like it), as if measured.
+    pub fn seed(&mut self, job: JobId, cost: f64) {
+        if cost.is_finite() && cost > 0.0 {
+            self.cost.insert(job, cost);
+        }
     }
 
     /// The job's smoothed cost in core-seconds per pixel, if measured.
@@ -333,6 +344,58 @@ mod tests {
         assert!((cost - 26.0 * want).abs() < want * 1e-6, "{cost} vs {want}");
         assert_eq!(sizes[..2], [1, 19]);
         assert!(sizes[1..].iter().all(|&n| n <= 19), "{sizes:?}");
+    }
+
+    /// A job of the same bundle and camera as a measured one starts from
+    /// its cost: its first lease is already a span. Another camera, or
+    /// another bundle, starts unmeasured.
+    #[test]
+    fn a_job_like_a_measured_one_starts_from_its_cost() {
+        use crate::limits::Limits;
+        use crate::scheduler::{JobSpec, Scheduler};
+        use std::time::Instant;
+        let now = Instant::now();
+        let mut s = Scheduler::new(
+            Limits {
+                window_bytes: 1 << 30,
+                ..Limits::default()
+            },
+            100,
+        );
+        let w = s.register_worker(now, None);
+        s.describe_worker(w, "w", 4);
+        s.allow_spans(w);
+        let spec = |hash: &str, camera: &str| JobSpec {
+            frame: None,
+            bundle_hash: hash.into(),
+            camera: camera.into(),
+            priority: 0,
+            width: 100,
+            height: 20,
+            tile_size: 10,
+            output_name: "o.png".into(),
+        };
+        let first = s.submit(spec("h", "c"), now);
+        let l = s.lease(w, now).unwrap().unwrap();
+        assert_eq!((l.job, l.tiles), (first, 1));
+        let t = now + Duration::from_millis(1);
+        s.accept_rendered(first, l.rect, 1, Some(Duration::from_millis(1)), t)
+            .unwrap();
+        let cost = s.measured_cost(first).unwrap();
+        let other_camera = s.submit(spec("h", "d"), t);
+        let other_bundle = s.submit(spec("g", "c"), t);
+        let like = s.submit(spec("h", "c"), t);
+        assert_eq!(s.measured_cost(like), Some(cost));
+        assert_eq!(s.measured_cost(other_camera), None);
+        assert_eq!(s.measured_cost(other_bundle), None);
+        // The first job's first band, then the new one's: a span at once.
+        let span = s.lease(w, t).unwrap().unwrap();
+        assert_eq!((span.job, span.tiles), (first, 9));
+        s.cancel(first, t).unwrap();
+        s.cancel(other_camera, t).unwrap();
+        s.cancel(other_bundle, t).unwrap();
+        let l = s.lease(w, t).unwrap().unwrap();
+        assert_eq!((l.job, l.tiles), (like, 10));
     }
 
     #[test]
