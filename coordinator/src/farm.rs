@@ -618,10 +618,11 @@ impl Farm {
 
     /// Takes the result of a lease of several tiles: `r.rect` is their
     /// union, `parts` its tiles left to right ([`Farm::span_tiles`]), whose
-    /// leases are `r.lease`, `r.lease + 1`, …. Each tile goes through
-    /// [`Farm::put_tile`] with its own pixels and its share of the rays (by
-    /// pixels). Accepted when every tile is; the first error otherwise,
-    /// after every tile was tried.
+    /// leases are `r.lease`, `r.lease + 1`, …. Each tile is checked and
+    /// taken as [`Farm::put_tile`] takes one, with its own pixels and its
+    /// share of the rays (by pixels); the new ones are then stored in one
+    /// transaction and written. Accepted when every tile is; the first
+    /// error otherwise, after every tile was tried.
     pub fn put_span(&self, r: TileResult, parts: &[Rect]) -> Result<TileOutcome, FarmError> {
         self.put_span_rendered(r, parts, None)
     }
