@@ -6,10 +6,15 @@
 # scene's measured per-pixel cost.
 #
 #   bench/scale.sh [CORES] [N...]     # default 16 cores, N = 1 3 10 30 100 300 1000
+#   CHEAP_NS=4734 EXPENSIVE_NS=31010 bench/scale.sh ...   # costs given, not measured
 #
 # 1. `farm_bench cost` measures ns per pixel of examples/cornell.xml: camera
 #    `corner` (Whitted: shadows, reflection, refraction; the cheap scene) and
 #    camera `front` with ao-samples and diffuse-samples 16 (the expensive one).
+#    The cost is wall time on one thread: on a loaded machine it comes out
+#    several times too high, so CHEAP_NS / EXPENSIVE_NS can give the figures
+#    of an idle run instead (sweeps that are compared must model the same
+#    cost).
 # 2. For each cost, mode and N: a fresh coordinator pinned to core 0, the
 #    simulated workers (`farm_bench scale`) pinned to core 1; tiles/s
 #    against the modelled demand, lease latency p50/p99, coordinator CPU and
@@ -30,15 +35,18 @@ load() { cut -d' ' -f1 /proc/loadavg; }
 
 sed -e 's/ao-samples="4"/ao-samples="16" diffuse-samples="16"/' examples/cornell.xml >"$work/expensive.xml"
 grep -q 'diffuse-samples="16"' "$work/expensive.xml"
-cheap=$("$B" cost examples/cornell.xml --camera corner --tiles 16 | tee /dev/stderr | sed -n 's/.*: \([0-9]*\) ns per pixel.*/\1/p')
-expensive=$("$B" cost "$work/expensive.xml" --camera front --tiles 4 | tee /dev/stderr | sed -n 's/.*: \([0-9]*\) ns per pixel.*/\1/p')
+cost() { "$B" cost "$@" | tee /dev/stderr | sed -n 's/.*: \([0-9]*\) ns per pixel.*/\1/p'; }
+cheap=${CHEAP_NS:-$(cost examples/cornell.xml --camera corner --tiles 16)}
+expensive=${EXPENSIVE_NS:-$(cost "$work/expensive.xml" --camera front --tiles 4)}
+echo "cost per pixel: cheap $cheap ns, expensive $expensive ns"
 
 start_coordinator() {
-    rm -rf "$work/data"
+    # The previous coordinator's port must not be read as this one's.
+    rm -rf "$work/data" "$work/coord.out"
     taskset -c 0 $R/trevi-coordinator --listen 127.0.0.1:0 --data-dir "$work/data" >"$work/coord.out" 2>"$work/coord.err" &
     CP=$!
     for _ in $(seq 100); do
-        PORT=$(sed -n 's/listening on .*:\([0-9]*\)/\1/p' "$work/coord.out")
+        PORT=$(sed -n 's/listening on .*:\([0-9]*\)/\1/p' "$work/coord.out" 2>/dev/null || true)
         [ -n "$PORT" ] && return 0
         sleep 0.05
     done

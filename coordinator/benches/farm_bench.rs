@@ -6,6 +6,7 @@
 //! cargo bench -p trevi-coordinator --bench farm_bench -- farm [--width 4096] [--height 4096]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- direct SCENE.xml OUT.png [--tile 64]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- cost SCENE.xml [--camera ID] [--tiles 16]
+//! cargo bench -p trevi-coordinator --bench farm_bench -- encode SCENE.xml [--camera ID] [--reps 5]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- scale --coordinator URL --pid PID \
 //!     --workers N [--cores 16] --cost-ns NS [--multi] [--secs 8] [--warmup 3] [--jobs 4] \
 //!     [--width 2048] [--height 2048] [--tile 64]
@@ -27,12 +28,22 @@
 //! `scale`: `--workers` simulated workers against a real coordinator, each
 //! registered with `--cores` threads and, like `trevi-worker`, two leases
 //! in flight of which one renders at a time: a lease "renders" by sleeping
-//! its pixels × `--cost-ns` / `--cores` and returns ready pixels. With
+//! its pixels × `--cost-ns` / `--cores` and returns ready pixels, telling
+//! that modelled time as its render time (`render_micros`). With
 //! `--multi` the workers announce leases of several tiles. `--jobs` frames
 //! are kept queued (a finished one is replaced). After `--warmup` seconds,
 //! measures for `--secs`: tiles/s against what the modelled workers could
 //! render (the demand), lease latency p50/p99 (the `LeaseTile` calls that
 //! brought work), the coordinator's CPU and peak RSS from /proc.
+//!
+//! `encode`: what the PNG part of ingesting costs per pixel, and what it
+//! would cost if workers encoded row segments themselves (docs/benchmarks.md
+//! "The farm at scale"): renders the camera's frame, then times (a) sRGB
+//! conversion, filtering and deflate of the whole frame as the farm's
+//! writer does it (png's `Fast` stream writer), (b) the same for each
+//! 16-row segment encoded on its own, as a worker would, and (c) appending
+//! those segments' compressed bytes with a CRC-32 over them, which is all
+//! the coordinator would have left to do per pixel for the image.
 //!
 //! `direct`: renders a scene's first camera in this process with no farm at
 //! all (band by band, the tiles of a band in parallel on every core, straight
@@ -68,6 +79,7 @@ fn main() {
         Some("direct") => direct(&args),
         Some("farm") => farm(&args),
         Some("cost") => cost(&args),
+        Some("encode") => encode(&args),
         Some("scale") => scale(&args),
         _ => {
             // `cargo bench` with no arguments: nothing to do (the benchmarks
@@ -247,6 +259,7 @@ fn ingest(args: &[String]) {
                                 rays: rect.pixel_count() as u64,
                                 session: session.clone(),
                                 frame: None,
+                                render_micros: None,
                             })),
                         },
                         pb::TileUpload {
@@ -445,6 +458,116 @@ fn cost(args: &[String]) {
     );
 }
 
+/// `rows` (sRGB bytes, 3 a pixel) as a PNG in memory, encoded row by row
+/// with the settings of trevi_core's PNG writer.
+fn png_bytes(width: u32, rows: &[Vec<u8>]) -> Vec<u8> {
+    use std::io::Write;
+    // The stream writer wants to own a 'static writer: share the buffer.
+    struct Shared(std::rc::Rc<std::cell::RefCell<Vec<u8>>>);
+    impl Write for Shared {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.borrow_mut().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let out = std::rc::Rc::new(std::cell::RefCell::new(Vec::new()));
+    {
+        let mut enc = png::Encoder::new(Shared(out.clone()), width, rows.len() as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        enc.set_compression(png::Compression::Fast);
+        let mut w = enc
+            .write_header()
+            .unwrap()
+            .into_stream_writer_with_size(1 << 16)
+            .unwrap();
+        for r in rows {
+            w.write_all(r).unwrap();
+        }
+        w.finish().unwrap();
+    }
+    out.take()
+}
+
+fn encode(args: &[String]) {
+    use rayon::prelude::*;
+    let scene_path = args.get(1).expect("SCENE");
+    let reps = num(args, "--reps", 5).max(1) as usize;
+    let parsed =
+        trevi_core::ParsedBundle::from_scene_file(std::path::Path::new(scene_path)).expect("scene");
+    let scene = trevi_core::Scene::build(parsed.desc);
+    let camera = match arg(args, "--camera") {
+        Some(id) => scene.camera_index(&id).expect("no such camera"),
+        None => 0,
+    };
+    let r = &scene.desc.cameras[camera].render;
+    let (w, h) = (r.width, r.height);
+    // The frame's pixels, row by row (a bench may hold a small frame).
+    let lines: Vec<Vec<[f32; 3]>> = (0..h)
+        .into_par_iter()
+        .map(|y| trevi_core::render_tile(&scene, camera, Rect::new(0, y, w, 1)).pixels)
+        .collect();
+    let px = f64::from(w) * f64::from(h);
+    let srgb = trevi_core::output::Srgb8::new();
+    let to_rows = |ls: &[Vec<[f32; 3]>]| -> Vec<Vec<u8>> {
+        ls.iter()
+            .map(|l| l.iter().flatten().map(|&c| srgb.encode(c)).collect())
+            .collect()
+    };
+    let best = |f: &mut dyn FnMut() -> usize| {
+        let mut t = f64::INFINITY;
+        let mut n = 0;
+        for _ in 0..reps {
+            let s = Instant::now();
+            n = f();
+            t = t.min(s.elapsed().as_secs_f64());
+        }
+        (t, n)
+    };
+    // (a) The whole frame through one encoder, as the coordinator does.
+    let (whole, whole_bytes) = best(&mut || png_bytes(w, &to_rows(&lines)).len());
+    // (b) 16-row segments, each encoded on its own (a worker's share).
+    let mut segments: Vec<Vec<u8>> = Vec::new();
+    let (seg, seg_bytes) = best(&mut || {
+        segments = lines
+            .chunks(16)
+            .map(|c| png_bytes(w, &to_rows(c)))
+            .collect();
+        segments.iter().map(Vec::len).sum()
+    });
+    // (c) What would be left to the coordinator: append the segments'
+    // bytes to the file's buffer and CRC them (IDAT chunks).
+    let mut sink = Vec::with_capacity(seg_bytes);
+    let (append, _) = best(&mut || {
+        sink.clear();
+        let mut crc = crc32fast::Hasher::new();
+        for s in &segments {
+            sink.extend_from_slice(s);
+            crc.update(s);
+        }
+        std::hint::black_box(crc.finalize());
+        sink.len()
+    });
+    let ns = |t: f64| t / px * 1e9;
+    println!(
+        "encode: {scene_path} camera {camera}, {w}x{h}, best of {reps}:\n  \
+         whole frame, one encoder (sRGB + filter + deflate): {:.2} ns/pixel, {whole_bytes} bytes \
+         ({:.2} bytes/pixel)\n  \
+         16-row segments encoded alone: {:.2} ns/pixel, {seg_bytes} bytes ({:+.1} %)\n  \
+         appending the segments + CRC-32: {:.3} ns/pixel ({:.0}x less than encoding)",
+        ns(whole),
+        whole_bytes as f64 / px,
+        ns(seg),
+        (seg_bytes as f64 / whole_bytes as f64 - 1.0) * 100.0,
+        ns(append),
+        whole / append.max(1e-12),
+    );
+}
+
 /// What the simulated workers saw.
 #[derive(Default)]
 struct ScaleStats {
@@ -543,19 +666,28 @@ fn scale(args: &[String]) {
         for _ in 0..workers.min(256) {
             channels.push(connect().await);
         }
+        // Registered all at once: one after the other, the last of 1,000
+        // waited minutes behind the lease loops of the first.
+        let mut registering = tokio::task::JoinSet::new();
         for i in 0..workers {
             let mut wc = WorkersClient::new(channels[i % channels.len()].clone())
                 .max_decoding_message_size(usize::MAX);
-            let reg = wc
-                .register(pb::RegisterRequest {
-                    name: format!("sim-{i}"),
-                    threads: cores,
-                    multi_tile: multi,
-                    ..Default::default()
-                })
-                .await
-                .unwrap()
-                .into_inner();
+            registering.spawn(async move {
+                let reg = wc
+                    .register(pb::RegisterRequest {
+                        name: format!("sim-{i}"),
+                        threads: cores,
+                        multi_tile: multi,
+                        ..Default::default()
+                    })
+                    .await
+                    .unwrap()
+                    .into_inner();
+                (wc, reg)
+            });
+        }
+        while let Some(registered) = registering.join_next().await {
+            let (wc, reg) = registered.unwrap();
             let render = Arc::new(tokio::sync::Semaphore::new(1));
             for _ in 0..2 {
                 let (mut wc, session, render) = (wc.clone(), reg.session.clone(), render.clone());
@@ -581,10 +713,10 @@ fn scale(args: &[String]) {
                         };
                         let rect: Rect = lease.rect.unwrap().into();
                         let px = rect.pixel_count() as u64;
-                        tokio::time::sleep(Duration::from_nanos(
+                        let render = Duration::from_nanos(
                             (px as f64 * cost_ns / f64::from(cores)) as u64,
-                        ))
-                        .await;
+                        );
+                        tokio::time::sleep(render).await;
                         drop(permit);
                         let bytes = &ready[..px as usize * 12];
                         let mut msgs = vec![pb::TileUpload {
@@ -596,6 +728,9 @@ fn scale(args: &[String]) {
                                 rays: px,
                                 session: session.clone(),
                                 frame: None,
+                                // Like trevi-worker: the render's own time
+                                // (the modelled one), which sizes leases.
+                                render_micros: Some(render.as_micros() as u64),
                             })),
                         }];
                         msgs.extend(bytes.chunks(trevi_proto::CHUNK_SIZE).map(|c| pb::TileUpload {

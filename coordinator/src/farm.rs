@@ -146,6 +146,18 @@ pub struct TileResult<'a> {
     pub worker: Option<WorkerId>,
 }
 
+/// A running job's output, shared by the uploads writing to it.
+type SharedOutput = Arc<Mutex<Output>>;
+
+/// A tile result the scheduler took, on its way to the store and the output.
+struct Admitted<P> {
+    idx: u32,
+    rect: Rect,
+    rays: u64,
+    pixels: P,
+    out: SharedOutput,
+}
+
 struct Output {
     sink: Option<Box<dyn TileSink>>,
     written: u64,
@@ -173,7 +185,7 @@ struct State {
     /// Who submitted each unfinished job.
     submitters: HashMap<JobId, String>,
     /// The last previews of jobs that ended, oldest first.
-    final_previews: VecDeque<(JobId, PreviewImage)>,
+    final_previews: VecDeque<(JobId, Arc<previews::FinalPreview>)>,
     /// Jobs that ended but whose end the database did not take (a full
     /// disk): held unfinished, as stored, until [`Farm::expire`] records it.
     unrecorded: HashMap<JobId, Result<(), String>>,
@@ -606,20 +618,33 @@ impl Farm {
 
     /// Takes the result of a lease of several tiles: `r.rect` is their
     /// union, `parts` its tiles left to right ([`Farm::span_tiles`]), whose
-    /// leases are `r.lease`, `r.lease + 1`, …. Each tile goes through
-    /// [`Farm::put_tile`] with its own pixels and its share of the rays (by
-    /// pixels). Accepted when every tile is; the first error otherwise,
-    /// after every tile was tried.
+    /// leases are `r.lease`, `r.lease + 1`, …. Each tile is checked and
+    /// taken as [`Farm::put_tile`] takes one, with its own pixels and its
+    /// share of the rays (by pixels); the new ones are then stored in one
+    /// transaction and written. Accepted when every tile is; the first
+    /// error otherwise, after every tile was tried.
     pub fn put_span(&self, r: TileResult, parts: &[Rect]) -> Result<TileOutcome, FarmError> {
+        self.put_span_rendered(r, parts, None)
+    }
+
+    /// [`Farm::put_span`] with the time the worker said it spent rendering
+    /// the lease (`None`: it did not say), which measures the job's cost
+    /// for lease sizing (see [`Scheduler::accept_rendered`]).
+    pub fn put_span_rendered(
+        &self,
+        r: TileResult,
+        parts: &[Rect],
+        render: Option<Duration>,
+    ) -> Result<TileOutcome, FarmError> {
         if let [only] = parts {
-            return self.put_tile(TileResult { rect: *only, ..r });
+            return self.put_one(TileResult { rect: *only, ..r }, render);
         }
         let whole = r.rect.pixel_count().max(1) as u128;
         let mut rays_left = r.rays;
         let mut outcome = Ok(TileOutcome::Accepted);
-        let mut pixels = Vec::new();
+        let mut admitted = Vec::with_capacity(parts.len());
         for (i, &part) in parts.iter().enumerate() {
-            pixels.clear();
+            let mut pixels = Vec::with_capacity(part.pixel_count());
             // A result of the wrong size stays wrong: every part is refused.
             if r.pixels.len() == r.rect.pixel_count() {
                 let (w, dx) = (r.rect.w as usize, (part.x - r.rect.x) as usize);
@@ -634,20 +659,43 @@ impl Farm {
                 rays_left -= share.min(rays_left);
                 share
             };
-            let one = self.put_tile(TileResult {
-                lease: r.lease + i as u64,
-                rect: part,
-                rays,
-                pixels: &pixels,
-                ..r
-            });
+            let one = self.admit(
+                TileResult {
+                    lease: r.lease + i as u64,
+                    rect: part,
+                    rays,
+                    pixels: &pixels,
+                    ..r
+                },
+                render,
+            );
+            let one = match one {
+                Ok(Some((idx, out))) => {
+                    admitted.push(Admitted {
+                        idx,
+                        rect: part,
+                        rays,
+                        pixels,
+                        out,
+                    });
+                    Ok(TileOutcome::Accepted)
+                }
+                Ok(None) => Ok(TileOutcome::Ignored),
+                Err(e) => Err(e),
+            };
             outcome = match (outcome, one) {
                 (Err(e), _) | (Ok(_), Err(e)) => Err(e),
                 (Ok(TileOutcome::Accepted), Ok(o)) => Ok(o),
                 (Ok(o), Ok(_)) => Ok(o),
             };
         }
-        outcome
+        // The span's new tiles are stored in one transaction, then written.
+        let written = self.store_and_write(r.job, &admitted);
+        match (outcome, written) {
+            (Err(e), _) | (Ok(_), Err(e)) => Err(e),
+            (Ok(_), Ok(false)) => Ok(TileOutcome::Ignored), // Cancelled meanwhile.
+            (Ok(o), Ok(true)) => Ok(o),
+        }
     }
 
     pub fn heartbeat(
@@ -701,6 +749,38 @@ impl Farm {
     /// Takes a tile result: validates it, and writes it if it is the first
     /// valid one for its tile. An invalid result re-queues the tile.
     pub fn put_tile(&self, r: TileResult) -> Result<TileOutcome, FarmError> {
+        self.put_one(r, None)
+    }
+
+    /// [`Farm::put_tile`] with the worker's render time, if it said.
+    fn put_one(&self, r: TileResult, render: Option<Duration>) -> Result<TileOutcome, FarmError> {
+        let Some((idx, out)) = self.admit(r, render)? else {
+            return Ok(TileOutcome::Ignored);
+        };
+        let one = Admitted {
+            idx,
+            rect: r.rect,
+            rays: r.rays,
+            pixels: r.pixels,
+            out,
+        };
+        Ok(
+            match self.store_and_write(r.job, std::slice::from_ref(&one))? {
+                true => TileOutcome::Accepted,
+                false => TileOutcome::Ignored, // Cancelled meanwhile.
+            },
+        )
+    }
+
+    /// Validates a result and records it with the scheduler: the tile's
+    /// index and the job's output when it is the first valid result for
+    /// its tile (`None`: late, duplicate, or the job is over). An invalid
+    /// result re-queues the tile and is the error.
+    fn admit(
+        &self,
+        r: TileResult,
+        render: Option<Duration>,
+    ) -> Result<Option<(u32, SharedOutput)>, FarmError> {
         let TileResult {
             lease,
             job,
@@ -722,8 +802,11 @@ impl Farm {
             self.fail_jobs(failed);
             return Err(e);
         }
-        match st.sched.accept_tile(job, rect, rays, Instant::now())? {
-            Accepted::Ignored => return Ok(TileOutcome::Ignored),
+        match st
+            .sched
+            .accept_rendered(job, rect, rays, render, Instant::now())?
+        {
+            Accepted::Ignored => return Ok(None),
             Accepted::New { .. } => {}
         }
         let idx = st
@@ -732,25 +815,63 @@ impl Farm {
             .expect("accepted tiles are tiles");
         st.publish(job);
         let Some(out) = st.outputs.get(&job).cloned() else {
-            return Ok(TileOutcome::Ignored);
+            return Ok(None);
         };
         drop(st);
         self.work.notify_waiters();
+        Ok(Some((idx, out)))
+    }
 
-        // Committed before it is acknowledged: after a crash the tile is
-        // replayed, not rendered again.
+    /// Stores admitted tiles of `job` (one transaction: committed before
+    /// they are acknowledged, so after a crash they are replayed, not
+    /// rendered again), then writes each to the job's output and preview.
+    /// False when the output was gone (the job was cancelled meanwhile).
+    fn store_and_write<P: AsRef<[[f32; 3]]>>(
+        &self,
+        job: JobId,
+        tiles: &[Admitted<P>],
+    ) -> Result<bool, FarmError> {
+        let Some(first) = tiles.first() else {
+            return Ok(true);
+        };
         if let Some(store) = &self.store {
-            if let Err(e) = store.put_tile(job, idx, rays, &trevi_proto::pixels_as_bytes(pixels)) {
-                lock(&out).sink = None;
-                self.end_job(job, Err(format!("storing tile {idx}: {e}")));
+            let rows: Vec<_> = tiles
+                .iter()
+                .map(|t| {
+                    (
+                        t.idx,
+                        t.rays,
+                        trevi_proto::pixels_as_bytes(t.pixels.as_ref()),
+                    )
+                })
+                .collect();
+            if let Err(e) = store.put_tiles(job, &rows) {
+                lock(&first.out).sink = None;
+                self.end_job(job, Err(format!("storing tile {}: {e}", first.idx)));
                 return Err(e);
             }
         }
+        let mut all = true;
+        for t in tiles {
+            all &= self.write_out(job, &t.out, t.rect, t.pixels.as_ref())?;
+        }
+        Ok(all)
+    }
 
-        let mut guard = lock(&out);
+    /// Writes a stored tile to the job's output and preview; finishes the
+    /// output with its last tile. False when the output is gone (the job
+    /// was cancelled meanwhile).
+    fn write_out(
+        &self,
+        job: JobId,
+        out: &Mutex<Output>,
+        rect: Rect,
+        pixels: &[[f32; 3]],
+    ) -> Result<bool, FarmError> {
+        let mut guard = lock(out);
         let o = &mut *guard;
         let Some(sink) = o.sink.as_mut() else {
-            return Ok(TileOutcome::Ignored); // Cancelled meanwhile.
+            return Ok(false);
         };
         if let Err(e) = sink.write_tile(rect, pixels) {
             o.sink = None;
@@ -771,7 +892,7 @@ impl Farm {
                 result.map_err(|e| format!("finishing the output: {e}")),
             );
         }
-        Ok(TileOutcome::Accepted)
+        Ok(true)
     }
 
     /// Ends a job. Its end is recorded in the database before anyone can

@@ -487,8 +487,9 @@ impl pb::workers_server::Workers for WorkersService {
             header.job_id,
             header.rays,
         );
+        let render = header.render_micros.map(Duration::from_micros);
         let outcome = blocking(move || {
-            farm.put_span(
+            farm.put_span_rendered(
                 TileResult {
                     lease,
                     job,
@@ -498,6 +499,7 @@ impl pb::workers_server::Workers for WorkersService {
                     worker: Some(worker),
                 },
                 &parts,
+                render,
             )
         })
         .await?;

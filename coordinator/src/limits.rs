@@ -79,7 +79,23 @@ pub struct Limits {
     /// bigger worker to register before it fails (counted from when its
     /// estimate became known; see [`crate::scheduler::memory`]).
     pub memory_grace: Duration,
+    /// Most frames of one sequence in progress at once (1 ..=
+    /// [`MAX_FRAMES_IN_PROGRESS`]); each holds what a still in progress
+    /// holds (see [`crate::farm::sequences`]).
+    pub frames_in_progress: usize,
 }
+
+/// Frames of one sequence in progress at once by default: a second frame
+/// lets idle workers start on it while the first one's last tiles are out.
+pub const DEFAULT_FRAMES_IN_PROGRESS: usize = 2;
+
+/// The most frames of one sequence in progress that may be asked for. Each
+/// frame in progress holds up to `window_bytes` of rows and tile
+/// bookkeeping plus its preview (at most 4 MiB): with the default window,
+/// 256 frames are about 9 GiB, more than a coordinator should hold for one
+/// sequence; a farm that needs more work in flight than that per frame
+/// wants bigger frames or a bigger window, not more frames.
+pub const MAX_FRAMES_IN_PROGRESS: usize = 256;
 
 impl Default for Limits {
     fn default() -> Self {
@@ -117,6 +133,7 @@ impl Default for Limits {
             // Long enough for a worker started with the job (or restarted
             // by its service manager) to register.
             memory_grace: Duration::from_secs(30),
+            frames_in_progress: DEFAULT_FRAMES_IN_PROGRESS,
         }
     }
 }

@@ -8,7 +8,7 @@ use std::time::Duration;
 use trevi_coordinator::auth::{token_from, Tokens};
 use trevi_coordinator::farm::Retention;
 use trevi_coordinator::grpc::ServeOptions;
-use trevi_coordinator::limits::MIN_MESSAGE_BYTES;
+use trevi_coordinator::limits::{MAX_FRAMES_IN_PROGRESS, MIN_MESSAGE_BYTES};
 use trevi_coordinator::{Farm, FarmConfig, Limits};
 
 /// The defaults of every flag below come from these.
@@ -78,6 +78,15 @@ struct Args {
     #[arg(long, env = "TREVI_MEMORY_GRACE_MS",
           default_value_t = defaults().limits.memory_grace.as_millis() as u64)]
     memory_grace_ms: u64,
+    /// Most frames of one sequence in progress at once (1 to 256): the next
+    /// frame is queued when one ends. Each holds what a still in progress
+    /// holds (up to --window-mib plus a 4 MiB preview); a big farm on a
+    /// cheap sequence needs more than the default to keep its workers busy.
+    #[arg(long, env = "TREVI_FRAMES_IN_PROGRESS",
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new()
+              .range(1..=MAX_FRAMES_IN_PROGRESS as u64),
+          default_value_t = defaults().limits.frames_in_progress)]
+    frames_in_progress: usize,
     /// Token submitters must present (`trevi-submit --token`); without it
     /// anyone who reaches the coordinator may submit and read jobs.
     #[arg(long, env = "TREVI_SUBMIT_TOKEN", hide_env_values = true)]
@@ -176,6 +185,7 @@ impl Args {
                 max_worker_failures: self.max_worker_failures,
                 max_tile_losses: self.max_tile_losses,
                 memory_grace: Duration::from_millis(self.memory_grace_ms),
+                frames_in_progress: self.frames_in_progress,
                 http_header_timeout: Duration::from_millis(self.http_header_timeout_ms),
                 http_max_connections: self.http_max_connections,
                 ..d.limits
@@ -331,6 +341,7 @@ mod tests {
             "--upload-idle-ms",
             "--http-header-timeout-ms",
             "--http-max-connections",
+            "--frames-in-progress",
         ] {
             let e = parse(&[flag, "0"]).unwrap_err();
             assert_eq!(e.kind(), clap::error::ErrorKind::ValueValidation, "{flag}");
@@ -340,6 +351,17 @@ mod tests {
         let e = parse(&["--max-message-kib", "1000"]).unwrap_err();
         assert!(e.to_string().contains("--max-message-kib"), "{e}");
         parse(&["--max-message-kib", "1028", "--window-mib", "1"]).unwrap();
+        // Past the documented maximum of frames in progress.
+        let over = (MAX_FRAMES_IN_PROGRESS + 1).to_string();
+        let e = parse(&["--frames-in-progress", &over]).unwrap_err();
+        assert_eq!(e.kind(), clap::error::ErrorKind::ValueValidation);
+        assert!(e.to_string().contains("--frames-in-progress"), "{e}");
+        let max = MAX_FRAMES_IN_PROGRESS.to_string();
+        let cfg = parse(&["--frames-in-progress", &max])
+            .unwrap()
+            .farm_config()
+            .unwrap();
+        assert_eq!(cfg.limits.frames_in_progress, MAX_FRAMES_IN_PROGRESS);
         // 0 kept ended jobs is a choice (keep none), not nonsense.
         parse(&["--keep-ended", "0"]).unwrap();
     }

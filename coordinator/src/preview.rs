@@ -58,23 +58,31 @@ impl Preview {
             self.sum = vec![[0.0; 3]; n];
             self.count = vec![0; n];
         }
-        let s = self.scale;
+        let s = self.scale as usize;
+        let w = self.width as usize;
+        let x0 = rect.x as usize;
         for (row, line) in pixels.chunks_exact(rect.w.max(1) as usize).enumerate() {
-            let py = (rect.y + row as u32) / s;
-            if py >= self.height {
+            let py = (rect.y as usize + row) / s;
+            if py >= self.height as usize {
                 break;
             }
-            let base = py as usize * self.width as usize;
-            for (col, p) in line.iter().enumerate() {
-                let px = (rect.x + col as u32) / s;
-                if px >= self.width {
-                    break;
+            // The line in runs of columns that share a preview pixel (no
+            // division per pixel); each preview pixel still adds its frame pixels in the same
+            // order, so the sums are the same floats.
+            let (sum, count) = (&mut self.sum[py * w..], &mut self.count[py * w..]);
+            let mut col = 0;
+            let mut px = x0 / s;
+            while col < line.len() && px < w {
+                let end = ((px + 1) * s - x0).min(line.len());
+                let acc = &mut sum[px];
+                for p in &line[col..end] {
+                    for (a, v) in acc.iter_mut().zip(p) {
+                        *a += v;
+                    }
                 }
-                let i = base + px as usize;
-                for (s, v) in self.sum[i].iter_mut().zip(p) {
-                    *s += v;
-                }
-                self.count[i] += 1;
+                count[px] += (end - col) as u32;
+                col = end;
+                px += 1;
             }
         }
         self.tiles += 1;
@@ -186,6 +194,40 @@ mod tests {
                 assert_eq!(rgba[i + 3], 255);
             }
         }
+    }
+
+    /// The sums are the very floats of the plain per-pixel loop (each
+    /// preview pixel adds its frame pixels in the same order).
+    #[test]
+    fn runs_of_columns_add_the_same_floats_as_pixel_by_pixel() {
+        let (w, h) = (1030u32, 29u32);
+        let f = |x: u32, y: u32| {
+            let v = (x.wrapping_mul(2654435761) ^ y.wrapping_mul(40503)) % 1000;
+            [v as f32 / 997.0, (x + y) as f32 / 3.0, 1.0 / (1 + x) as f32]
+        };
+        let mut p = Preview::new(w, h);
+        let n = (p.width * p.height) as usize;
+        let (mut sum, mut count) = (vec![[0f32; 3]; n], vec![0u32; n]);
+        for (tw, th) in [(5, 7), (64, 3), (1, 1), (333, 29)] {
+            for ty in (0..h).step_by(th as usize) {
+                for tx in (0..w).step_by(tw as usize) {
+                    let r = Rect::new(tx, ty, tw.min(w - tx), th.min(h - ty));
+                    let px = tile(r, f);
+                    p.add_tile(r, &px);
+                    for (i, v) in px.iter().enumerate() {
+                        let (x, y) = (r.x + i as u32 % r.w, r.y + i as u32 / r.w);
+                        let k = ((y / p.scale) * p.width + x / p.scale) as usize;
+                        for c in 0..3 {
+                            sum[k][c] += v[c];
+                        }
+                        count[k] += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(p.count, count);
+        let bits = |s: &[[f32; 3]]| s.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&p.sum), bits(&sum));
     }
 
     #[test]

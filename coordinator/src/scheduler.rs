@@ -370,6 +370,17 @@ impl Scheduler {
     pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
         let id = self.next_job;
         self.next_job += 1;
+        // An unfinished job of the same scene and camera that has a
+        // measured cost (another frame of a sequence, the same scene again)
+        // gives the new one its first estimate (see [`lease_size`]).
+        let seed = self.queue.iter().find_map(|&(_, other)| {
+            let o = self.jobs.get(&other)?;
+            let same = o.spec.bundle_hash == spec.bundle_hash && o.spec.camera == spec.camera;
+            same.then(|| self.sizer.cost(other)).flatten()
+        });
+        if let Some(cost) = seed {
+            self.sizer.seed(id, cost);
+        }
         let job = self.new_job(spec, now);
         self.queue.insert((Reverse(job.spec.priority), id));
         self.jobs.insert(id, job);
@@ -841,6 +852,22 @@ impl Scheduler {
         rays: u64,
         now: Instant,
     ) -> Result<Accepted, SchedError> {
+        self.accept_rendered(job, rect, rays, None, now)
+    }
+
+    /// [`Scheduler::accept_tile`] for a result whose worker said how long
+    /// it spent rendering its lease (`render`; `None`: an older worker that
+    /// does not say). The job's measured cost comes from that time rather
+    /// than from grant to result, which on a busy coordinator is mostly
+    /// queueing (see [`lease_size::render_time`]).
+    pub fn accept_rendered(
+        &mut self,
+        job: JobId,
+        rect: Rect,
+        rays: u64,
+        render: Option<Duration>,
+        now: Instant,
+    ) -> Result<Accepted, SchedError> {
         let j = self.jobs.get_mut(&job).ok_or(SchedError::UnknownJob(job))?;
         if j.state.is_final() {
             self.counters.tiles_ignored += 1;
@@ -856,7 +883,8 @@ impl Scheduler {
             TileState::Pending if j.window.is_fresh(idx) => None,
             TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| {
                 let threads = self.workers.threads(e.worker).unwrap_or(1);
-                let took = now.saturating_duration_since(e.granted);
+                let took =
+                    lease_size::render_time(now.saturating_duration_since(e.granted), render);
                 self.sizer.observe(job, took, threads, e.span_pixels);
                 e.worker
             })),

@@ -282,57 +282,77 @@ impl Store {
         rays: u64,
         pixels: &[u8],
     ) -> Result<(), FarmError> {
+        self.put_tiles(job, &[(tile, rays, pixels)])
+    }
+
+    /// Stores accepted tiles of `job` as [`Store::put_tile`] does, their
+    /// rows in one transaction: `(tile, rays, pixels)` each. One commit for
+    /// the tiles of a lease of several (a commit's journal write and file
+    /// locks cost about as much as a tile's row; docs/benchmarks.md, "The
+    /// farm at scale"). Every tile is committed or none: an error leaves
+    /// their bytes unreferenced in the file, like a write whose commit never
+    /// happened.
+    pub fn put_tiles<B: AsRef<[u8]>>(
+        &self,
+        job: JobId,
+        tiles: &[(u32, u64, B)],
+    ) -> Result<(), FarmError> {
         let mut guard = self.lock();
         let inner = &mut *guard;
-        let known = inner
-            .conn
-            .query_row(
-                "SELECT 1 FROM tile_refs WHERE job = ?1 AND tile = ?2",
-                params![job as i64, tile],
-                |_| Ok(()),
-            )
-            .optional()
-            .map_err(db_err)?
-            .is_some();
-        if known {
-            return Ok(());
-        }
-        let path = inner.dir.join(format!("{job}.f32"));
-        let io = |e: std::io::Error| FarmError::io(format!("tile file {}", path.display()), e);
-        let (file, len) = match inner.files.entry(job) {
-            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => {
-                let f = std::fs::OpenOptions::new()
-                    .create(true)
-                    .append(true)
-                    .read(true)
-                    .open(&path)
-                    .map_err(io)?;
-                // Bytes past the last stored row (a write whose commit never
-                // happened) stay unreferenced: appending after them is safe.
-                let len = f.metadata().map_err(io)?.len();
-                e.insert((f, len))
+        let tx = inner.conn.transaction().map_err(db_err)?;
+        for (tile, rays, pixels) in tiles {
+            let (tile, rays, pixels) = (*tile, *rays, pixels.as_ref());
+            // Cached statements: parsing the SQL again for every tile costs
+            // about as much as running it.
+            let known = tx
+                .prepare_cached("SELECT 1 FROM tile_refs WHERE job = ?1 AND tile = ?2")
+                .and_then(|mut q| {
+                    q.query_row(params![job as i64, tile], |_| Ok(()))
+                        .optional()
+                })
+                .map_err(db_err)?
+                .is_some();
+            if known {
+                continue;
             }
-        };
-        let offset = *len;
-        file.write_all(pixels).map_err(io)?;
-        *len += pixels.len() as u64;
-        inner
-            .conn
-            .execute(
+            let path = inner.dir.join(format!("{job}.f32"));
+            let io = |e: std::io::Error| FarmError::io(format!("tile file {}", path.display()), e);
+            let (file, len) = match inner.files.entry(job) {
+                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::hash_map::Entry::Vacant(e) => {
+                    let f = std::fs::OpenOptions::new()
+                        .create(true)
+                        .append(true)
+                        .read(true)
+                        .open(&path)
+                        .map_err(io)?;
+                    // Bytes past the last stored row (a write whose commit
+                    // never happened) stay unreferenced: appending after
+                    // them is safe.
+                    let len = f.metadata().map_err(io)?.len();
+                    e.insert((f, len))
+                }
+            };
+            let offset = *len;
+            file.write_all(pixels).map_err(io)?;
+            *len += pixels.len() as u64;
+            tx.prepare_cached(
                 "INSERT INTO tile_refs (job, tile, rays, offset, len, crc)
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-                params![
+            )
+            .and_then(|mut q| {
+                q.execute(params![
                     job as i64,
                     tile,
                     rays as i64,
                     offset as i64,
                     pixels.len() as i64,
                     crc32fast::hash(pixels)
-                ],
-            )
+                ])
+            })
             .map_err(db_err)?;
-        Ok(())
+        }
+        tx.commit().map_err(db_err)
     }
 
     /// The bytes of a stored tile, if its file still holds them intact.

@@ -1,14 +1,14 @@
 //! Sequences in the coordinator without a network: frames queued in order
-//! with at most `FRAMES_IN_PROGRESS` in progress, each frame's leases
+//! with at most `Limits::frames_in_progress` in progress, each frame's leases
 //! carrying its frame number, each frame's output its own file, and a
 //! restart mid-sequence keeping the frames done and the stored tiles of the
 //! frame in progress.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-use trevi_coordinator::farm::sequences::FRAMES_IN_PROGRESS;
+use trevi_coordinator::farm::sequences::DEFAULT_FRAMES_IN_PROGRESS as FRAMES_IN_PROGRESS;
 use trevi_coordinator::{
-    Farm, FarmConfig, JobSpec, JobState, SubmitOptions, TileResult, WorkerOptions,
+    Farm, FarmConfig, JobSpec, JobState, Limits, SubmitOptions, TileResult, WorkerOptions,
 };
 use trevi_core::Rect;
 
@@ -157,4 +157,52 @@ fn cancel_and_priority_reach_the_frames_in_progress() {
         f.submit_sequence(spec(), 5, 2, "").is_err(),
         "a reversed range"
     );
+}
+
+/// With `--frames-in-progress N`, a worker that takes every tile it can get
+/// (holding them all, rendering none) gets tiles of exactly N frames, the
+/// next N in frame order once those are done: never more frames at once,
+/// whatever the status counter says.
+#[test]
+fn frames_in_progress_is_the_most_frames_a_sequence_leases_at_once() {
+    for n in [1usize, 3, 7] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = FarmConfig::new(dir.path());
+        cfg.limits = Limits {
+            frames_in_progress: n,
+            ..Limits::default()
+        };
+        let f = Farm::new(cfg).unwrap();
+        // 20 frames of two tiles each.
+        let seq = f.submit_sequence(spec(), 0, 19, "").unwrap().id;
+        let worker = f.register_worker(WorkerOptions::default()).unwrap().id;
+        let mut next = 0u32;
+        while next < 20 {
+            let mut held = Vec::new();
+            while let Some(l) = f.lease(worker).unwrap() {
+                held.push(l);
+            }
+            let frames: BTreeSet<u32> = held.iter().map(|l| l.frame.unwrap()).collect();
+            let want: BTreeSet<u32> = (next..(next + n as u32).min(20)).collect();
+            assert_eq!(frames, want, "N = {n}");
+            assert_eq!(held.len(), 2 * want.len(), "N = {n}");
+            let fr = f.info(seq).unwrap().frames.unwrap();
+            assert_eq!(fr.in_progress as usize, want.len(), "N = {n}");
+            for l in held {
+                f.put_tile(TileResult {
+                    lease: l.id,
+                    job: l.job,
+                    rect: l.rect,
+                    rays: 1,
+                    pixels: &pixels(l.frame.unwrap(), l.rect),
+                    worker: None,
+                })
+                .unwrap();
+            }
+            next += want.len() as u32;
+        }
+        let done = f.info(seq).unwrap();
+        assert_eq!(done.state, JobState::Done, "N = {n}");
+        assert_eq!(done.frames.unwrap().done, 20);
+    }
 }

@@ -92,6 +92,7 @@ async fn render_all(c: &Coordinator, multi_tile: bool) -> (Vec<u32>, u64) {
             rays: r.rays,
             session: reg.session.clone(),
             frame: None,
+            render_micros: None,
         };
         let bytes = trevi_proto::pixels_to_bytes(&r.pixels);
         let chunks = bytes

@@ -367,6 +367,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
                 rays: 1,
                 session: session.clone(),
                 frame: None,
+                render_micros: None,
             };
             let mut w = sender.clone();
             async move {

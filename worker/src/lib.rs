@@ -470,7 +470,9 @@ struct Me {
 
 /// How working on one leased tile ended.
 enum TileEnd {
-    Rendered(Vec<[f32; 3]>, u64),
+    /// The pixels, the rays traced, and how long the render itself took
+    /// (told to the coordinator, which sizes leases from it).
+    Rendered(Vec<[f32; 3]>, u64, Duration),
     /// The coordinator no longer wants it (the job was cancelled or the
     /// lease expired): the render was stopped.
     Dropped,
@@ -689,13 +691,14 @@ impl Session {
             drop(permit);
             let (x, y, id) = (rect.x, rect.y, lease.lease_id);
             match end {
-                TileEnd::Rendered(pixels, rays) => {
+                TileEnd::Rendered(pixels, rays, took) => {
                     // One line per tile, also for a span of several: the
                     // logs count tiles, not leases.
                     for id in span_ids(&lease) {
                         tracing::debug!(lease = id, job = lease.job_id, x, y, "tile rendered");
                     }
-                    if let Err(s) = self.send(&me, &lease, rect, rays, &pixels).await {
+                    let rendered = Rendered { rays, took };
+                    if let Err(s) = self.send(&me, &lease, rect, rendered, &pixels).await {
                         if s.code() == Code::InvalidArgument {
                             tracing::error!(lease = id, "tile rejected: {}", s.message());
                         } else {
@@ -845,12 +848,14 @@ impl Session {
                             if let Some(f) = fault {
                                 f.strike(rect);
                             }
+                            let start = std::time::Instant::now();
                             trevi_core::tile::render_tile_cancellable(&scene, camera, rect, &cancel)
+                                .map(|r| (r, start.elapsed()))
                         }))
                     })
                 });
                 match job.await {
-                    Ok(Ok(Ok(r))) => TileEnd::Rendered(r.pixels, r.rays),
+                    Ok(Ok(Ok((r, took)))) => TileEnd::Rendered(r.pixels, r.rays, took),
                     Ok(Ok(Err(trevi_core::tile::Cancelled))) => TileEnd::Dropped,
                     Ok(Err(panic)) => TileEnd::Failed(format!(
                         "the render panicked: {}",
@@ -1010,10 +1015,10 @@ impl Session {
         me: &Me,
         lease: &pb::Lease,
         rect: Rect,
-        rays: u64,
+        rendered: Rendered,
         pixels: &[[f32; 3]],
     ) -> Result<bool, tonic::Status> {
-        let msgs = tile_messages(me.id, &me.session, lease, rect, rays, pixels);
+        let msgs = tile_messages(me.id, &me.session, lease, rect, rendered, pixels);
         let ack = self
             .workers
             .submit_tile(tokio_stream::iter(msgs))
@@ -1033,13 +1038,23 @@ fn span_ids(lease: &pb::Lease) -> impl Iterator<Item = u64> {
     (0..u64::from(n)).map(move |i| first + i)
 }
 
+/// What a render of a lease's rectangle reports besides its pixels.
+#[derive(Debug, Clone, Copy)]
+pub struct Rendered {
+    /// Rays traced.
+    pub rays: u64,
+    /// Time spent rendering (not loading the scene or waiting): the
+    /// coordinator sizes the job's leases from it.
+    pub took: Duration,
+}
+
 /// The messages of a tile upload: the header, then the pixels in chunks.
 pub fn tile_messages(
     worker: u64,
     session: &[u8],
     lease: &pb::Lease,
     rect: Rect,
-    rays: u64,
+    rendered: Rendered,
     pixels: &[[f32; 3]],
 ) -> Vec<pb::TileUpload> {
     use pb::tile_upload::Part;
@@ -1050,9 +1065,10 @@ pub fn tile_messages(
             lease_id: lease.lease_id,
             job_id: lease.job_id,
             rect: Some(rect.into()),
-            rays,
+            rays: rendered.rays,
             session: session.to_vec(),
             frame: lease.frame,
+            render_micros: Some(rendered.took.as_micros().min(u128::from(u64::MAX)) as u64),
         })),
     }];
     msgs.extend(bytes.chunks(CHUNK_SIZE).map(|c| pb::TileUpload {

@@ -25,6 +25,16 @@ pub fn validate_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), FarmError>
             pixels.len()
         )));
     }
+    // One branch-free pass for the usual case: every value finite and not
+    // below 0 (NaN fails both comparisons; -0.0 passes). Only a bad tile
+    // pays for finding which pixel is wrong.
+    let all_good = pixels
+        .iter()
+        .flatten()
+        .fold(true, |ok, &c| ok & (0.0..=f32::MAX).contains(&c));
+    if all_good {
+        return Ok(());
+    }
     if let Some(i) = pixels.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
         return Err(FarmError::BadTile(format!(
             "pixel ({}, {}) is not finite: {:?}",

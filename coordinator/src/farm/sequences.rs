@@ -7,8 +7,10 @@
 //! stitched, stored tile by tile and resumed after a restart exactly like a
 //! still. So a frame in progress holds what a still holds (the band window,
 //! see `crate::scheduler`), and a sequence has at most
-//! [`FRAMES_IN_PROGRESS`] frames in progress: the next frame is queued when
-//! one ends, in frame order, so a sequence's memory is that many stills'.
+//! [`Limits::frames_in_progress`] frames in progress (`--frames-in-progress`,
+//! default [`DEFAULT_FRAMES_IN_PROGRESS`], at most
+//! [`MAX_FRAMES_IN_PROGRESS`]): the next frame is queued when one ends, in
+//! frame order, so a sequence's memory is that many stills'.
 //!
 //! A frame that is done has its output moved into the sequence's directory
 //! (`jobs/<sequence>/shot.0007.png`) before its end is recorded, in one
@@ -20,6 +22,8 @@
 
 use super::{lock, Farm, MakeSink, State};
 use crate::error::FarmError;
+#[cfg(doc)]
+use crate::limits::Limits;
 use crate::scheduler::{FramesInfo, JobId, JobInfo, JobSpec, JobState, Scheduler};
 use crate::store::{wall_ms, SeqLink, StoredJob};
 use std::collections::{BTreeMap, HashMap};
@@ -29,10 +33,7 @@ use tokio::sync::watch;
 use trevi_core::scene::animation::{frame_output, MAX_FRAME};
 use trevi_core::FrameWriter;
 
-/// Most frames of one sequence in progress at once. Each holds what a
-/// still in progress holds (docs/farm.md "Limits"); two let a second frame
-/// take workers while the first one's last tiles are out.
-pub const FRAMES_IN_PROGRESS: usize = 2;
+pub use crate::limits::{DEFAULT_FRAMES_IN_PROGRESS, MAX_FRAMES_IN_PROGRESS};
 
 /// A sequence's bookkeeping.
 pub struct Sequence {
@@ -259,7 +260,7 @@ impl Farm {
     }
 
     /// Moves a sequence on: queues its next frames while fewer than
-    /// [`FRAMES_IN_PROGRESS`] are in progress, ends it when every frame is
+    /// [`Limits::frames_in_progress`] are in progress, ends it when every frame is
     /// done, or fails it when a frame failed.
     pub(super) fn advance(&self, seq: JobId) {
         loop {
@@ -284,7 +285,7 @@ impl Farm {
                 self.end_sequence(seq, Ok(()));
                 return;
             }
-            if s.running.len() >= FRAMES_IN_PROGRESS || s.next > s.last {
+            if s.running.len() >= self.cfg.limits.frames_in_progress.max(1) || s.next > s.last {
                 return;
             }
             let f = s.next;

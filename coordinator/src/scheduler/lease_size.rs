@@ -11,13 +11,23 @@
 //! changes a pixel, so neither does a span.
 //!
 //! The rule ([`tiles_per_lease`]): a job's cost is measured in
-//! core-seconds per pixel from its completed leases (time from grant to
-//! result, times the threads the worker registered with, over the lease's
-//! pixels), smoothed over the last few leases. A lease then gets as many
+//! core-seconds per pixel from its completed leases (the time the worker
+//! says it spent rendering the lease, times the threads it registered
+//! with, over the lease's pixels), smoothed over the last few leases. The
+//! render time is the worker's, not the coordinator's clock from grant to
+//! result: on a saturated coordinator that is mostly the upload waiting
+//! its turn, and leases would shrink as the coordinator slows, feeding its
+//! load. A worker that does not say (older than `TileHeader.render_micros`)
+//! is measured from grant to result, and a reported time is never taken
+//! above that ([`render_time`]). A lease then gets as many
 //! tiles as `threads` cores render in about [`Limits::lease_target`], at
 //! least one, at most [`Limits::max_lease_pixels`] pixels and never more
-//! than the band has left. Until a job has a measurement its leases are
-//! single tiles (they make the first measurements). A worker that does not
+//! than the band has left. A job submitted while an unfinished job of the
+//! same bundle and camera has a measured cost (the next frame of a
+//! sequence, the same scene again) starts from that cost; otherwise, until
+//! it has a measurement, its leases are single tiles (they make the first
+//! measurements): on a busy farm every worker asking meanwhile got one, and
+//! a new frame began with hundreds of single-tile leases. A worker that does not
 //! announce `multi_tile` always gets one tile per lease.
 //!
 //! [`Limits::lease_target`]: crate::limits::Limits::lease_target
@@ -51,6 +61,14 @@ pub fn tiles_per_lease(
     // under the target.
     let by_time = by_time.floor().max(1.0) as u64;
     by_time.min(by_size).min(u64::from(u32::MAX)) as u32
+}
+
+/// The render time a result measures: what the worker `reported`, never
+/// more than the lease's time from grant to result (`granted_to_result`,
+/// the coordinator's own clock, which a render cannot exceed); that time
+/// itself when the worker did not say.
+pub fn render_time(granted_to_result: Duration, reported: Option<Duration>) -> Duration {
+    reported.map_or(granted_to_result, |r| r.min(granted_to_result))
 }
 
 /// The scheduler's lease sizing state: which workers take spans, and each
@@ -91,6 +109,13 @@ impl LeaseSizer {
             .entry(job)
             .and_modify(|c| *c += SMOOTHING * (sample - *c))
             .or_insert(sample);
+    }
+
+    /// Starts `job` from `cost` (that of a job like it), as if measured.
+    pub fn seed(&mut self, job: JobId, cost: f64) {
+        if cost.is_finite() && cost > 0.0 {
+            self.cost.insert(job, cost);
+        }
     }
 
     /// The job's smoothed cost in core-seconds per pixel, if measured.
@@ -239,6 +264,138 @@ mod tests {
         ] {
             assert!(s.span_tiles(job, bad).is_err(), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn the_render_time_is_the_workers_within_the_lease() {
+        let ms = Duration::from_millis;
+        // An older worker: grant to result.
+        assert_eq!(render_time(ms(900), None), ms(900));
+        // A worker that says: its time, not the queueing around it.
+        assert_eq!(render_time(ms(900), Some(ms(40))), ms(40));
+        // A render cannot take longer than its lease was out.
+        assert_eq!(render_time(ms(900), Some(ms(5000))), ms(900));
+        assert_eq!(render_time(ms(0), Some(ms(1))), ms(0));
+    }
+
+    /// A saturated coordinator: results arrive long after the render ended.
+    /// With the worker's render time, the measured cost and the leases stay
+    /// what the render costs; without it (an older worker) they follow the
+    /// queueing.
+    #[test]
+    fn a_slow_coordinator_does_not_shrink_leases_of_workers_that_report() {
+        use crate::limits::Limits;
+        use crate::scheduler::{JobSpec, Scheduler};
+        use std::time::Instant;
+        let run = |report: bool| {
+            let now = Instant::now();
+            let mut s = Scheduler::new(
+                Limits {
+                    window_bytes: 1 << 30,
+                    ..Limits::default()
+                },
+                100,
+            );
+            let w = s.register_worker(now, None);
+            s.describe_worker(w, "w", 16);
+            s.allow_spans(w);
+            // 64 tiles of 64×64 a band.
+            let job = s.submit(
+                JobSpec {
+                    frame: None,
+                    bundle_hash: "h".into(),
+                    camera: "c".into(),
+                    priority: 0,
+                    width: 4096,
+                    height: 4096,
+                    tile_size: 64,
+                    output_name: "o.png".into(),
+                },
+                now,
+            );
+            // Every lease renders in 2 ms a tile on 16 threads (0.032
+            // core-seconds a tile; a second of 16 threads is 500 tiles, a
+            // band has 64), and its result waits 50 ms a tile in the
+            // coordinator's queue before it is taken.
+            let mut t = now;
+            let mut sizes = Vec::new();
+            for _ in 0..12 {
+                let l = s.lease(w, t).unwrap().unwrap();
+                sizes.push(l.tiles);
+                let render = Duration::from_millis(2) * l.tiles;
+                t += render + Duration::from_millis(50) * l.tiles;
+                for p in s.span_tiles(job, l.rect).unwrap() {
+                    s.accept_rendered(job, p, 1, report.then_some(render), t)
+                        .unwrap();
+                }
+            }
+            (s.measured_cost(job).unwrap(), sizes)
+        };
+        let (cost, sizes) = run(true);
+        let want = 0.002 * 16.0 / 4096.0;
+        assert!((cost - want).abs() < want * 1e-9, "{cost} vs {want}");
+        // After the first (measuring) tile, the rest of each band.
+        assert_eq!(sizes[..3], [1, 63, 64]);
+        assert!(sizes[2..].iter().all(|&n| n == 64), "{sizes:?}");
+        // Grant to result: the queueing counts as render (52 ms a tile,
+        // 26 times the cost), and a lease is what 16 threads render in a
+        // second at that cost: 16 / (0.052 × 16) = 19.2 tiles.
+        let (cost, sizes) = run(false);
+        assert!((cost - 26.0 * want).abs() < want * 1e-6, "{cost} vs {want}");
+        assert_eq!(sizes[..2], [1, 19]);
+        assert!(sizes[1..].iter().all(|&n| n <= 19), "{sizes:?}");
+    }
+
+    /// A job of the same bundle and camera as a measured one starts from
+    /// its cost: its first lease is already a span. Another camera, or
+    /// another bundle, starts unmeasured.
+    #[test]
+    fn a_job_like_a_measured_one_starts_from_its_cost() {
+        use crate::limits::Limits;
+        use crate::scheduler::{JobSpec, Scheduler};
+        use std::time::Instant;
+        let now = Instant::now();
+        let mut s = Scheduler::new(
+            Limits {
+                window_bytes: 1 << 30,
+                ..Limits::default()
+            },
+            100,
+        );
+        let w = s.register_worker(now, None);
+        s.describe_worker(w, "w", 4);
+        s.allow_spans(w);
+        let spec = |hash: &str, camera: &str| JobSpec {
+            frame: None,
+            bundle_hash: hash.into(),
+            camera: camera.into(),
+            priority: 0,
+            width: 100,
+            height: 20,
+            tile_size: 10,
+            output_name: "o.png".into(),
+        };
+        let first = s.submit(spec("h", "c"), now);
+        let l = s.lease(w, now).unwrap().unwrap();
+        assert_eq!((l.job, l.tiles), (first, 1));
+        let t = now + Duration::from_millis(1);
+        s.accept_rendered(first, l.rect, 1, Some(Duration::from_millis(1)), t)
+            .unwrap();
+        let cost = s.measured_cost(first).unwrap();
+        let other_camera = s.submit(spec("h", "d"), t);
+        let other_bundle = s.submit(spec("g", "c"), t);
+        let like = s.submit(spec("h", "c"), t);
+        assert_eq!(s.measured_cost(like), Some(cost));
+        assert_eq!(s.measured_cost(other_camera), None);
+        assert_eq!(s.measured_cost(other_bundle), None);
+        // The first job's first band, then the new one's: a span at once.
+        let span = s.lease(w, t).unwrap().unwrap();
+        assert_eq!((span.job, span.tiles), (first, 9));
+        s.cancel(first, t).unwrap();
+        s.cancel(other_camera, t).unwrap();
+        s.cancel(other_bundle, t).unwrap();
+        let l = s.lease(w, t).unwrap().unwrap();
+        assert_eq!((l.job, l.tiles), (like, 10));
     }
 
     #[test]

@@ -73,6 +73,7 @@ impl FakeWorker {
             rays: 1,
             session: self.session.clone(),
             frame: lease.frame,
+            render_micros: None,
         }
     }
 
