@@ -135,6 +135,26 @@ mod tests {
 
     const S: Duration = Duration::from_secs(1);
 
+    /// A scheduler with room for any test frame and a worker of `threads`
+    /// threads named `name` that takes spans.
+    fn scheduler_with_span_worker(
+        now: std::time::Instant,
+        name: &str,
+        threads: u32,
+    ) -> (crate::scheduler::Scheduler, WorkerId) {
+        let mut s = crate::scheduler::Scheduler::new(
+            crate::limits::Limits {
+                window_bytes: 1 << 30,
+                ..crate::limits::Limits::default()
+            },
+            100,
+        );
+        let w = s.register_worker(now, None);
+        s.describe_worker(w, name, threads);
+        s.allow_spans(w);
+        (s, w)
+    }
+
     #[test]
     fn an_unmeasured_job_gets_one_tile() {
         assert_eq!(tiles_per_lease(None, 16, 4096, S, 1 << 20), 1);
@@ -194,21 +214,11 @@ mod tests {
 
     #[test]
     fn a_measured_job_leases_spans_of_one_band_each_tile_under_its_own_lease() {
-        use crate::limits::Limits;
-        use crate::scheduler::{Accepted, JobSpec, Scheduler};
+        use crate::scheduler::{Accepted, JobSpec};
         use std::time::Instant;
         use trevi_core::tile::Rect;
         let now = Instant::now();
-        let mut s = Scheduler::new(
-            Limits {
-                window_bytes: 1 << 30,
-                ..Limits::default()
-            },
-            100,
-        );
-        let w = s.register_worker(now, None);
-        s.describe_worker(w, "new", 4);
-        s.allow_spans(w);
+        let (mut s, w) = scheduler_with_span_worker(now, "new", 4);
         let old = s.register_worker(now, None);
         s.describe_worker(old, "old", 4);
         // 10 tiles of 10×10 a band, two bands.
@@ -284,21 +294,11 @@ mod tests {
     /// queueing.
     #[test]
     fn a_slow_coordinator_does_not_shrink_leases_of_workers_that_report() {
-        use crate::limits::Limits;
-        use crate::scheduler::{JobSpec, Scheduler};
+        use crate::scheduler::JobSpec;
         use std::time::Instant;
         let run = |report: bool| {
             let now = Instant::now();
-            let mut s = Scheduler::new(
-                Limits {
-                    window_bytes: 1 << 30,
-                    ..Limits::default()
-                },
-                100,
-            );
-            let w = s.register_worker(now, None);
-            s.describe_worker(w, "w", 16);
-            s.allow_spans(w);
+            let (mut s, w) = scheduler_with_span_worker(now, "w", 16);
             // 64 tiles of 64×64 a band.
             let job = s.submit(
                 JobSpec {
@@ -351,20 +351,10 @@ mod tests {
     /// another bundle, starts unmeasured.
     #[test]
     fn a_job_like_a_measured_one_starts_from_its_cost() {
-        use crate::limits::Limits;
-        use crate::scheduler::{JobSpec, Scheduler};
+        use crate::scheduler::JobSpec;
         use std::time::Instant;
         let now = Instant::now();
-        let mut s = Scheduler::new(
-            Limits {
-                window_bytes: 1 << 30,
-                ..Limits::default()
-            },
-            100,
-        );
-        let w = s.register_worker(now, None);
-        s.describe_worker(w, "w", 4);
-        s.allow_spans(w);
+        let (mut s, w) = scheduler_with_span_worker(now, "w", 4);
         let spec = |hash: &str, camera: &str| JobSpec {
             frame: None,
             bundle_hash: hash.into(),

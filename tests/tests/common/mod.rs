@@ -407,38 +407,34 @@ pub fn submit_env(dir: &Dir, args: &[&str], envs: &[(&str, &str)]) -> Output {
 /// (the counterpart of [`embedded`]).
 pub fn farm_render(dir: &Dir, url: &str, scene: &Path, out: &str, tile: u32) -> Vec<u8> {
     let out = dir.path().join(out);
-    let o = submit(
-        dir,
-        &[
-            scene.to_str().unwrap(),
-            "--coordinator",
-            url,
-            "-o",
-            out.to_str().unwrap(),
-            "--tile",
-            &tile.to_string(),
-        ],
-    );
+    let args = farm_args(url, scene, &out, tile);
+    let o = submit(dir, &args.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "farm render failed\n{}", dir.logs());
     std::fs::read(out).unwrap()
+}
+
+/// `scene --coordinator url -o out --tile tile`: a render on the farm.
+fn farm_args(url: &str, scene: &Path, out: &Path, tile: u32) -> Vec<String> {
+    vec![
+        scene.to_str().unwrap().into(),
+        "--coordinator".into(),
+        url.into(),
+        "-o".into(),
+        out.to_str().unwrap().into(),
+        "--tile".into(),
+        tile.to_string(),
+    ]
 }
 
 /// Starts `trevi-submit scene --coordinator url -o out --tile tile`, which
 /// waits for the job (its stderr in the log "submit"); the caller kills or
 /// waits for it.
 pub fn spawn_farm_submit(dir: &Dir, url: &str, scene: &Path, out: &Path, tile: u32) -> Child {
-    submit_cmd(&[
-        scene.to_str().unwrap(),
-        "--coordinator",
-        url,
-        "-o",
-        out.to_str().unwrap(),
-        "--tile",
-        &tile.to_string(),
-    ])
-    .stderr(dir.log("submit"))
-    .spawn()
-    .unwrap()
+    let args = farm_args(url, scene, out, tile);
+    submit_cmd(&args.iter().map(String::as_str).collect::<Vec<_>>())
+        .stderr(dir.log("submit"))
+        .spawn()
+        .unwrap()
 }
 
 /// Tiles the workers `worker0` .. `worker{workers - 1}` rendered, from their
