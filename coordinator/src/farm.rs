@@ -35,7 +35,7 @@ use crate::scheduler::{
     Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth, Scheduler, WorkerId,
 };
 use crate::sink::TileSink;
-use crate::store::{wall_ms, SeqLink, Store, StoredJob};
+use crate::store::{SeqLink, Store, StoredJob};
 use crate::summaries::{SceneSummary, Summaries};
 use crate::workers::WorkerInfo;
 use std::collections::{HashMap, VecDeque};
@@ -460,22 +460,11 @@ impl Farm {
         };
         let info = st.sched.info(id, now).expect("just submitted");
         if let Some(store) = &self.store {
-            let stored = StoredJob {
-                id,
-                spec: info.spec.clone(),
-                submitter: who.to_string(),
-                state: info.state,
-                submitted_ms: wall_ms(),
-                elapsed: None,
-                error: None,
-                finish_order: 0,
-                tiles_done: 0,
-                rays: 0,
-                seq: SeqLink {
-                    parent,
-                    ..SeqLink::default()
-                },
+            let seq = SeqLink {
+                parent,
+                ..SeqLink::default()
             };
+            let stored = StoredJob::submitted(id, info.spec.clone(), who, info.state, seq);
             if let Err(e) = store.insert_job(&stored) {
                 st.sched.finish(id, Err(e.to_string()), now);
                 return Err(e);

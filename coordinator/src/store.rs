@@ -69,6 +69,32 @@ pub struct StoredJob {
     pub seq: SeqLink,
 }
 
+impl StoredJob {
+    /// The row of a job submitted now by `submitter`: nothing rendered,
+    /// nothing finished.
+    pub fn submitted(
+        id: JobId,
+        spec: JobSpec,
+        submitter: &str,
+        state: JobState,
+        seq: SeqLink,
+    ) -> StoredJob {
+        StoredJob {
+            id,
+            spec,
+            submitter: submitter.to_string(),
+            state,
+            submitted_ms: wall_ms(),
+            elapsed: None,
+            error: None,
+            finish_order: 0,
+            tiles_done: 0,
+            rays: 0,
+            seq,
+        }
+    }
+}
+
 /// A sequence's row, or a frame's link to its sequence (see
 /// `crate::farm::sequences`): a sequence is a row of its own, its frames
 /// jobs whose `parent` it is. Both `None` for a still.

@@ -217,22 +217,17 @@ impl Farm {
         Self::check_submitter(&st, who, self.cfg.limits.max_jobs_per_submitter)?;
         let id = st.sched.reserve_id();
         if let Some(store) = &self.store {
-            store.insert_job(&StoredJob {
+            let link = SeqLink {
+                frames: Some((first, last)),
+                ..SeqLink::default()
+            };
+            store.insert_job(&StoredJob::submitted(
                 id,
-                spec: spec.clone(),
-                submitter: who.to_string(),
-                state: JobState::Queued,
-                submitted_ms: wall_ms(),
-                elapsed: None,
-                error: None,
-                finish_order: 0,
-                tiles_done: 0,
-                rays: 0,
-                seq: SeqLink {
-                    frames: Some((first, last)),
-                    ..SeqLink::default()
-                },
-            })?;
+                spec.clone(),
+                who,
+                JobState::Queued,
+                link,
+            ))?;
         }
         let seq = Sequence {
             spec,
