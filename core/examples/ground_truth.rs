@@ -35,58 +35,18 @@
 
 mod common;
 
-use common::rmse;
+use common::{render, rmse, Render};
 use glam::Vec3;
 use plotters::prelude::SeriesLabelPosition;
 use std::fmt::Write as _;
 use std::path::PathBuf;
-use std::time::Instant;
 use trevi_core::bundle::DirSource;
-use trevi_core::integrator::RenderOptions;
 use trevi_core::sampling::SamplerKind;
 use trevi_core::scene::aisxml::parse_scene;
 use trevi_core::scene::{Adaptive, IntegratorKind, SceneDesc};
-use trevi_core::tile::render_tile_with;
-use trevi_core::{Rect, Scene};
 
 const REF_SEEDS: [u64; 2] = [0x5eed, 0x5eed + 1];
 const MAX_BOUNCES: u32 = 1000;
-
-struct Render {
-    pixels: Vec<[f32; 3]>,
-    seconds: f64,
-    rays: u64,
-}
-
-fn render(desc: &SceneDesc, best_of: u32) -> Render {
-    let scene = Scene::build(desc.clone());
-    let r = &scene.desc.cameras[0].render;
-    let rect = Rect::new(0, 0, r.width, r.height);
-    let mut best = f64::INFINITY;
-    let mut t;
-    let mut runs = 0;
-    loop {
-        let t0 = Instant::now();
-        t = render_tile_with(
-            &scene,
-            0,
-            rect,
-            RenderOptions {
-                sampler: SamplerKind::Sobol,
-            },
-        );
-        best = best.min(t0.elapsed().as_secs_f64());
-        runs += 1;
-        if runs >= best_of || best > 2.0 {
-            break;
-        }
-    }
-    Render {
-        seconds: best,
-        pixels: t.pixels,
-        rays: t.rays,
-    }
-}
 
 fn mean(a: &[[f32; 3]]) -> f64 {
     a.iter()
@@ -209,6 +169,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                             ..path
                         },
                     ),
+                    SamplerKind::Sobol,
                     1,
                 )
             })
@@ -233,7 +194,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             floor
         )?;
         let mut run = |strategy: &str, setting: String, c: Cfg| {
-            let r = render(&apply(base, c), 3);
+            let r = render(&apply(base, c), SamplerKind::Sobol, 3);
             let row = Row {
                 scene: name,
                 strategy: strategy.to_string(),

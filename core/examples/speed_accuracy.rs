@@ -34,52 +34,18 @@
 
 mod common;
 
-use common::{rmse, time_at_rmse};
+use common::{render, rmse, time_at_rmse};
 use plotters::prelude::SeriesLabelPosition;
 use std::fmt::Write as _;
-use std::time::Instant;
 use trevi_core::bundle::DirSource;
-use trevi_core::integrator::RenderOptions;
 use trevi_core::sampling::SamplerKind;
 use trevi_core::scene::aisxml::parse_scene;
 use trevi_core::scene::{Adaptive, SceneDesc};
-use trevi_core::tile::render_tile_with;
-use trevi_core::{Rect, Scene};
 
 const APERTURE: f32 = 0.06;
 /// References use their own seed so that their samples are not a superset
 /// of the ladder's (which would correlate their errors and flatter the RMSE).
 const REF_SEED: u64 = 0x5eed;
-
-struct Render {
-    pixels: Vec<[f32; 3]>,
-    seconds: f64,
-    rays: u64,
-}
-
-fn render(desc: &SceneDesc, sampler: SamplerKind) -> Render {
-    let scene = Scene::build(desc.clone());
-    let r = &scene.desc.cameras[0].render;
-    let rect = Rect::new(0, 0, r.width, r.height);
-    // Best of up to three runs (renders under 2 s): the machine is shared.
-    let mut best = f64::INFINITY;
-    let mut t;
-    let mut runs = 0;
-    loop {
-        let t0 = Instant::now();
-        t = render_tile_with(&scene, 0, rect, RenderOptions { sampler });
-        best = best.min(t0.elapsed().as_secs_f64());
-        runs += 1;
-        if runs == 3 || best > 2.0 {
-            break;
-        }
-    }
-    Render {
-        seconds: best,
-        pixels: t.pixels,
-        rays: t.rays,
-    }
-}
 
 /// Settings of one render: everything the ladders vary.
 #[derive(Clone, Copy)]
@@ -141,8 +107,8 @@ struct Group {
 impl Group {
     fn new(name: &'static str, base: SceneDesc, reference: Cfg, doubled: Cfg, note: &str) -> Group {
         eprintln!("[{name}] reference: {note}");
-        let r = render(&apply(&base, reference), SamplerKind::Sobol);
-        let d = render(&apply(&base, doubled), SamplerKind::Sobol);
+        let r = render(&apply(&base, reference), SamplerKind::Sobol, 3);
+        let d = render(&apply(&base, doubled), SamplerKind::Sobol, 3);
         eprintln!(
             "[{name}] reference {:.1} s, doubled {:.1} s, RMSE between them {:.2e}",
             r.seconds,
@@ -159,7 +125,7 @@ impl Group {
     }
 
     fn run(&self, rows: &mut Vec<Row>, strategy: &str, setting: String, c: Cfg, s: SamplerKind) {
-        let r = render(&apply(&self.base, c), s);
+        let r = render(&apply(&self.base, c), s, 3);
         let row = Row {
             group: self.name,
             strategy: strategy.to_string(),
