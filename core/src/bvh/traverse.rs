@@ -94,6 +94,18 @@ impl Bvh {
         if self.len == 0 {
             return (t_max, false);
         }
+        if self.root.count > 0 {
+            // A tree that is one leaf (the top level of a scene of one
+            // model, a mesh of up to four triangles): its primitives are
+            // tested without the root box, which could only cull rays they
+            // miss (a box test is conservative; the primitive tests are
+            // exact), and without the node ray's three divisions.
+            return match leaf(self.root.first, self.root.count, t_max) {
+                Visit::Miss => (t_max, false),
+                Visit::Hit(t) => (if t < t_max { t } else { t_max }, true),
+                Visit::Stop => (t_max, true),
+            };
+        }
         let ray = NodeRay::new(origin, dir);
         // The root box, as one lane of the scalar test (the same bits as
         // any path's).
@@ -170,6 +182,10 @@ impl Bvh {
                 if k > 0 {
                     // Farthest pushed first, so popped last.
                     for &i in order[1..k].iter().rev() {
+                        // Its node is fetched while the nearer ones are walked.
+                        if let Some(c) = self.interior(n.child[i]) {
+                            simd::prefetch(c);
+                        }
                         if !stack.push((n.child[i], enter[i])) {
                             // Stack full: walk that subtree now.
                             let w = self.walk::<F, SSE, ORDERED>(n.child[i], ray, t_max, visit);
@@ -200,6 +216,18 @@ impl Bvh {
                     break;
                 }
             }
+        }
+    }
+}
+
+impl Bvh {
+    /// The node `r` refers to, if it is an interior one.
+    #[inline(always)]
+    fn interior(&self, r: Ref) -> Option<&super::Node> {
+        if r.count == 0 {
+            self.nodes.get(r.first as usize)
+        } else {
+            None
         }
     }
 }
