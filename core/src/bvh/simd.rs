@@ -256,26 +256,6 @@ pub(super) fn test_sse(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) 
     }
 }
 
-/// Asks the cache for both lines of `node` ahead of its test: a hint,
-/// with no effect on any result (the same bits on every path).
-#[inline(always)]
-pub(super) fn prefetch(node: &Node) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        let p = (node as *const Node).cast::<i8>();
-        // SAFETY: a prefetch reads nothing into the program and never
-        // faults; both addresses lie inside `node` (128 bytes, so `p + 64`
-        // is its second cache line).
-        unsafe {
-            _mm_prefetch::<_MM_HINT_T0>(p);
-            _mm_prefetch::<_MM_HINT_T0>(p.add(64));
-        }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = node;
-}
-
 /// The four lanes of a leaf's triangle test ([`triangles_sse`]).
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub(super) struct Tri4 {

@@ -182,10 +182,6 @@ impl Bvh {
                 if k > 0 {
                     // Farthest pushed first, so popped last.
                     for &i in order[1..k].iter().rev() {
-                        // Its node is fetched while the nearer ones are walked.
-                        if let Some(c) = self.interior(n.child[i]) {
-                            simd::prefetch(c);
-                        }
                         if !stack.push((n.child[i], enter[i])) {
                             // Stack full: walk that subtree now.
                             let w = self.walk::<F, SSE, ORDERED>(n.child[i], ray, t_max, visit);
@@ -216,18 +212,6 @@ impl Bvh {
                     break;
                 }
             }
-        }
-    }
-}
-
-impl Bvh {
-    /// The node `r` refers to, if it is an interior one.
-    #[inline(always)]
-    fn interior(&self, r: Ref) -> Option<&super::Node> {
-        if r.count == 0 {
-            self.nodes.get(r.first as usize)
-        } else {
-            None
         }
     }
 }
