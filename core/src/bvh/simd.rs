@@ -123,25 +123,18 @@ pub fn force(s: Simd) -> bool {
 }
 
 /// A ray as the node test needs it: origin, `1/dir`, and per axis which of
-/// a node's two planes the ray meets first (index into [`Node::b`]), plus
-/// origin and `1/dir` broadcast to four lanes for the SSE test (made once
-/// per ray, not once per node). The fields are private so that `near` and
-/// `far` stay below 6, which [`test_sse`]'s unchecked loads rely on.
+/// a node's two planes the ray meets first (index into [`Node::b`]).
 #[derive(Debug, Clone, Copy)]
-#[repr(C, align(16))]
 pub(super) struct NodeRay {
-    o4: [[f32; 4]; 3],
-    inv4: [[f32; 4]; 3],
-    o: [f32; 3],
-    inv: [f32; 3],
-    near: [usize; 3],
-    far: [usize; 3],
+    pub o: [f32; 3],
+    pub inv: [f32; 3],
+    pub near: [usize; 3],
+    pub far: [usize; 3],
 }
 
 impl NodeRay {
     pub fn new(o: glam::Vec3, dir: glam::Vec3) -> NodeRay {
         let inv = dir.recip().to_array();
-        let o = o.to_array();
         let mut near = [0; 3];
         let mut far = [0; 3];
         for a in 0..3 {
@@ -151,9 +144,7 @@ impl NodeRay {
             far[a] = 2 * a + 1 - neg;
         }
         NodeRay {
-            o4: o.map(|x| [x; 4]),
-            inv4: inv.map(|x| [x; 4]),
-            o,
+            o: o.to_array(),
             inv,
             near,
             far,
@@ -210,29 +201,17 @@ pub(super) fn test_scalar(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u3
 #[inline(always)]
 pub(super) fn test_sse(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) {
     use std::arch::x86_64::*;
-    // SAFETY: the obligations are that SSE/SSE2 exist, which the x86_64
-    // baseline guarantees (this is compiled for x86_64 only), and that each
-    // unaligned load reads 16 valid bytes: the ray's are `[f32; 4]`s of `r`,
-    // and the planes' are `node.b[plane]` for `plane` one of `r.near[a]`,
-    // `r.far[a]`, which `NodeRay::new` (the only constructor; the fields are
-    // private to this module) sets to `2·a` or `2·a + 1` with `a < 3`, so
-    // below 6, the length of `node.b`. The store writes the `[f32; 4]` `e`.
+    // SAFETY: the only obligations are that SSE/SSE2 exist, which the
+    // x86_64 baseline guarantees (this is compiled for x86_64 only), and
+    // that each unaligned load reads 16 valid bytes: each pointer comes from
+    // a `&[f32; 4]` (16 bytes) of `node`, and `enter` is a `[f32; 4]`. The
+    // indices `r.near[a]`, `r.far[a]` are below 6 by construction
+    // (`NodeRay::new`) and are bounds-checked anyway.
     unsafe {
-        let b = node.b.as_ptr();
-        let o = [
-            _mm_loadu_ps(r.o4[0].as_ptr()),
-            _mm_loadu_ps(r.o4[1].as_ptr()),
-            _mm_loadu_ps(r.o4[2].as_ptr()),
-        ];
-        let inv = [
-            _mm_loadu_ps(r.inv4[0].as_ptr()),
-            _mm_loadu_ps(r.inv4[1].as_ptr()),
-            _mm_loadu_ps(r.inv4[2].as_ptr()),
-        ];
         let slab = |a: usize, plane: usize| {
             _mm_mul_ps(
-                _mm_sub_ps(_mm_loadu_ps((*b.add(plane)).as_ptr()), o[a]),
-                inv[a],
+                _mm_sub_ps(_mm_loadu_ps(node.b[plane].as_ptr()), _mm_set1_ps(r.o[a])),
+                _mm_set1_ps(r.inv[a]),
             )
         };
         let enter = _mm_max_ps(
