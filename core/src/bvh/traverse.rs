@@ -81,7 +81,8 @@ impl Bvh {
     /// The walk under every query: `leaf(first, count, t_max)` is called
     /// for each leaf the ray enters (nearest first when `ORDERED`, else in
     /// slot order), with its leaf positions `first..first + count`, and
-    /// answers for the leaf as a whole.
+    /// answers for the leaf as a whole. A tree that is one leaf calls it
+    /// for that leaf without testing its box.
     #[inline(always)]
     pub(super) fn traverse_leaves_on<F: FnMut(u32, u32, f32) -> Visit, const ORDERED: bool>(
         &self,
