@@ -81,7 +81,8 @@ impl Bvh {
     /// The walk under every query: `leaf(first, count, t_max)` is called
     /// for each leaf the ray enters (nearest first when `ORDERED`, else in
     /// slot order), with its leaf positions `first..first + count`, and
-    /// answers for the leaf as a whole.
+    /// answers for the leaf as a whole. A tree that is one leaf calls it
+    /// for that leaf without testing its box.
     #[inline(always)]
     pub(super) fn traverse_leaves_on<F: FnMut(u32, u32, f32) -> Visit, const ORDERED: bool>(
         &self,
@@ -93,6 +94,18 @@ impl Bvh {
     ) -> (f32, bool) {
         if self.len == 0 {
             return (t_max, false);
+        }
+        if self.root.count > 0 {
+            // A tree that is one leaf (the top level of a scene of one
+            // model, a mesh of up to four triangles): its primitives are
+            // tested without the root box, which could only cull rays they
+            // miss (a box test is conservative; the primitive tests are
+            // exact), and without the node ray's three divisions.
+            return match leaf(self.root.first, self.root.count, t_max) {
+                Visit::Miss => (t_max, false),
+                Visit::Hit(t) => (if t < t_max { t } else { t_max }, true),
+                Visit::Stop => (t_max, true),
+            };
         }
         let ray = NodeRay::new(origin, dir);
         // The root box, as one lane of the scalar test (the same bits as
