@@ -1011,7 +1011,11 @@ mod tests {
     fn the_geometric_normal_is_the_exact_direction_at_every_magnitude() {
         let nm = Mat3::from_cols_array(&[2.0, 0.3, 0.0, 0.0, 0.5, -0.2, 0.1, 0.0, 3.0]);
         let shapes = [
-            [Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0)],
+            [
+                Vec3::ZERO,
+                Vec3::new(1.0, 0.0, 0.0),
+                Vec3::new(0.0, 1.0, 0.0),
+            ],
             [
                 Vec3::new(0.3, -0.7, 1.1),
                 Vec3::new(1.9, 0.2, -0.4),
@@ -1044,7 +1048,11 @@ mod tests {
             [p, p * 2.0, p * 3.0],
             [p, Vec3::new(f32::NAN, 0.0, 0.0), p],
             [p, Vec3::splat(f32::INFINITY), Vec3::ZERO],
-            [Vec3::splat(-3e38), Vec3::splat(3e38), Vec3::new(3e38, -3e38, 0.0)],
+            [
+                Vec3::splat(-3e38),
+                Vec3::splat(3e38),
+                Vec3::new(3e38, -3e38, 0.0),
+            ],
         ] {
             let n = geometric_normal(nm, a, b, c);
             assert!(!n.is_nan(), "{a} {b} {c}: {n}");
