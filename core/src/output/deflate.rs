@@ -19,6 +19,9 @@
 /// (`0x78 0x01`, what `fdeflate` writes).
 pub(super) const ZLIB_HEADER: [u8; 2] = [0x78, 0x01];
 
+/// What a sync flush ends with: an empty stored block's LEN and NLEN.
+pub(super) const SYNC_FLUSH: [u8; 4] = [0x00, 0x00, 0xff, 0xff];
+
 /// An empty final block (fixed Huffman codes, only the end-of-block code),
 /// padded to the byte: what ends the stream after the last segment.
 pub(super) const FINAL_EMPTY_BLOCK: [u8; 2] = [0x03, 0x00];
@@ -236,7 +239,7 @@ pub(super) fn deflate_segment(data: &[u8]) -> Vec<u8> {
     w.write_bits(u64::from(HUFFMAN_CODES[256]), HUFFMAN_LENGTHS[256]);
     w.write_bits(0, 3);
     w.align();
-    w.out.extend_from_slice(&[0x00, 0x00, 0xff, 0xff]);
+    w.out.extend_from_slice(&SYNC_FLUSH);
     w.out
 }
 

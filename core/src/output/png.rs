@@ -30,7 +30,9 @@
 //! encoded by a worker and one encoded by the coordinator or `trevi-submit`
 //! are the same bytes, and so is the file they end up in.
 
-use super::deflate::{adler32, adler32_combine, deflate_segment, FINAL_EMPTY_BLOCK, ZLIB_HEADER};
+use super::deflate::{
+    adler32, adler32_combine, deflate_segment, FINAL_EMPTY_BLOCK, SYNC_FLUSH, ZLIB_HEADER,
+};
 use super::srgb::Srgb8;
 use crate::error::OutputError;
 use std::fs::File;
@@ -221,6 +223,8 @@ fn filter_row(row: &[u8], prev: Option<&[u8]>, scratch: &mut [Vec<u8>; 2], out: 
 /// Holds nothing of the image.
 pub struct PngStream<W: Write> {
     out: W,
+    width: u32,
+    height: u32,
     segments: u32,
     pushed: u32,
     adler: u32,
@@ -248,18 +252,35 @@ impl<W: Write> PngStream<W> {
         write_chunk(&mut out, b"sRGB", &[&[0]])?;
         Ok(PngStream {
             out,
+            width,
+            height,
             segments: segment_count(height),
             pushed: 0,
             adler: 1,
         })
     }
 
-    /// Appends the next segment (they come in order, top to bottom).
+    /// Appends the next segment (they come in order, top to bottom). A
+    /// segment too many, one whose filtered length is not its rows' or whose
+    /// bytes do not end in a sync flush is refused (`InvalidInput`) and
+    /// nothing is written: the framing a segment made elsewhere must have.
     pub fn push(&mut self, segment: &PngSegment) -> io::Result<()> {
+        let invalid = |m: String| Err(io::Error::new(io::ErrorKind::InvalidInput, m));
         if self.pushed >= self.segments {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                format!("more than the image's {} segments", self.segments),
+            return invalid(format!("more than the image's {} segments", self.segments));
+        }
+        let rows = segment_rows(self.height, self.pushed);
+        let expected = u64::from(rows.end - rows.start) * (1 + 3 * u64::from(self.width));
+        if segment.filtered_len != expected {
+            return invalid(format!(
+                "segment {} holds {} filtered bytes, not {expected}",
+                self.pushed, segment.filtered_len
+            ));
+        }
+        if !segment.deflate.ends_with(&SYNC_FLUSH) {
+            return invalid(format!(
+                "segment {} does not end in a sync flush",
+                self.pushed
             ));
         }
         // The chunks cut `header ‖ deflate` every IDAT_MAX bytes.
@@ -700,6 +721,14 @@ mod tests {
         let mut three = segs.clone();
         three.push(segs[1].clone());
         assert!(png_from_segments(4, 20, &three).is_err());
+        // Framing: the last segment's length, and the sync flush.
+        let mut short = segs.clone();
+        short[1].filtered_len -= 1;
+        assert!(png_from_segments(4, 20, &short).is_err());
+        let mut cut = segs.clone();
+        cut[0].deflate.pop();
+        assert!(png_from_segments(4, 20, &cut).is_err());
+        assert!(png_from_segments(4, 20, &segs).is_ok());
         assert!(PngStream::new(Vec::new(), 0, 5).is_err());
         assert!(PngStream::new(Vec::new(), 5, 1 << 31).is_err());
     }
