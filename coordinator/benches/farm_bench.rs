@@ -36,14 +36,17 @@
 //! render (the demand), lease latency p50/p99 (the `LeaseTile` calls that
 //! brought work), the coordinator's CPU and peak RSS from /proc.
 //!
-//! `encode`: what the PNG part of ingesting costs per pixel, and what it
-//! would cost if workers encoded row segments themselves (docs/benchmarks.md
-//! "The farm at scale"): renders the camera's frame, then times (a) sRGB
-//! conversion, filtering and deflate of the whole frame as the farm's
-//! writer does it (png's `Fast` stream writer), (b) the same for each
-//! 16-row segment encoded on its own, as a worker would, and (c) appending
-//! those segments' compressed bytes with a CRC-32 over them, which is all
-//! the coordinator would have left to do per pixel for the image.
+//! `encode`: what the PNG part of ingesting costs per pixel, and what is
+//! left to the coordinator when workers encode row segments themselves
+//! (docs/benchmarks.md "The farm at scale"): renders the camera's frame,
+//! then times (a) sRGB conversion, filtering and deflate of the whole frame
+//! through the `png` crate's `Fast` stream writer, the farm's writer before
+//! the segmented encoder, (b) the segmented encoder of trevi_core (sRGB,
+//! filters and deflate of each 16-row segment alone, what `FrameWriter`,
+//! and a worker encoding its own segments, do), and (c) joining those
+//! segments into the file (`png_from_segments`: IDAT chunks, CRC-32,
+//! Adler-32 combination), all the coordinator has left to do per pixel for
+//! the image when the segments arrive encoded.
 //!
 //! `direct`: renders a scene's first camera in this process with no farm at
 //! all (band by band, the tiles of a band in parallel on every core, straight
@@ -530,35 +533,32 @@ fn encode(args: &[String]) {
     };
     // (a) The whole frame through one encoder, as the coordinator does.
     let (whole, whole_bytes) = best(&mut || png_bytes(w, &to_rows(&lines)).len());
-    // (b) 16-row segments, each encoded on its own (a worker's share).
-    let mut segments: Vec<Vec<u8>> = Vec::new();
+    // (b) The segmented encoder: each 16-row segment from linear pixels.
+    let seg_h = trevi_core::output::SEGMENT_ROWS as usize;
+    let mut segments = Vec::new();
     let (seg, seg_bytes) = best(&mut || {
         segments = lines
-            .chunks(16)
-            .map(|c| png_bytes(w, &to_rows(c)))
+            .chunks(seg_h)
+            .map(|c| trevi_core::output::encode_segment(w, &c.concat()))
             .collect();
-        segments.iter().map(Vec::len).sum()
+        trevi_core::output::png_from_segments(w, h, &segments)
+            .expect("segments")
+            .len()
     });
-    // (c) What would be left to the coordinator: append the segments'
-    // bytes to the file's buffer and CRC them (IDAT chunks).
-    let mut sink = Vec::with_capacity(seg_bytes);
+    // (c) What is left to the coordinator: the file from encoded segments.
     let (append, _) = best(&mut || {
-        sink.clear();
-        let mut crc = crc32fast::Hasher::new();
-        for s in &segments {
-            sink.extend_from_slice(s);
-            crc.update(s);
-        }
-        std::hint::black_box(crc.finalize());
-        sink.len()
+        let file = trevi_core::output::png_from_segments(w, h, &segments).expect("segments");
+        std::hint::black_box(file.len())
     });
     let ns = |t: f64| t / px * 1e9;
     println!(
         "encode: {scene_path} camera {camera}, {w}x{h}, best of {reps}:\n  \
-         whole frame, one encoder (sRGB + filter + deflate): {:.2} ns/pixel, {whole_bytes} bytes \
+         png crate, whole frame (sRGB + filter + deflate): {:.2} ns/pixel, {whole_bytes} bytes \
          ({:.2} bytes/pixel)\n  \
-         16-row segments encoded alone: {:.2} ns/pixel, {seg_bytes} bytes ({:+.1} %)\n  \
-         appending the segments + CRC-32: {:.3} ns/pixel ({:.0}x less than encoding)",
+         segmented encoder, 16-row segments (sRGB + filter + deflate + file): {:.2} ns/pixel, \
+         {seg_bytes} bytes ({:+.1} %)\n  \
+         the file from encoded segments (chunks, CRC-32, Adler-32): {:.3} ns/pixel \
+         ({:.0}x less than encoding)",
         ns(whole),
         whole_bytes as f64 / px,
         ns(seg),

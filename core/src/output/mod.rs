@@ -10,20 +10,24 @@
 //! is 3 GiB of float RGB), so the writer never holds the frame. It buffers only
 //! *pending rows*: rows that have received at least one pixel and have not yet
 //! been handed to the encoder. Rows are handed over in file order (top to
-//! bottom) as soon as they are complete: PNG one row at a time, EXR one
-//! 16-row scanline block at a time (the block size of ZIP compression).
+//! bottom) as soon as their 16-row group is complete: PNG one segment of
+//! [`SEGMENT_ROWS`] rows at a time (see [`png`](self::png): each segment is
+//! filtered and compressed alone, so the file is the same whoever encodes
+//! which segment), EXR one 16-row scanline block at a time (the block size of
+//! ZIP compression).
 //!
 //! Memory held = [`FrameWriter::rows_held`] × (3·width bytes for PNG, stored
 //! already converted to sRGB bytes, or 12·width bytes for EXR) + width/8 bytes
-//! of coverage bits per pending row, plus the encoder's fixed-size state (PNG:
-//! the zlib window, two row buffers and a 64 KiB chunk buffer; EXR: one 16-row
-//! block being compressed on the writer thread and at most one more waiting to
-//! be handed over).
+//! of coverage bits per pending row, plus the encoder's state (PNG: one
+//! segment's filtered and compressed bytes while it is encoded, about
+//! 16 × (3·width + 1) bytes and less, and a 1 MiB write buffer; EXR: one
+//! 16-row block being compressed on the writer thread and at most one more
+//! waiting to be handed over).
 //!
 //! `rows_held` depends on the order of the tiles. With tiles delivered in band
 //! order (as the scheduler hands them out) and bands H rows tall it is at most
-//! H for PNG, and H + 15 for EXR (complete rows wait for the rest of their
-//! 16-row block; H when bands start at multiples of 16, as with 64-row tiles).
+//! H + 15 (complete rows wait for the rest of their 16-row segment or block;
+//! H when bands start at multiples of 16, as with 64-row tiles).
 //! Out of order it is the number of rows between the first incomplete row and
 //! the last row touched, up to the whole frame if the first row completes
 //! last; the writer accepts any order and still produces the same bytes.
@@ -37,6 +41,7 @@
 //! Output bytes are a deterministic function of the pixels: any tile size,
 //! tile order or machine gives the same file.
 
+mod deflate;
 mod exr;
 mod pending;
 mod png;
@@ -44,8 +49,12 @@ mod srgb;
 #[cfg(test)]
 mod tests;
 
+pub use self::deflate::adler32_combine;
 pub use self::exr::read_exr_rgb;
-pub use self::png::{decode_png, read_png_rgb8};
+pub use self::png::{
+    decode_png, encode_segment, encode_segment_srgb, png_from_segments, read_png_rgb8,
+    segment_count, segment_rows, PngSegment, PngStream, IDAT_MAX, SEGMENT_ROWS,
+};
 pub use self::srgb::{linear_to_srgb8, Srgb8};
 
 use self::exr::{ExrSink, BLOCK_ROWS};
@@ -401,13 +410,17 @@ impl FrameWriter {
     /// Hands every complete row at the top of the pending rows to the encoder.
     fn flush_complete_rows(&mut self) -> Result<(), OutputError> {
         match &mut self.encoder {
-            Encoder::Png { rows, sink } => {
-                while rows.is_complete(self.next_row) {
-                    let row = rows.take(self.next_row).unwrap_or_default();
-                    sink.write_row(&row)?;
-                    self.next_row += 1;
+            Encoder::Png { rows, sink } => loop {
+                let y0 = self.next_row;
+                let y1 = (y0 + SEGMENT_ROWS).min(self.height);
+                if y0 == y1 || !(y0..y1).all(|y| rows.is_complete(y)) {
+                    break;
                 }
-            }
+                let segment: Vec<Vec<u8>> =
+                    (y0..y1).map(|y| rows.take(y).unwrap_or_default()).collect();
+                sink.write_rows(self.width, &segment)?;
+                self.next_row = y1;
+            },
             Encoder::Exr { rows, sink } => loop {
                 let y0 = self.next_row;
                 let y1 = (y0 + BLOCK_ROWS).min(self.height);
