@@ -410,28 +410,19 @@ impl FrameWriter {
     /// Hands every complete row at the top of the pending rows to the encoder.
     fn flush_complete_rows(&mut self) -> Result<(), OutputError> {
         match &mut self.encoder {
-            Encoder::Png { rows, sink } => loop {
-                let y0 = self.next_row;
-                let y1 = (y0 + SEGMENT_ROWS).min(self.height);
-                if y0 == y1 || !(y0..y1).all(|y| rows.is_complete(y)) {
-                    break;
+            Encoder::Png { rows, sink } => {
+                while let Some(segment) = rows.take_block(self.next_row, SEGMENT_ROWS, self.height)
+                {
+                    sink.write_rows(self.width, &segment)?;
+                    self.next_row += segment.len() as u32;
                 }
-                let segment: Vec<Vec<u8>> =
-                    (y0..y1).map(|y| rows.take(y).unwrap_or_default()).collect();
-                sink.write_rows(self.width, &segment)?;
-                self.next_row = y1;
-            },
-            Encoder::Exr { rows, sink } => loop {
-                let y0 = self.next_row;
-                let y1 = (y0 + BLOCK_ROWS).min(self.height);
-                if y0 == y1 || !(y0..y1).all(|y| rows.is_complete(y)) {
-                    break;
+            }
+            Encoder::Exr { rows, sink } => {
+                while let Some(block) = rows.take_block(self.next_row, BLOCK_ROWS, self.height) {
+                    sink.write_block(self.next_row, &block)?;
+                    self.next_row += block.len() as u32;
                 }
-                let block: Vec<Vec<f32>> =
-                    (y0..y1).map(|y| rows.take(y).unwrap_or_default()).collect();
-                sink.write_block(y0, &block)?;
-                self.next_row = y1;
-            },
+            }
         }
         Ok(())
     }

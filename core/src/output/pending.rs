@@ -94,6 +94,17 @@ impl<T: Copy + Default> PendingRows<T> {
     pub(super) fn take(&mut self, y: u32) -> Option<Vec<T>> {
         self.rows.remove(&y).map(|r| r.samples)
     }
+
+    /// Removes and returns rows `y0..min(y0 + n, height)` (a PNG segment or
+    /// an EXR block starting at `y0`) once all of them are complete; `None`
+    /// while one is missing a pixel, or at the end of the image.
+    pub(super) fn take_block(&mut self, y0: u32, n: u32, height: u32) -> Option<Vec<Vec<T>>> {
+        let y1 = y0.saturating_add(n).min(height);
+        if y0 >= y1 || !(y0..y1).all(|y| self.is_complete(y)) {
+            return None;
+        }
+        Some((y0..y1).map(|y| self.take(y).unwrap_or_default()).collect())
+    }
 }
 
 #[cfg(test)]
@@ -139,5 +150,30 @@ mod tests {
         let samples = rows.take(4).unwrap();
         assert_eq!((samples.len(), samples[0]), (390, 7));
         assert_eq!(rows.len(), 0);
+    }
+
+    #[test]
+    fn a_block_is_taken_only_when_all_its_rows_are_complete() {
+        let mut rows = PendingRows::<u8>::new(4, 4);
+        for y in [0, 1, 2] {
+            rows.claim(y, 0, 4)[0] = y as u8 + 10;
+        }
+        rows.claim(3, 0, 3);
+        // Rows 0..4 of a 6-row image: row 3 lacks a pixel.
+        assert!(rows.take_block(0, 4, 6).is_none());
+        assert_eq!(rows.len(), 4, "nothing taken from an incomplete block");
+        rows.claim(3, 3, 4);
+        let block = rows.take_block(0, 4, 6).expect("complete");
+        assert_eq!(
+            block.iter().map(|r| r[0]).collect::<Vec<_>>(),
+            [10, 11, 12, 0]
+        );
+        assert_eq!(rows.len(), 0);
+        // The last block is cut at the image's height; past it, nothing.
+        for y in [4, 5] {
+            rows.claim(y, 0, 4);
+        }
+        assert_eq!(rows.take_block(4, 4, 6).map(|b| b.len()), Some(2));
+        assert!(rows.take_block(6, 4, 6).is_none());
     }
 }
