@@ -424,6 +424,9 @@ impl pb::workers_server::Workers for WorkersService {
                 tiles: l.tiles,
                 memory_estimate: l.memory_estimate,
                 frame: l.frame,
+                png_segments: l.png_segments,
+                // Filled by the segment path (see `Lease.preview_scale`).
+                preview_scale: 0,
             }),
         }))
     }

@@ -139,6 +139,10 @@ pub struct Lease {
     pub memory_estimate: u64,
     /// The job's frame, for a frame of a sequence.
     pub frame: Option<u32>,
+    /// The worker is to upload `rect` as encoded PNG segments (see
+    /// [`Scheduler::allow_segments`]): `rect` is then whole segments of
+    /// full-width rows.
+    pub png_segments: bool,
 }
 
 /// What became of a result handed to [`Scheduler::accept_tile`].
@@ -361,6 +365,15 @@ impl Scheduler {
         }
     }
 
+    /// `worker` encodes PNG segments with the coordinator's own encoder (it
+    /// said so when it registered): its leases of PNG frames may ask for
+    /// them ([`Lease::png_segments`]).
+    pub fn allow_segments(&mut self, worker: WorkerId) {
+        if self.workers.threads(worker).is_some() {
+            self.sizer.allow_segments(worker);
+        }
+    }
+
     /// The measured cost of `job` in core-seconds per pixel, if any.
     pub fn measured_cost(&self, job: JobId) -> Option<f64> {
         self.sizer.cost(job)
@@ -536,6 +549,7 @@ impl Scheduler {
                 tiles: span.len() as u32,
                 memory_estimate: self.memory.estimate(id),
                 frame: job.spec.frame,
+                png_segments: false,
             }));
         }
         if too_small {

@@ -532,6 +532,8 @@ impl Session {
                 threads: self.threads as u32,
                 multi_tile: true,
                 max_memory: self.max_memory.0,
+                // Not yet: segment leases come with the segment path.
+                png_encoder: String::new(),
             })
             .await
         {

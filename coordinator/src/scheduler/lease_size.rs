@@ -76,6 +76,8 @@ pub fn render_time(granted_to_result: Duration, reported: Option<Duration>) -> D
 #[derive(Debug, Default)]
 pub struct LeaseSizer {
     multi_tile: HashSet<WorkerId>,
+    /// Workers that upload encoded PNG segments.
+    segments: HashSet<WorkerId>,
     /// Core-seconds per pixel, smoothed.
     cost: HashMap<JobId, f64>,
 }
@@ -90,9 +92,19 @@ impl LeaseSizer {
         self.multi_tile.contains(&worker)
     }
 
+    /// `worker` said it encodes PNG segments with the coordinator's encoder.
+    pub fn allow_segments(&mut self, worker: WorkerId) {
+        self.segments.insert(worker);
+    }
+
+    pub fn takes_segments(&self, worker: WorkerId) -> bool {
+        self.segments.contains(&worker)
+    }
+
     /// Keeps only the workers `known` says still exist.
     pub fn retain_workers(&mut self, known: impl Fn(WorkerId) -> bool) {
         self.multi_tile.retain(|&w| known(w));
+        self.segments.retain(|&w| known(w));
     }
 
     /// A lease of `job` covering `pixels` pixels took a worker of `threads`

@@ -53,7 +53,7 @@ pub use self::deflate::adler32_combine;
 pub use self::exr::read_exr_rgb;
 pub use self::png::{
     decode_png, encode_segment, encode_segment_srgb, png_from_segments, read_png_rgb8,
-    segment_count, segment_rows, PngSegment, PngStream, IDAT_MAX, SEGMENT_ROWS,
+    segment_count, segment_rows, PngSegment, PngStream, IDAT_MAX, PNG_ENCODER, SEGMENT_ROWS,
 };
 pub use self::srgb::{linear_to_srgb8, Srgb8};
 

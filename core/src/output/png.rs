@@ -40,6 +40,14 @@ use std::io::{self, BufReader, BufWriter, Write};
 use std::ops::Range;
 use std::path::Path;
 
+/// Names this encoder (segment rows, filter rule, compressor). A file's
+/// bytes are a pure function of its pixels only while every segment of it
+/// is encoded by the same encoder, so a coordinator takes encoded segments
+/// only from workers that announce this same name. Change it whenever an
+/// encoded byte could change.
+pub const PNG_ENCODER: &str =
+    "trevi-png-segments/1 (16 rows; None/Sub first row; fdeflate fast, sync flush)";
+
 /// Rows in a PNG segment: the unit a PNG file is made of, whoever encodes it.
 pub const SEGMENT_ROWS: u32 = 16;
 
