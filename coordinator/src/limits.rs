@@ -29,12 +29,17 @@ pub struct Limits {
 
     /// How long a lease lives without a heartbeat.
     pub lease_ttl: Duration,
-    /// Budget per job, in bytes, for the rows held by the stitcher and its
-    /// encoder (counted at 12 bytes a pixel) and the bookkeeping of the
-    /// tiles in flight: after [`crate::scheduler::encoder_bytes`], it holds
-    /// `room / band_bytes` bands (at least one; a frame whose one band does
-    /// not fit is refused at submission). The job's preview (at most
-    /// 512×512, [`crate::preview`]) comes on top.
+    /// Budget per job, in bytes, for what the writer holds of the bands in
+    /// flight and the bookkeeping of their tiles: after
+    /// [`crate::scheduler::encoder_bytes`], the bands from the first one
+    /// not complete to the last one leased must fit, each at
+    /// [`crate::scheduler::band_bytes`] (rows at 12 bytes a pixel) if any
+    /// of its tiles went out as floats, at
+    /// [`crate::scheduler::segment_band_bytes`] (encoded segments, at most
+    /// about 4.5 bytes a pixel) if it went out only as segments. The first
+    /// band not complete is always allowed; a frame whose one band does not
+    /// fit at 12 bytes a pixel is refused at submission. The job's preview
+    /// (at most 512×512, [`crate::preview`]) comes on top.
     pub window_bytes: u64,
     /// A tile that fails this many times (its lease runs out, or its result
     /// is invalid) fails its job.
@@ -75,6 +80,13 @@ pub struct Limits {
     /// bigger): bounds what one upload makes the coordinator hold, at 12
     /// bytes a pixel.
     pub max_lease_pixels: u64,
+    /// Most pixels in one lease of encoded PNG segments (whole full-width
+    /// bands; see [`crate::scheduler::Lease::png_segments`]). Such an
+    /// upload is at most about 4.5 bytes a pixel
+    /// ([`crate::scheduler::encoded_rows_bound`]), a cheap scene's about
+    /// 0.55, instead of 12, so the cap is larger than
+    /// [`Limits::max_lease_pixels`]: see [`DEFAULT_MAX_SEGMENT_LEASE_PIXELS`].
+    pub max_segment_lease_pixels: u64,
     /// How long a job that no live worker has the memory for waits for a
     /// bigger worker to register before it fails (counted from when its
     /// estimate became known; see [`crate::scheduler::memory`]).
@@ -84,6 +96,17 @@ pub struct Limits {
     /// holds (see [`crate::farm::sequences`]).
     pub frames_in_progress: usize,
 }
+
+/// [`Limits::max_segment_lease_pixels`] by default: 2²² pixels (4 Mi). A
+/// second of a 16-thread worker on the cheap scene of docs/benchmarks.md
+/// (4,734 ns a pixel on one core) is 16 / 4,734 ns = 3.4 Mpixel, which
+/// fits, so a lease of about [`Limits::lease_target`] is not cut short
+/// there; the coordinator then takes about one lease a second from each
+/// worker, what 1,000 workers need. One upload is then at most 18 MiB of
+/// segments at the encoder's worst (4.5 bytes a pixel), 2.3 MiB at the
+/// cheap scene's 0.55, where a float lease at [`Limits::max_lease_pixels`]
+/// is 12 MiB.
+pub const DEFAULT_MAX_SEGMENT_LEASE_PIXELS: u64 = 1 << 22;
 
 /// Frames of one sequence in progress at once by default: a second frame
 /// lets idle workers start on it while the first one's last tiles are out.
@@ -130,6 +153,7 @@ impl Default for Limits {
             // 12 MiB of pixels: a 4096-pixel-wide band of 64-pixel tiles
             // is a quarter of it.
             max_lease_pixels: 1 << 20,
+            max_segment_lease_pixels: DEFAULT_MAX_SEGMENT_LEASE_PIXELS,
             // Long enough for a worker started with the job (or restarted
             // by its service manager) to register.
             memory_grace: Duration::from_secs(30),

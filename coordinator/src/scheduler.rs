@@ -22,16 +22,21 @@ pub mod lease_size;
 pub mod memory;
 mod window;
 
-use lease_size::LeaseSizer;
+use lease_size::{LeaseSizer, MAX_SPAN_TILES};
 use memory::MemoryGate;
-pub use window::{band_bytes, encoder_bytes, ENCODER_ROWS, TILE_BOOKKEEPING_BYTES};
+pub use window::{
+    band_bytes, encoded_rows_bound, encoder_bytes, segment_band_bytes, ENCODER_ROWS,
+    SEGMENT_FRAMING_BYTES, TILE_BOOKKEEPING_BYTES,
+};
 use window::{BandWindow, TileState};
 
 use crate::limits::Limits;
 use crate::workers::{WorkerInfo, Workers};
 use std::cmp::Reverse;
 use std::collections::{BTreeSet, HashMap};
+use std::path::Path;
 use std::time::{Duration, Instant};
+use trevi_core::output::{Format, SEGMENT_ROWS};
 use trevi_core::tile::Rect;
 
 pub type JobId = u64;
@@ -275,6 +280,85 @@ enum Release {
     Returned,
 }
 
+/// How a lease that starts at a job's pending tile is made up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SpanPlan {
+    /// That many whole full-width bands from the tile's (the first tile of
+    /// its band), as encoded PNG segments or as floats.
+    Bands { bands: u32, segments: bool },
+    /// Up to `want` adjacent tiles of the tile's band, from it on, as floats.
+    InBand { want: u32 },
+}
+
+/// Whether `spec`'s output is a PNG (its name's extension).
+fn is_png(spec: &JobSpec) -> bool {
+    Format::from_path(Path::new(&spec.output_name)) == Some(Format::Png)
+}
+
+/// Whether rows `y0..y1` of a `height`-row frame are whole PNG segments:
+/// they start on a multiple of [`SEGMENT_ROWS`] and end on one or at the
+/// frame's bottom.
+fn whole_segments(y0: u32, y1: u32, height: u32) -> bool {
+    y0 % SEGMENT_ROWS == 0 && (y1 % SEGMENT_ROWS == 0 || y1 == height)
+}
+
+/// What a lease starting at pending tile `first` covers (`None`: nothing
+/// may go out from there now). `want(cap)` is how many tiles the sizer
+/// gives the worker under a cap of `cap` pixels (1 for a worker that takes
+/// no spans). From the first tile of a band that is wholly pending, whole
+/// bands go out: as encoded segments when `may_encode` (the worker encodes,
+/// the output is PNG) and the rows are whole segments, under
+/// `max_segment_lease_pixels` and the window at the segment cost; as
+/// floats otherwise, under `max_lease_pixels` and the window at the float
+/// cost. Failing that (the band is partly taken, or more than the worker's
+/// share), adjacent tiles of one band as floats, as before bands were
+/// leased whole.
+fn span_plan(
+    window: &BandWindow,
+    spec: &JobSpec,
+    first: u32,
+    may_encode: bool,
+    want: impl Fn(u64) -> u32,
+    cfg: &Limits,
+) -> Option<SpanPlan> {
+    let cols = window.cols();
+    let band = first / cols;
+    let (width, height) = window.size();
+    let tile = spec.tile_size.max(1);
+    // Counted as a full band: the last band, shorter, is then under its cap.
+    let band_pixels = (width as u64 * tile.min(height) as u64).max(1);
+    let most_bands = |cap: u64| -> u32 {
+        let by_time = want(cap) / cols;
+        let by_pixels = u32::try_from(cap / band_pixels).unwrap_or(u32::MAX);
+        by_time.min(by_pixels).min(MAX_SPAN_TILES / cols)
+    };
+    if first % cols == 0 {
+        if may_encode {
+            let n = window.whole_bands(band, most_bands(cfg.max_segment_lease_pixels), true);
+            let y0 = band * tile;
+            let whole = (1..=n)
+                .rev()
+                .find(|&k| whole_segments(y0, (band + k).saturating_mul(tile).min(height), height));
+            if let Some(bands) = whole {
+                return Some(SpanPlan::Bands {
+                    bands,
+                    segments: true,
+                });
+            }
+        }
+        let n = window.whole_bands(band, most_bands(cfg.max_lease_pixels), false);
+        if n > 0 {
+            return Some(SpanPlan::Bands {
+                bands: n,
+                segments: false,
+            });
+        }
+    }
+    window.band_fits(band, false).then(|| SpanPlan::InBand {
+        want: want(cfg.max_lease_pixels).clamp(1, MAX_SPAN_TILES),
+    })
+}
+
 /// The job queue and leases.
 pub struct Scheduler {
     cfg: Limits,
@@ -485,42 +569,80 @@ impl Scheduler {
             {
                 continue;
             }
+            let spans = self.sizer.takes_spans(worker);
+            // Whether this lease may ask for encoded PNG segments: then the
+            // window lets it run further ahead (see [`window`]).
+            let may_encode = spans && self.sizer.takes_segments(worker) && is_png(&job.spec);
             if !self.memory.fits(id, limit) {
-                too_small |= job.window.next_tile().is_some();
+                too_small |= job.window.next_tile(may_encode).is_some();
                 continue;
             }
-            let Some(first) = job.window.next_tile() else {
+            let Some(first) = job.window.next_tile(may_encode) else {
                 continue;
             };
-            // A span: the next tiles while they follow `first` in its band.
-            let want = if self.sizer.takes_spans(worker) {
-                let t = job.spec.tile_size as u64;
-                lease_size::tiles_per_lease(
-                    self.sizer.cost(id),
-                    self.workers.threads(worker).unwrap_or(1),
-                    t * t,
-                    self.cfg.lease_target,
-                    self.cfg.max_lease_pixels,
-                )
-            } else {
-                1
+            let plan = span_plan(
+                &job.window,
+                &job.spec,
+                first,
+                may_encode,
+                |cap| {
+                    if !spans {
+                        return 1;
+                    }
+                    let t = job.spec.tile_size as u64;
+                    lease_size::tiles_per_lease(
+                        self.sizer.cost(id),
+                        self.workers.threads(worker).unwrap_or(1),
+                        t * t,
+                        self.cfg.lease_target,
+                        cap,
+                    )
+                },
+                &self.cfg,
+            );
+            let Some(plan) = plan else {
+                // Only a segment lease could go this far ahead, and none
+                // fits here.
+                continue;
             };
-            let mut span = vec![first];
-            let mut rect = job.window.rect(first);
-            job.window.set_leased(first, self.next_lease);
-            while (span.len() as u32) < want {
-                let Some(next) = job.window.next_tile() else {
-                    break;
-                };
-                let r = job.window.rect(next);
-                if next != span[span.len() - 1] + 1 || r.y != rect.y || r.x != rect.x + rect.w {
-                    break;
+            let (span, rect, segments) = match plan {
+                SpanPlan::Bands { bands, segments } => {
+                    let cols = job.window.cols();
+                    let (width, height) = job.window.size();
+                    let y = job.window.rect(first).y;
+                    let bottom = job.window.rect(first + bands * cols - 1);
+                    let rect = Rect::new(0, y, width, (bottom.y + bottom.h).min(height) - y);
+                    let span: Vec<u32> = (first..first + bands * cols).collect();
+                    for (i, &tile) in span.iter().enumerate() {
+                        job.window
+                            .set_leased(tile, self.next_lease + i as u64, segments);
+                    }
+                    (span, rect, segments)
                 }
-                span.push(next);
-                rect.w += r.w;
-                job.window
-                    .set_leased(next, self.next_lease + span.len() as u64 - 1);
-            }
+                SpanPlan::InBand { want } => {
+                    // The next tiles while they follow `first` in its band.
+                    let mut span = vec![first];
+                    let mut rect = job.window.rect(first);
+                    job.window.set_leased(first, self.next_lease, false);
+                    while (span.len() as u32) < want {
+                        let Some(next) = job.window.next_tile(false) else {
+                            break;
+                        };
+                        let r = job.window.rect(next);
+                        if next != span[span.len() - 1] + 1
+                            || r.y != rect.y
+                            || r.x != rect.x + rect.w
+                        {
+                            break;
+                        }
+                        span.push(next);
+                        rect.w += r.w;
+                        job.window
+                            .set_leased(next, self.next_lease + span.len() as u64 - 1, false);
+                    }
+                    (span, rect, false)
+                }
+            };
             let lease_id = self.next_lease;
             self.next_lease += span.len() as u64;
             self.counters.leases_granted += span.len() as u64;
@@ -549,7 +671,7 @@ impl Scheduler {
                 tiles: span.len() as u32,
                 memory_estimate: self.memory.estimate(id),
                 frame: job.spec.frame,
-                png_segments: false,
+                png_segments: segments,
             }));
         }
         if too_small {
@@ -821,39 +943,92 @@ impl Scheduler {
             .ok_or(SchedError::NotATile(rect, job))
     }
 
-    /// The tiles of `job` that a result for `rect` brings, left to right:
-    /// `rect` itself when it is one tile, or the tiles of a span (adjacent
-    /// tiles of one band, at most [`Limits::max_lease_pixels`] pixels; see
-    /// [`lease_size`]). A job that is over: `rect` alone (the result will
+    /// The tiles of `job` that a result for `rect` brings, in band order:
+    /// `rect` itself when it is one tile, or the tiles of a span: adjacent
+    /// tiles of one band, or whole full-width bands one after the other,
+    /// band by band and left to right (see [`lease_size`]), at most
+    /// [`MAX_SPAN_TILES`] of them. Its pixels are at most
+    /// [`Limits::max_segment_lease_pixels`] when it could be a segment lease
+    /// (a PNG frame's whole bands that are whole segments,
+    /// [`Lease::png_segments`]), [`Limits::max_lease_pixels`] otherwise;
+    /// [`Scheduler::span_tiles_as`] applies the cap of the upload's kind
+    /// once it is known. A job that is over: `rect` alone (the result will
     /// be ignored anyway).
     pub fn span_tiles(&self, job: JobId, rect: Rect) -> Result<Vec<Rect>, SchedError> {
+        self.span_tiles_capped(job, rect, None)
+    }
+
+    /// [`Scheduler::span_tiles`] for an upload of encoded segments
+    /// (`png_segments`) or of floats: a segment upload must be whole
+    /// segments of whole full-width bands of a PNG frame, at most
+    /// [`Limits::max_segment_lease_pixels`]; a float upload at most
+    /// [`Limits::max_lease_pixels`] (a single tile may be bigger).
+    pub fn span_tiles_as(
+        &self,
+        job: JobId,
+        rect: Rect,
+        png_segments: bool,
+    ) -> Result<Vec<Rect>, SchedError> {
+        self.span_tiles_capped(job, rect, Some(png_segments))
+    }
+
+    fn span_tiles_capped(
+        &self,
+        job: JobId,
+        rect: Rect,
+        kind: Option<bool>,
+    ) -> Result<Vec<Rect>, SchedError> {
         let j = self.jobs.get(&job).ok_or(SchedError::UnknownJob(job))?;
-        if j.state.is_final() || j.window.tile_index(rect).is_some() {
+        if j.state.is_final() {
             return Ok(vec![rect]);
         }
         let not_a_span = || SchedError::NotATile(rect, job);
-        if rect.pixel_count() as u64 > self.cfg.max_lease_pixels {
-            return Err(not_a_span());
-        }
+        let w = &j.window;
+        let (width, height) = w.size();
         let t = j.spec.tile_size;
-        let first = Rect::new(rect.x, rect.y, t.min(rect.w), rect.h);
-        let mut idx = j.window.tile_index(first).ok_or_else(not_a_span)?;
-        let mut parts = vec![first];
-        let mut covered = first.w;
-        while covered < rect.w {
-            idx += 1;
-            if idx >= j.window.tiles_total() {
-                return Err(not_a_span());
-            }
-            let r = j.window.rect(idx);
-            if r.y != rect.y || r.h != rect.h || r.x != rect.x + covered {
-                return Err(not_a_span());
-            }
-            covered += r.w;
-            parts.push(r);
-        }
-        if covered != rect.w {
+        let (x1, y1) = (rect.x as u64 + rect.w as u64, rect.y as u64 + rect.h as u64);
+        // On the tile grid, inside the frame, ending on the grid or at the
+        // frame's edge.
+        if rect.w == 0
+            || rect.h == 0
+            || rect.x % t != 0
+            || rect.y % t != 0
+            || x1 > width as u64
+            || y1 > height as u64
+            || (x1 % t as u64 != 0 && x1 != width as u64)
+            || (y1 % t as u64 != 0 && y1 != height as u64)
+        {
             return Err(not_a_span());
+        }
+        let (x1, y1) = (x1 as u32, y1 as u32);
+        let full_width = rect.x == 0 && x1 == width;
+        let (band0, bands) = (rect.y / t, (y1 - rect.y).div_ceil(t));
+        if bands > 1 && !full_width {
+            return Err(not_a_span());
+        }
+        let (c0, c1) = (rect.x / t, x1.div_ceil(t));
+        let count = bands as u64 * (c1 - c0) as u64;
+        let segment_shaped = full_width && is_png(&j.spec) && whole_segments(rect.y, y1, height);
+        let cap = match kind {
+            Some(true) if !segment_shaped => return Err(not_a_span()),
+            Some(true) => self.cfg.max_segment_lease_pixels,
+            None if segment_shaped => self
+                .cfg
+                .max_segment_lease_pixels
+                .max(self.cfg.max_lease_pixels),
+            // A single tile of any size is its own lease.
+            _ if count == 1 => u64::MAX,
+            _ => self.cfg.max_lease_pixels,
+        };
+        if count > MAX_SPAN_TILES as u64 || rect.pixel_count() as u64 > cap {
+            return Err(not_a_span());
+        }
+        let cols = w.cols();
+        let mut parts = Vec::with_capacity(count as usize);
+        for band in band0..band0 + bands {
+            for c in c0..c1 {
+                parts.push(w.rect(band * cols + c));
+            }
         }
         Ok(parts)
     }
@@ -1156,6 +1331,9 @@ impl Scheduler {
         }
     }
 }
+
+#[cfg(test)]
+mod span_tests;
 
 #[cfg(test)]
 mod tests {

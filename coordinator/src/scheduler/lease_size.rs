@@ -37,6 +37,13 @@ use super::{JobId, WorkerId};
 use std::collections::{HashMap, HashSet};
 use std::time::Duration;
 
+/// The most tiles in one span, whatever the sizing says: a worker
+/// heartbeats one lease id per tile (8 bytes each in a message of at most
+/// 4 MiB), and `trevi-worker` takes no more ids than this from one lease
+/// (worker/src/lib.rs, `span_ids`). Only spans of several bands of small
+/// tiles come near it (2²² pixels in 8×8 tiles).
+pub const MAX_SPAN_TILES: u32 = 1 << 16;
+
 /// Weight of a new measurement in a job's smoothed cost.
 const SMOOTHING: f64 = 0.25;
 
@@ -346,9 +353,11 @@ mod tests {
         let (cost, sizes) = run(true);
         let want = 0.002 * 16.0 / 4096.0;
         assert!((cost - want).abs() < want * 1e-9, "{cost} vs {want}");
-        // After the first (measuring) tile, the rest of each band.
-        assert_eq!(sizes[..3], [1, 63, 64]);
-        assert!(sizes[2..].iter().all(|&n| n == 64), "{sizes:?}");
+        // After the first (measuring) tile, the rest of its band, then
+        // whole bands: 500 tiles' worth, capped at 2^20 pixels (256 tiles,
+        // four bands).
+        assert_eq!(sizes[..3], [1, 63, 256]);
+        assert!(sizes[2..].iter().all(|&n| n == 256), "{sizes:?}");
         // Grant to result: the queueing counts as render (52 ms a tile,
         // 26 times the cost), and a lease is what 16 threads render in a
         // second at that cost: 16 / (0.052 × 16) = 19.2 tiles.
@@ -365,6 +374,7 @@ mod tests {
     fn a_job_like_a_measured_one_starts_from_its_cost() {
         use crate::scheduler::JobSpec;
         use std::time::Instant;
+        use trevi_core::tile::Rect;
         let now = Instant::now();
         let (mut s, w) = scheduler_with_span_worker(now, "w", 4);
         let spec = |hash: &str, camera: &str| JobSpec {
@@ -396,8 +406,10 @@ mod tests {
         s.cancel(first, t).unwrap();
         s.cancel(other_camera, t).unwrap();
         s.cancel(other_bundle, t).unwrap();
+        // Its first lease: both its bands (1000 tiles' worth), whole.
         let l = s.lease(w, t).unwrap().unwrap();
-        assert_eq!((l.job, l.tiles), (like, 10));
+        assert_eq!((l.job, l.tiles), (like, 20));
+        assert_eq!(l.rect, Rect::new(0, 0, 100, 20));
     }
 
     #[test]

@@ -3,11 +3,27 @@
 //! complete tiles may be leased. Only the tiles between the first one not
 //! done and the first one never leased are stored; the window keeps that
 //! span to a few bands, so neither the stitcher's rows nor this bookkeeping
-//! grows with the image height. What a band costs ([`band_bytes`],
-//! [`encoder_bytes`]) sets how many bands the window holds.
+//! grows with the image height.
+//!
+//! The window is a budget in bytes (`Limits::window_bytes` less
+//! [`encoder_bytes`]), not a number of bands: every band from the first
+//! one not complete to the last one with a tile leased is *held*, and costs
+//! what the writer may hold of it. A band any of whose tiles went out as
+//! floats costs [`band_bytes`] (12 bytes a pixel); a band leased only as
+//! encoded PNG segments costs [`segment_band_bytes`] (at most about 4.5
+//! bytes a pixel: what the segment encoder can emit at worst). A tile (or a
+//! span) is leased only while the held bands, its own counted at its cost,
+//! fit the budget, and the first band not complete is always allowed, so a
+//! job whose one band fits always makes progress. Segment leases therefore
+//! run up to 12 / 4.5 ≈ 2.7 times as many bands ahead as float leases, and
+//! what one job holds stays within the one budget whatever the mix.
+//!
+//! [`band_bytes`]: band_bytes
+//! [`segment_band_bytes`]: segment_band_bytes
 
 use super::{JobSpec, LeaseId};
 use std::collections::{BTreeMap, BTreeSet};
+use trevi_core::output::SEGMENT_ROWS;
 use trevi_core::tile::Rect;
 
 /// What the bookkeeping of one tile in a job's band window may cost, in
@@ -16,14 +32,46 @@ use trevi_core::tile::Rect;
 pub const TILE_BOOKKEEPING_BYTES: u64 = 96;
 
 /// What one band of `spec`'s tiles costs the coordinator while it is in the
-/// window, in bytes: its rows in the writer (12 bytes a pixel, the most any
-/// format holds) and the bookkeeping of its tiles. The band window holds
-/// `window_bytes / band_bytes` bands, at least one.
+/// window and was leased (at least partly) as floats, in bytes: its rows in
+/// the writer (12 bytes a pixel, the most any format holds) and the
+/// bookkeeping of its tiles. A frame whose one band does not fit the window
+/// is refused at submission.
 pub fn band_bytes(spec: &JobSpec) -> u64 {
     let tile = spec.tile_size.max(1) as u64;
     let rows = tile.min(spec.height.max(1) as u64);
     let cols = (spec.width as u64).div_ceil(tile).max(1);
     spec.width as u64 * rows * 12 + cols * TILE_BOOKKEEPING_BYTES
+}
+
+/// Bytes of one encoded segment beyond its filtered bytes' share, at most:
+/// the block header (52 bytes), the end-of-block code, the sync flush (5
+/// bytes), and the segment's own bookkeeping while it waits, rounded up.
+pub const SEGMENT_FRAMING_BYTES: u64 = 128;
+
+/// The most bytes the encoded segments of `rows` full rows of a
+/// `width`-pixel frame can take (`trevi_core::output::encode_segment`):
+/// every filtered byte (`1 + 3 × width` a row) coded in at most 12 bits
+/// (the longest code of the encoder's fixed table; runs of zeros cost
+/// less), so 1.5 bytes each, plus [`SEGMENT_FRAMING_BYTES`] for each of the
+/// segments the rows touch. About 4.5 bytes a pixel; a cheap scene's
+/// segments take about 0.55.
+pub fn encoded_rows_bound(width: u32, rows: u32) -> u64 {
+    let filtered = rows as u64 * (1 + 3 * width as u64);
+    let segments = (rows as u64).div_ceil(SEGMENT_ROWS as u64) + 1;
+    filtered.div_ceil(2) * 3 + segments * SEGMENT_FRAMING_BYTES
+}
+
+/// What one band of `spec`'s tiles costs the coordinator while it is in the
+/// window, when every lease of it asked for encoded PNG segments: the
+/// segments the writer may hold until those before them arrive
+/// ([`encoded_rows_bound`]) and the bookkeeping of its tiles. Never more
+/// than [`band_bytes`].
+pub fn segment_band_bytes(spec: &JobSpec) -> u64 {
+    let tile = spec.tile_size.max(1);
+    let rows = tile.min(spec.height.max(1));
+    let cols = (spec.width as u64).div_ceil(tile as u64).max(1);
+    let encoded = encoded_rows_bound(spec.width, rows) + cols * TILE_BOOKKEEPING_BYTES;
+    encoded.min(band_bytes(spec))
 }
 
 /// Rows a job's encoder holds beyond those in the band window: EXR
@@ -50,7 +98,11 @@ pub(super) struct BandWindow {
     height: u32,
     cols: u32,
     tiles_total: u32,
-    window_bands: u32,
+    /// The budget the held bands share: `window_bytes` less the encoder's.
+    room: u64,
+    /// What a held band costs leased as floats, and only as segments.
+    float_band: u64,
+    segment_band: u64,
     /// Every tile before this one is done.
     first_undone: u32,
     /// Every tile from this one on is pending and was never leased.
@@ -59,6 +111,11 @@ pub(super) struct BandWindow {
     active: BTreeMap<u32, TileState>,
     /// Pending tiles before `next_fresh` (re-queued), smallest first.
     requeued: BTreeSet<u32>,
+    /// The held bands (from the first one not complete to the last one
+    /// with a tile leased) and what each costs.
+    held: BTreeMap<u32, u64>,
+    /// The sum of `held`'s costs.
+    held_bytes: u64,
 }
 
 impl BandWindow {
@@ -68,24 +125,36 @@ impl BandWindow {
         let tile = spec.tile_size.max(1);
         let cols = spec.width.div_ceil(tile).max(1);
         let rows = spec.height.div_ceil(tile);
-        let room = window_bytes.saturating_sub(encoder_bytes(spec));
-        let window_bands = (room / band_bytes(spec).max(1)).clamp(1, u32::MAX as u64);
         BandWindow {
             tile,
             width: spec.width,
             height: spec.height,
             cols,
             tiles_total: u32::try_from(cols as u64 * rows as u64).unwrap_or(u32::MAX),
-            window_bands: window_bands as u32,
+            room: window_bytes.saturating_sub(encoder_bytes(spec)),
+            float_band: band_bytes(spec),
+            segment_band: segment_band_bytes(spec),
             first_undone: 0,
             next_fresh: 0,
             active: BTreeMap::new(),
             requeued: BTreeSet::new(),
+            held: BTreeMap::new(),
+            held_bytes: 0,
         }
     }
 
     pub(super) fn tiles_total(&self) -> u32 {
         self.tiles_total
+    }
+
+    /// Tiles in a band (every band has as many).
+    pub(super) fn cols(&self) -> u32 {
+        self.cols
+    }
+
+    /// The frame's width and height.
+    pub(super) fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
     }
 
     pub(super) fn rect(&self, idx: u32) -> Rect {
@@ -119,24 +188,103 @@ impl BandWindow {
         idx >= self.next_fresh
     }
 
-    /// The pending tile to hand out next, if the window allows one.
-    pub(super) fn next_tile(&self) -> Option<u32> {
+    /// What a band costs held, leased as segments or as floats.
+    fn band_cost(&self, segments: bool) -> u64 {
+        if segments {
+            self.segment_band
+        } else {
+            self.float_band
+        }
+    }
+
+    /// Whether band `band` may be leased (as segments or as floats): it is
+    /// the first band not complete, or the held bands with it, at its cost
+    /// once leased so, fit the budget.
+    pub(super) fn band_fits(&self, band: u32, segments: bool) -> bool {
+        if band <= self.first_undone / self.cols {
+            return true;
+        }
+        let now = self.held.get(&band).copied().unwrap_or(0);
+        let after = now.max(self.band_cost(segments));
+        self.held_bytes - now + after <= self.room
+    }
+
+    /// The pending tile to hand out next, if the window allows it to go
+    /// out as floats (`segments` false) or in a segment lease.
+    pub(super) fn next_tile(&self, segments: bool) -> Option<u32> {
         let idx = match self.requeued.first() {
             Some(&i) => i,
             None if self.next_fresh < self.tiles_total => self.next_fresh,
             None => return None,
         };
-        let limit = (self.first_undone / self.cols) as u64 + self.window_bands as u64;
-        (((idx / self.cols) as u64) < limit).then_some(idx)
+        self.band_fits(idx / self.cols, segments).then_some(idx)
     }
 
-    pub(super) fn set_leased(&mut self, idx: u32, lease: LeaseId) {
+    /// Whether every tile of band `band` is pending (fresh or re-queued).
+    fn band_pending(&self, band: u32) -> bool {
+        let start = band as u64 * self.cols as u64;
+        if start >= self.tiles_total as u64 {
+            return false;
+        }
+        let start = start as u32;
+        let end = start + self.cols;
+        start >= self.first_undone
+            && (start..end.min(self.next_fresh)).all(|i| self.active[&i] == TileState::Pending)
+    }
+
+    /// How many whole bands, from band `band` on, may go out in one lease
+    /// (as segments or as floats), at most `most`: consecutive bands every
+    /// tile of which is pending, while the held bands with them fit the
+    /// budget (the first band not complete always fits).
+    pub(super) fn whole_bands(&self, band: u32, most: u32, segments: bool) -> u32 {
+        let cost = self.band_cost(segments);
+        let first = self.first_undone / self.cols;
+        let mut total = self.held_bytes;
+        let mut n = 0;
+        while n < most {
+            let b = band + n;
+            if !self.band_pending(b) {
+                break;
+            }
+            let now = self.held.get(&b).copied().unwrap_or(0);
+            total = total - now + now.max(cost);
+            if b > first && total > self.room {
+                break;
+            }
+            n += 1;
+        }
+        n
+    }
+
+    /// Hands tile `idx` out under `lease`, as part of a segment lease or
+    /// not. Tiles go out in order: a re-queued one, or the next fresh one.
+    pub(super) fn set_leased(&mut self, idx: u32, lease: LeaseId, segments: bool) {
         if idx == self.next_fresh {
             self.next_fresh += 1;
         } else {
+            debug_assert!(self.requeued.contains(&idx), "tile {idx} is not pending");
             self.requeued.remove(&idx);
         }
         self.active.insert(idx, TileState::Leased(lease));
+        let cost = self.band_cost(segments);
+        let held = self.held.entry(idx / self.cols).or_insert(0);
+        if cost > *held {
+            self.held_bytes += cost - *held;
+            *held = cost;
+        }
+    }
+
+    /// What the held bands cost, in bytes (never more than the budget, or
+    /// one band's cost when the first band alone is larger).
+    #[cfg(test)]
+    pub(super) fn held_bytes(&self) -> u64 {
+        self.held_bytes
+    }
+
+    /// The budget the held bands share.
+    #[cfg(test)]
+    pub(super) fn room(&self) -> u64 {
+        self.room
     }
 
     /// Puts a handed-out tile back, ahead of the fresh ones.
@@ -145,7 +293,8 @@ impl BandWindow {
         self.requeued.insert(idx);
     }
 
-    /// Marks a tile done and moves `first_undone` past the done prefix.
+    /// Marks a tile done and moves `first_undone` past the done prefix;
+    /// bands before it are no longer held.
     pub(super) fn set_done(&mut self, idx: u32) {
         self.requeued.remove(&idx);
         self.active.insert(idx, TileState::Done);
@@ -155,12 +304,20 @@ impl BandWindow {
             self.active.remove(&self.first_undone);
             self.first_undone += 1;
         }
+        let first = self.first_undone / self.cols;
+        while let Some(entry) = self.held.first_entry() {
+            if *entry.key() >= first {
+                break;
+            }
+            self.held_bytes -= entry.remove();
+        }
     }
 
     /// Restores the window of a job of an earlier run whose tiles `done`
     /// (sorted, unique, in the frame) are done: the done prefix needs no
     /// entries, the span after it up to the last done tile is pending or
-    /// done (a window's worth, as when the tiles were leased).
+    /// done (a window's worth, as when the tiles were leased), and its
+    /// bands are held at the float cost (what a replay may hold at most).
     pub(super) fn restore(&mut self, done: &[u32]) {
         let Some(&last) = done.last() else {
             return;
@@ -175,6 +332,10 @@ impl BandWindow {
         for i in prefix..self.next_fresh {
             self.requeue(i);
         }
+        for band in prefix / self.cols..=last / self.cols {
+            self.held.insert(band, self.float_band);
+            self.held_bytes += self.float_band;
+        }
         for &i in &done[prefix as usize..] {
             self.set_done(i);
         }
@@ -184,6 +345,8 @@ impl BandWindow {
     pub(super) fn retire(&mut self) {
         self.active = BTreeMap::new();
         self.requeued = BTreeSet::new();
+        self.held = BTreeMap::new();
+        self.held_bytes = 0;
     }
 
     /// Tiles whose state is stored (for tests of the bound).
@@ -231,9 +394,9 @@ mod tests {
         assert_eq!(w.tile_state(0), TileState::Done);
         assert_eq!(w.tile_state(1), TileState::Pending);
         assert_eq!(w.tile_state(2), TileState::Done);
-        assert_eq!(w.next_tile(), Some(1), "the gap first");
-        w.set_leased(1, 7);
-        assert_eq!(w.next_tile(), Some(3), "then the fresh tiles");
+        assert_eq!(w.next_tile(false), Some(1), "the gap first");
+        w.set_leased(1, 7, false);
+        assert_eq!(w.next_tile(false), Some(3), "then the fresh tiles");
         w.set_done(1);
         assert_eq!(w.tracked(), 0, "the done prefix needs no entries");
     }
