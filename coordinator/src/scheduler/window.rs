@@ -458,4 +458,150 @@ mod tests {
         assert_eq!(s.info(j, now).unwrap().tiles_done, 4000);
         assert!(peak <= 8, "tracked {peak} tiles at once");
     }
+
+    /// The encoder's output never exceeds [`encoded_rows_bound`]: noise
+    /// (the hardest input to compress), encoded by `encode_segment`.
+    #[test]
+    fn encoded_segments_stay_within_their_bound() {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        let mut noise = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for width in [1, 2, 7, 64, 301] {
+            for rows in [1, 5, 16] {
+                let pixels: Vec<[f32; 3]> = (0..width * rows)
+                    .map(|_| [noise(), noise(), noise()])
+                    .collect();
+                let seg = trevi_core::output::encode_segment(width, &pixels);
+                let bound = encoded_rows_bound(width, rows);
+                let len = seg.deflate.len() as u64;
+                assert!(len <= bound, "{width}x{rows}: {len} > {bound}");
+                // Noise is nearly incompressible: the bound is not loose
+                // by more than its 12-bit codes and framing.
+                assert!(len * 2 >= seg.filtered_len, "{width}x{rows}: {len}");
+            }
+        }
+        // A segment band costs less than a float band, never more.
+        let wide = spec(4096, 64, 64);
+        assert!(segment_band_bytes(&wide) * 2 < band_bytes(&wide));
+        let narrow = spec(1, 1, 1);
+        assert!(segment_band_bytes(&narrow) <= band_bytes(&narrow));
+    }
+
+    /// Limits whose window holds four float bands of a 64-wide frame of
+    /// 16-pixel tiles (nine segment bands).
+    fn four_float_bands() -> Limits {
+        let s = spec(64, 16 * 40, 16);
+        Limits {
+            lease_ttl: Duration::from_secs(5),
+            window_bytes: encoder_bytes(&s) + 4 * band_bytes(&s),
+            ..Limits::default()
+        }
+    }
+
+    #[test]
+    fn segment_leases_run_further_ahead_within_the_same_budget() {
+        let now = Instant::now();
+        let sp = spec(64, 16 * 40, 16);
+        let (float_band, segment_band) = (band_bytes(&sp), segment_band_bytes(&sp));
+        let room = 4 * float_band;
+        let segment_bands = (room / segment_band) as u32;
+        assert_eq!(segment_bands, 9);
+        for encodes in [false, true] {
+            let mut s = Scheduler::new(four_float_bands(), 1);
+            let w = s.register_worker(now, None);
+            s.describe_worker(w, "w", 16);
+            s.allow_spans(w);
+            if encodes {
+                s.allow_segments(w);
+            }
+            let j = s.submit(sp.clone(), now);
+            s.sizer.seed(j, 1e-12);
+            let leases: Vec<Lease> = std::iter::from_fn(|| s.lease(w, now).unwrap()).collect();
+            let rows: u32 = leases.iter().map(|l| l.rect.h).sum();
+            let want = if encodes { segment_bands } else { 4 };
+            assert_eq!(rows, 16 * want, "encodes: {encodes}");
+            assert!(leases.iter().all(|l| l.png_segments == encodes));
+            let held = s.jobs[&j].window.held_bytes();
+            let cost = if encodes { segment_band } else { float_band };
+            assert_eq!(held, want as u64 * cost);
+            assert!(held <= s.jobs[&j].window.room());
+        }
+    }
+
+    /// Workers that encode and workers that do not take bands of the same
+    /// frame, and leases complete out of order: what the
+    /// held bands cost, computed here from the leases alone (12 bytes a
+    /// pixel for a band any of whose tiles went out as floats, the
+    /// encoder's worst case for the others), is the window's own figure,
+    /// never over the budget unless one band alone is held, and the frame
+    /// completes.
+    #[test]
+    fn mixed_leases_stay_within_the_budget() {
+        use std::collections::{HashMap, VecDeque};
+        let now = Instant::now();
+        let sp = spec(64, 16 * 40, 16);
+        let (float_band, segment_band) = (band_bytes(&sp), segment_band_bytes(&sp));
+        let mut s = Scheduler::new(four_float_bands(), 1);
+        let room = 4 * float_band;
+        let mut workers = Vec::new();
+        for encodes in [true, false, true] {
+            let w = s.register_worker(now, None);
+            s.describe_worker(w, "w", 1);
+            s.allow_spans(w);
+            if encodes {
+                s.allow_segments(w);
+            }
+            workers.push(w);
+        }
+        let j = s.submit(sp.clone(), now);
+        // 4.5 tiles a second of one thread: one band a lease at first
+        // (results measure the cost again: later leases grow).
+        s.sizer.seed(j, 1.0 / (4.5 * 256.0));
+        let mut out: VecDeque<Lease> = VecDeque::new();
+        let mut floats: BTreeMap<u32, bool> = BTreeMap::new();
+        let mut done: HashMap<u32, u32> = HashMap::new();
+        let (mut tiles_done, mut step, mut most_ahead) = (0, 0u32, 0);
+        while tiles_done < 160 {
+            step += 1;
+            let who = workers[step as usize % 3];
+            match s.lease(who, now).unwrap() {
+                Some(l) => {
+                    for band in l.rect.y / 16..(l.rect.y + l.rect.h) / 16 {
+                        *floats.entry(band).or_default() |= !l.png_segments;
+                    }
+                    out.push_back(l);
+                }
+                None => {
+                    let l = if step % 3 == 0 {
+                        out.pop_back()
+                    } else {
+                        out.pop_front()
+                    };
+                    let l = l.expect("nothing out, and nothing given");
+                    for p in s.span_tiles(j, l.rect).unwrap() {
+                        s.accept_tile(j, p, 1, now).unwrap();
+                        *done.entry(p.y / 16).or_default() += 1;
+                        tiles_done += 1;
+                    }
+                }
+            }
+            let first = (0..40).find(|b| done.get(b).copied().unwrap_or(0) < 4);
+            let Some(first) = first else { break };
+            let held: u64 = floats
+                .range(first..)
+                .map(|(_, &f)| if f { float_band } else { segment_band })
+                .sum();
+            assert_eq!(held, s.jobs[&j].window.held_bytes(), "step {step}");
+            let last = floats.keys().next_back().copied().unwrap_or(0);
+            assert!(held <= room || last == first, "step {step}: {held}");
+            most_ahead = most_ahead.max(last.saturating_sub(first) + 1);
+        }
+        assert_eq!(s.info(j, now).unwrap().tiles_done, 160);
+        assert!(floats.values().any(|&f| f) && floats.values().any(|&f| !f));
+        assert!(most_ahead > 4, "segment bands ran ahead: {most_ahead}");
+    }
 }
