@@ -4,9 +4,17 @@
 //! Rules:
 //! - Jobs run by priority (higher first), then in submission order; several
 //!   jobs run at once when the first cannot use an idle worker.
-//! - A job's tiles are leased in band order (top band first), and never more
-//!   than `window_bands` bands ahead of the first band that is not complete,
-//!   so the stitcher holds a bounded number of rows whatever the height.
+//! - A job's tiles are leased in band order (top band first), and never
+//!   further ahead of the first band that is not complete than the job's
+//!   window (`Limits::window_bytes`) allows, counting a band leased as
+//!   floats at 12 bytes a pixel and one leased only as encoded PNG segments
+//!   at the encoder's worst case (see `scheduler/window.rs`), so the
+//!   stitcher holds a bounded number of bytes whatever the height.
+//! - A worker that takes spans gets several tiles in one lease: adjacent
+//!   tiles of one band, or whole full-width bands, several while they are
+//!   wholly pending; whole bands of a PNG frame that are whole 16-row
+//!   segments go to a worker with the coordinator's encoder as a segment
+//!   lease ([`Lease::png_segments`]); see [`lease_size`].
 //! - A lease lives `lease_ttl` past its last heartbeat; an expired lease puts
 //!   its tile back in the queue (ahead of later tiles of the same job).
 //! - The first valid result for a tile wins; later and duplicate results are
@@ -128,9 +136,10 @@ pub struct FramesInfo {
     pub current: Option<(u32, u64, u64)>,
 }
 
-/// A tile handed to a worker, or a span of adjacent tiles of one band (see
-/// [`lease_size`]): then `rect` is their union and their leases are `id`,
-/// `id + 1`, … `id + tiles - 1`, left to right.
+/// A tile handed to a worker, or a span (see [`lease_size`]): adjacent
+/// tiles of one band, or whole full-width bands one after the other. Then
+/// `rect` is their union and their leases are `id`, `id + 1`, … `id +
+/// tiles - 1`, in band order (band by band, left to right).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Lease {
     pub id: LeaseId,
@@ -145,8 +154,14 @@ pub struct Lease {
     /// The job's frame, for a frame of a sequence.
     pub frame: Option<u32>,
     /// The worker is to upload `rect` as encoded PNG segments (see
-    /// [`Scheduler::allow_segments`]): `rect` is then whole segments of
-    /// full-width rows.
+    /// [`Scheduler::allow_segments`]). Set when the worker encodes with the
+    /// coordinator's encoder and takes spans, the job's output is a PNG
+    /// (its name's extension), and `rect` is whole full-width bands whose
+    /// rows are whole segments: from a multiple of
+    /// [`SEGMENT_ROWS`] to a multiple of it or the frame's bottom (every
+    /// run of bands when the tile size is a multiple of 16). Such a lease
+    /// is at most [`Limits::max_segment_lease_pixels`]; any other is
+    /// floats, as before.
     pub png_segments: bool,
 }
 

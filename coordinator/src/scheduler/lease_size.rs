@@ -4,11 +4,32 @@
 //! A cheap frame in 64×64 tiles costs a worker a few milliseconds a tile, so
 //! a farm of many cores would spend most of the coordinator's time on the
 //! lease and upload of each tile. A worker that registers with
-//! `multi_tile` is given leases of several adjacent tiles of one band
-//! instead (a *span*): it renders their union as one rectangle and uploads
-//! it once; the coordinator splits it back into its tiles, which are
-//! validated, stored and stitched one by one as before. Tile size never
-//! changes a pixel, so neither does a span.
+//! `multi_tile` is given leases of several tiles instead (a *span*): it
+//! renders their union as one rectangle and uploads it once; the
+//! coordinator splits it back into its tiles, which are validated, stored
+//! and stitched one by one as before. Tile size never changes a pixel, so
+//! neither does a span.
+//!
+//! A span is adjacent tiles of one band, or whole bands: one that starts at
+//! the first tile of a band and takes all of it continues into the next
+//! bands while every tile of each is pending (never leased, or re-queued),
+//! within the sizer's share, the pixel cap, [`MAX_SPAN_TILES`] and the
+//! band window. Its tiles are in band order (band by band, left to right),
+//! their lease ids consecutive in that order, and its rectangle their
+//! union: full-width rows. A band partly taken gives a span of the rest of
+//! that band only.
+//!
+//! *Segment leases.* To a worker that also encodes PNG segments with the
+//! coordinator's encoder (`RegisterRequest.png_encoder`), a span of whole
+//! bands of a PNG frame whose rows are whole 16-row segments goes as a
+//! segment lease (`Lease.png_segments`): the worker uploads encoded
+//! segments, at most about 4.5 bytes a pixel (a cheap scene's 0.55) instead
+//! of 12, so such a lease may hold up to [`Limits::max_segment_lease_pixels`]
+//! (2²², where a second of 16 threads on the cheap scene is 3.4 Mpixel) and
+//! the window counts its bands at that cost (see the `window` module).
+//! With tiles whose height is not a multiple of 16, the most bands that
+//! end on a segment's edge (or the frame's bottom) are taken; when none
+//! do, the lease is floats, as for any other worker or format.
 //!
 //! The rule ([`tiles_per_lease`]): a job's cost is measured in
 //! core-seconds per pixel from its completed leases (the time the worker
@@ -21,8 +42,9 @@
 //! is measured from grant to result, and a reported time is never taken
 //! above that ([`render_time`]). A lease then gets as many
 //! tiles as `threads` cores render in about [`Limits::lease_target`], at
-//! least one, at most [`Limits::max_lease_pixels`] pixels and never more
-//! than the band has left. A job submitted while an unfinished job of the
+//! least one, at most [`Limits::max_lease_pixels`] pixels
+//! ([`Limits::max_segment_lease_pixels`] for a segment lease), as whole
+//! bands when they fit, the rest of the band otherwise. A job submitted while an unfinished job of the
 //! same bundle and camera has a measured cost (the next frame of a
 //! sequence, the same scene again) starts from that cost; otherwise, until
 //! it has a measurement, its leases are single tiles (they make the first
@@ -32,6 +54,7 @@
 //!
 //! [`Limits::lease_target`]: crate::limits::Limits::lease_target
 //! [`Limits::max_lease_pixels`]: crate::limits::Limits::max_lease_pixels
+//! [`Limits::max_segment_lease_pixels`]: crate::limits::Limits::max_segment_lease_pixels
 
 use super::{JobId, WorkerId};
 use std::collections::{HashMap, HashSet};

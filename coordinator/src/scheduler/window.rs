@@ -604,4 +604,29 @@ mod tests {
         assert!(floats.values().any(|&f| f) && floats.values().any(|&f| !f));
         assert!(most_ahead > 4, "segment bands ran ahead: {most_ahead}");
     }
+
+    /// The figures docs/farm.md gives: a 1920 × 4096 frame in 64-pixel
+    /// tiles under the default 32 MiB window holds 22 bands leased as
+    /// floats, 58 leased as segments.
+    #[test]
+    fn the_default_window_holds_22_float_or_58_segment_bands_of_a_1920_frame() {
+        let now = Instant::now();
+        for (encodes, bands) in [(false, 22), (true, 58)] {
+            let mut s = Scheduler::new(Limits::default(), 1);
+            let w = s.register_worker(now, None);
+            s.describe_worker(w, "w", 16);
+            s.allow_spans(w);
+            if encodes {
+                s.allow_segments(w);
+            }
+            let mut sp = spec(1920, 4096, 64);
+            sp.output_name = "o.png".into();
+            let j = s.submit(sp, now);
+            s.sizer.seed(j, 1e-12);
+            let rows: u32 = std::iter::from_fn(|| s.lease(w, now).unwrap())
+                .map(|l| l.rect.h)
+                .sum();
+            assert_eq!(rows, 64 * bands, "encodes: {encodes}");
+        }
+    }
 }
