@@ -20,11 +20,11 @@
 pub(super) const ZLIB_HEADER: [u8; 2] = [0x78, 0x01];
 
 /// What a sync flush ends with: an empty stored block's LEN and NLEN.
-pub(super) const SYNC_FLUSH: [u8; 4] = [0x00, 0x00, 0xff, 0xff];
+pub const SYNC_FLUSH: [u8; 4] = [0x00, 0x00, 0xff, 0xff];
 
 /// An empty final block (fixed Huffman codes, only the end-of-block code),
 /// padded to the byte: what ends the stream after the last segment.
-pub(super) const FINAL_EMPTY_BLOCK: [u8; 2] = [0x03, 0x00];
+pub const FINAL_EMPTY_BLOCK: [u8; 2] = [0x03, 0x00];
 
 /// The start of a dynamic Huffman block with `fdeflate`'s code table: the
 /// 54-byte header of `fdeflate` without its two zlib bytes, of which the last
