@@ -247,7 +247,7 @@ pub(super) fn deflate_segment(data: &[u8]) -> Vec<u8> {
 const ADLER_BASE: u64 = 65521;
 
 /// The Adler-32 of `data`.
-pub(super) fn adler32(data: &[u8]) -> u32 {
+pub fn adler32(data: &[u8]) -> u32 {
     let mut a = simd_adler32::Adler32::new();
     a.write(data);
     a.finish()

@@ -64,7 +64,7 @@ mod srgb;
 #[cfg(test)]
 mod tests;
 
-pub use self::deflate::{adler32_combine, FINAL_EMPTY_BLOCK, SYNC_FLUSH};
+pub use self::deflate::{adler32, adler32_combine, FINAL_EMPTY_BLOCK, SYNC_FLUSH};
 pub use self::exr::read_exr_rgb;
 pub use self::png::{
     check_segment, decode_png, encode_segment, encode_segment_srgb, max_segment_deflate_len,
