@@ -5,7 +5,8 @@
 //! tests drive it directly with synthetic pixels. Beside this file, in
 //! `farm/`: `checks.rs` (what is refused before it is taken in),
 //! `restore.rs` (picking up after a restart), `previews.rs` (each job's
-//! live preview), `retention.rs` (how long ended jobs are kept) and
+//! live preview), `segments.rs` (leases uploaded as encoded PNG segments),
+//! `retention.rs` (how long ended jobs are kept) and
 //! `upkeep.rs` (the periodic lease reaper and bundle collector).
 //!
 //! Locking: `state` (scheduler, watchers) is held only for bookkeeping; each

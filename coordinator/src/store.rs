@@ -11,6 +11,12 @@
 //!   row. Kept out of the database because writing 48 KiB blobs into
 //!   SQLite's log and checkpointing them again cost the coordinator a third
 //!   of its time per tile (docs/benchmarks.md); a small row costs little.
+//! - every span of tiles taken as encoded PNG segments
+//!   ([`Store::put_segment_span`]): the segments, their index, Adler-32 and
+//!   length, and the preview sums, appended once to the same file (about
+//!   0.55 bytes a pixel instead of 12), with a row per tile (`kind` 1)
+//!   pointing at them; a restart replays them ([`Store::replay`]) and a
+//!   damaged one is forgotten with all its tiles.
 //!
 //! On start the coordinator reloads the jobs; for each unfinished one it
 //! starts the output file afresh and replays the stored tiles into it in band

@@ -541,7 +541,8 @@ mod grpc {
 
         // Refusals, each re-queueing the band (leased again next).
         let mut l = first;
-        let refusals: Vec<(&str, Box<dyn Fn(&mut Vec<pb::TileUpload>)>)> = vec![
+        type Spoil = Box<dyn Fn(&mut Vec<pb::TileUpload>)>;
+        let refusals: Vec<(&str, Spoil)> = vec![
             (
                 "segment 1 came where segment 0 was due",
                 Box::new(|m| {

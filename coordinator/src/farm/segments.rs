@@ -613,6 +613,54 @@ mod tests {
         }
     }
 
+    /// The cost of the full check of one segment against encoding it, on
+    /// a 1920-wide segment of a smooth image with a little noise and of
+    /// pure noise (the worst case). Prints figures; run by hand:
+    /// `cargo test -p trevi-coordinator --lib inflate_check_cost -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn inflate_check_cost() {
+        let width = 1920u32;
+        let mut state = 1u64;
+        let mut rnd = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for (name, noise) in [("smooth", 0.02f32), ("noise", 1.0)] {
+            let px: Vec<[f32; 3]> = (0..width * 16)
+                .map(|i| {
+                    let (x, y) = ((i % width) as f32, (i / width) as f32);
+                    let base = [x / 1920.0, y / 16.0, 0.5];
+                    base.map(|c| (c * (1.0 - noise) + noise * rnd()).max(0.0))
+                })
+                .collect();
+            let reps = 200;
+            let t = std::time::Instant::now();
+            let mut seg = encode_segment(width, &px);
+            for _ in 1..reps {
+                seg = encode_segment(width, &px);
+            }
+            let enc = t.elapsed().as_secs_f64() / f64::from(reps);
+            let t = std::time::Instant::now();
+            for _ in 0..reps {
+                inflate_check(width, 0, &seg).unwrap();
+            }
+            let chk = t.elapsed().as_secs_f64() / f64::from(reps);
+            let n = f64::from(width * 16);
+            println!(
+                "{name}: {} deflate bytes ({:.2} a pixel); encode {:.2} ns/pixel, \
+                 inflate check {:.2} ns/pixel ({:.0} us a segment)",
+                seg.deflate.len(),
+                seg.deflate.len() as f64 / n,
+                enc * 1e9 / n,
+                chk * 1e9 / n,
+                chk * 1e6
+            );
+        }
+    }
+
     #[test]
     fn the_sampled_segment_is_in_range_and_varies() {
         let picks: std::collections::BTreeSet<u32> =
