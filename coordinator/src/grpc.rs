@@ -401,7 +401,6 @@ impl WorkersService {
     ) -> Result<Response<pb::TileAck>, Status> {
         use trevi_core::output::{max_segment_deflate_len, PngSegment};
         let (worker, lease, job) = (header.worker_id, header.lease_id, header.job_id);
-        let plan = self.farm.segment_plan(job, rect)?;
         let refuse = |why: String| {
             let farm = self.farm.clone();
             let parts = parts.clone();
@@ -412,6 +411,11 @@ impl WorkersService {
                 .await?;
                 Err::<Response<pb::TileAck>, Status>(e.into())
             }
+        };
+        let plan = match self.farm.segment_plan(job, rect) {
+            Ok(p) => p,
+            Err(FarmError::BadTile(m)) => return refuse(m).await,
+            Err(e) => return Err(e.into()),
         };
         let mut segments: Vec<PngSegment> = Vec::with_capacity(plan.count.min(4096) as usize);
         let mut sums: Option<Vec<f32>> = None;

@@ -395,6 +395,40 @@ fn a_worker_without_the_encoder_and_a_wrong_rect_are_refused() {
         .id;
     let e = f.segment_plan(exr, Rect::new(0, 0, 40, 64)).unwrap_err();
     assert!(e.to_string().contains("not a PNG"), "{e}");
+
+    // A lease that is not full-width rows, uploaded as segments anyway:
+    // refused and re-queued like any invalid result.
+    let dir = tempfile::tempdir().unwrap();
+    let g = farm(dir.path(), false);
+    let narrow = g
+        .submit(spec(40, 32, 16, "n.png"), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let wk = segment_worker(&g);
+    let l = g.lease(wk).unwrap().unwrap();
+    assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
+    let segs = [encode_segment(16, &pixels(l.rect))];
+    let e = g
+        .put_segments(
+            SegmentUpload {
+                lease: l.id,
+                job: narrow,
+                rect: l.rect,
+                rays: 1,
+                worker: Some(wk),
+                segments: &segs,
+                sums: &[0.0; 3 * 256],
+            },
+            &[l.rect],
+            None,
+        )
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("not the frame's full width 40"),
+        "{e}"
+    );
+    let rest = lease_all(&g, wk);
+    assert!(rest.iter().any(|r| r.rect == l.rect), "re-queued");
 }
 
 #[test]

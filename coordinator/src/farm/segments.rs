@@ -358,9 +358,30 @@ impl Farm {
         parts: &[Rect],
         render: Option<Duration>,
     ) -> Result<TileOutcome, FarmError> {
-        let plan = self.segment_plan(up.job, up.rect)?;
-        let valid = check_upload(&plan, &up);
         let job = up.job;
+        let plan = match self.segment_plan(job, up.rect) {
+            Ok(p) => p,
+            Err(FarmError::BadTile(m)) => {
+                return Err(self.reject_segments(up.lease, job, parts, up.worker, m))
+            }
+            Err(e) => return Err(e),
+        };
+        // The parts must tile the rect (the gRPC path has them from
+        // `span_tiles`; a caller of this API might not).
+        let inside = parts.iter().all(|p| {
+            p.x >= up.rect.x
+                && p.y >= up.rect.y
+                && p.x + p.w <= up.rect.x + up.rect.w
+                && p.y + p.h <= up.rect.y + up.rect.h
+        });
+        let area: usize = parts.iter().map(|p| p.pixel_count()).sum();
+        if parts.is_empty() || !inside || area != up.rect.pixel_count() {
+            return Err(FarmError::BadTile(format!(
+                "the tiles given do not make up {:?}",
+                up.rect
+            )));
+        }
+        let valid = check_upload(&plan, &up);
         let now = Instant::now();
         let mut st = lock(&self.state);
         for (i, &part) in parts.iter().enumerate() {
