@@ -5,7 +5,8 @@
 //! tests drive it directly with synthetic pixels. Beside this file, in
 //! `farm/`: `checks.rs` (what is refused before it is taken in),
 //! `restore.rs` (picking up after a restart), `previews.rs` (each job's
-//! live preview), `retention.rs` (how long ended jobs are kept) and
+//! live preview), `segments.rs` (leases uploaded as encoded PNG segments),
+//! `retention.rs` (how long ended jobs are kept) and
 //! `upkeep.rs` (the periodic lease reaper and bundle collector).
 //!
 //! Locking: `state` (scheduler, watchers) is held only for bookkeeping; each
@@ -17,6 +18,7 @@ mod checks;
 mod previews;
 mod restore;
 mod retention;
+pub mod segments;
 pub mod sequences;
 mod upkeep;
 
@@ -24,6 +26,7 @@ use checks::output_name;
 pub use checks::{output_name_as, validate_pixels};
 pub use previews::PreviewImage;
 pub use retention::{BadDuration, Retention};
+pub use segments::{SegmentPlan, SegmentUpload};
 pub use upkeep::Upkeep;
 
 use crate::bundles::BundleStore;
@@ -38,7 +41,7 @@ use crate::sink::TileSink;
 use crate::store::{SeqLink, Store, StoredJob};
 use crate::summaries::{SceneSummary, Summaries};
 use crate::workers::WorkerInfo;
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -121,6 +124,11 @@ pub struct WorkerOptions<'a> {
     /// The most memory it lets a scene take, in bytes (`--max-memory`);
     /// 0: no limit (see [`crate::scheduler::memory`]).
     pub max_memory: u64,
+    /// It encodes PNG segments with this coordinator's encoder (its
+    /// `png_encoder` equals [`trevi_core::output::PNG_ENCODER`]): its
+    /// leases may ask for encoded segments (see [`Farm::put_segments`]),
+    /// and only such a worker's are taken.
+    pub png_segments: bool,
 }
 
 /// A worker [`Farm::register_worker`] registered.
@@ -193,6 +201,8 @@ struct State {
     seqs: HashMap<JobId, sequences::Sequence>,
     /// Each frame job's sequence.
     parent_of: HashMap<JobId, JobId>,
+    /// Workers that registered with this coordinator's PNG encoder.
+    segment_workers: HashSet<WorkerId>,
 }
 
 impl State {
@@ -255,6 +265,7 @@ impl Farm {
                 unrecorded: HashMap::new(),
                 seqs: HashMap::new(),
                 parent_of: HashMap::new(),
+                segment_workers: HashSet::new(),
             }),
             work: Notify::new(),
             bundles,
@@ -505,6 +516,10 @@ impl Farm {
         if opts.multi_tile {
             st.sched.allow_spans(id);
         }
+        if opts.png_segments {
+            st.sched.allow_segments(id);
+            st.segment_workers.insert(id);
+        }
         st.sched.set_memory_limit(id, opts.max_memory);
         Ok(Registration { id, session })
     }
@@ -606,8 +621,9 @@ impl Farm {
     }
 
     /// Takes the result of a lease of several tiles: `r.rect` is their
-    /// union, `parts` its tiles left to right ([`Farm::span_tiles`]), whose
-    /// leases are `r.lease`, `r.lease + 1`, …. Each tile is checked and
+    /// union, `parts` its tiles in row-major order (band by band, left to
+    /// right: [`Farm::span_tiles`]), whose leases are `r.lease`,
+    /// `r.lease + 1`, …. Each tile is checked and
     /// taken as [`Farm::put_tile`] takes one, with its own pixels and its
     /// share of the rays (by pixels); the new ones are then stored in one
     /// transaction and written. Accepted when every tile is; the first
@@ -635,9 +651,13 @@ impl Farm {
         for (i, &part) in parts.iter().enumerate() {
             let mut pixels = Vec::with_capacity(part.pixel_count());
             // A result of the wrong size stays wrong: every part is refused.
+            // A span may cover several full-width bands (its tiles in
+            // row-major order): each part is cut at its x and y offset.
             if r.pixels.len() == r.rect.pixel_count() {
-                let (w, dx) = (r.rect.w as usize, (part.x - r.rect.x) as usize);
-                for row in r.pixels.chunks_exact(w) {
+                let w = r.rect.w as usize;
+                let dx = (part.x - r.rect.x) as usize;
+                let dy = (part.y - r.rect.y) as usize;
+                for row in r.pixels.chunks_exact(w).skip(dy).take(part.h as usize) {
                     pixels.extend_from_slice(&row[dx..dx + part.w as usize]);
                 }
             }

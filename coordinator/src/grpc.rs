@@ -3,7 +3,7 @@
 //! a channel wrapped in `ReceiverStream`.
 
 use crate::auth::{self, Auth, Need, Tokens};
-use crate::farm::{Farm, SubmitOptions, TileOutcome, TileResult, WorkerOptions};
+use crate::farm::{Farm, SegmentUpload, SubmitOptions, TileOutcome, TileResult, WorkerOptions};
 use crate::scheduler::{JobInfo, JobState};
 use crate::FarmError;
 use std::future::Future;
@@ -380,6 +380,135 @@ pub struct WorkersService {
     pub farm: Arc<Farm>,
 }
 
+impl WorkersService {
+    /// The rest of an upload of encoded segments (docs/farm.md, "Encoded
+    /// segments"), `first` its first message after the header: segments in
+    /// order, then one `preview`. Each part is checked as it comes, before
+    /// it is kept: the segment's index is the next of the rect's, its
+    /// deflate bytes at most `max_segment_deflate_len` of its rows'
+    /// filtered bytes, the sums three a preview cell; so what is held is at
+    /// most about 1.5 bytes a pixel of the rect, which
+    /// [`Farm::span_tiles`] already bounded. A refusal re-queues the span's
+    /// tiles ([`Farm::reject_segments`]); the rest of the checks are
+    /// [`Farm::put_segments`]'s.
+    async fn submit_segments(
+        &self,
+        header: pb::TileHeader,
+        rect: trevi_core::Rect,
+        parts: Vec<trevi_core::Rect>,
+        first: Option<pb::TileUpload>,
+        mut s: Streaming<pb::TileUpload>,
+    ) -> Result<Response<pb::TileAck>, Status> {
+        use trevi_core::output::{max_segment_deflate_len, PngSegment};
+        let (worker, lease, job) = (header.worker_id, header.lease_id, header.job_id);
+        let refuse = |why: String| {
+            let farm = self.farm.clone();
+            let parts = parts.clone();
+            async move {
+                let e = blocking(move || {
+                    Ok(farm.reject_segments(lease, job, &parts, Some(worker), why))
+                })
+                .await?;
+                Err::<Response<pb::TileAck>, Status>(e.into())
+            }
+        };
+        let plan = match self.farm.segment_plan(job, rect) {
+            Ok(p) => p,
+            Err(FarmError::BadTile(m)) => return refuse(m).await,
+            Err(e) => return Err(e.into()),
+        };
+        let mut segments: Vec<PngSegment> = Vec::with_capacity(plan.count.min(4096) as usize);
+        let mut sums: Option<Vec<f32>> = None;
+        let mut next = first;
+        while let Some(m) = next {
+            match m.part {
+                Some(Part::Segment(e)) if sums.is_none() => {
+                    let i = segments.len() as u32;
+                    if i >= plan.count {
+                        return refuse(format!(
+                            "more than the {} segments of rows {}..{}",
+                            plan.count,
+                            rect.y,
+                            rect.y + rect.h
+                        ))
+                        .await;
+                    }
+                    if e.index != plan.first + i {
+                        return refuse(format!(
+                            "segment {} came where segment {} was due",
+                            e.index,
+                            plan.first + i
+                        ))
+                        .await;
+                    }
+                    let most = max_segment_deflate_len(plan.filtered_len(i));
+                    if e.deflate.len() as u64 > most {
+                        return refuse(format!(
+                            "segment {} has {} deflate bytes, more than the {most} its rows \
+                             can take",
+                            e.index,
+                            e.deflate.len()
+                        ))
+                        .await;
+                    }
+                    segments.push(PngSegment {
+                        deflate: e.deflate,
+                        adler32: e.adler32,
+                        filtered_len: e.filtered_len,
+                    });
+                }
+                Some(Part::Preview(p)) if sums.is_none() => {
+                    if p.sums.len() != 3 * plan.cells {
+                        return refuse(format!(
+                            "{} preview sums uploaded, but the rect overlaps {} preview cells \
+                             of {} pixels: {} sums",
+                            p.sums.len(),
+                            plan.cells,
+                            plan.scale,
+                            3 * plan.cells
+                        ))
+                        .await;
+                    }
+                    sums = Some(p.sums);
+                }
+                _ => {
+                    return refuse(
+                        "an upload of segments is its header, its segments in order, then one \
+                         preview part, and nothing else"
+                            .to_string(),
+                    )
+                    .await
+                }
+            }
+            next = s.message().await?;
+        }
+        let Some(sums) = sums else {
+            return refuse("an upload of segments ends with its preview sums".to_string()).await;
+        };
+        let farm = self.farm.clone();
+        let (rays, render) = (header.rays, header.render_micros.map(Duration::from_micros));
+        let outcome = blocking(move || {
+            farm.put_segments(
+                SegmentUpload {
+                    lease,
+                    job,
+                    rect,
+                    rays,
+                    worker: Some(worker),
+                    segments: &segments,
+                    sums: &sums,
+                },
+                &parts,
+                render,
+            )
+        })
+        .await?;
+        Ok(Response::new(pb::TileAck {
+            accepted: outcome == TileOutcome::Accepted,
+        }))
+    }
+}
+
 #[tonic::async_trait]
 impl pb::workers_server::Workers for WorkersService {
     async fn register(
@@ -393,6 +522,7 @@ impl pb::workers_server::Workers for WorkersService {
             session: true,
             multi_tile: r.multi_tile,
             max_memory: r.max_memory,
+            png_segments: r.png_encoder == trevi_core::output::PNG_ENCODER,
         })?;
         tracing::info!(worker = reg.id, name = %r.name, threads = r.threads, "worker registered");
         Ok(Response::new(pb::RegisterResponse {
@@ -414,6 +544,10 @@ impl pb::workers_server::Workers for WorkersService {
             ms => Duration::from_millis(ms.into()).min(most),
         };
         let lease = self.farm.lease_wait(r.worker_id, wait).await?;
+        let preview_scale = match &lease {
+            Some(l) if l.png_segments => self.farm.preview_scale(l.job),
+            _ => 0,
+        };
         Ok(Response::new(pb::LeaseResponse {
             lease: lease.map(|l| pb::Lease {
                 lease_id: l.id,
@@ -425,8 +559,7 @@ impl pb::workers_server::Workers for WorkersService {
                 memory_estimate: l.memory_estimate,
                 frame: l.frame,
                 png_segments: l.png_segments,
-                // Filled by the segment path (see `Lease.preview_scale`).
-                preview_scale: 0,
+                preview_scale,
             }),
         }))
     }
@@ -463,10 +596,15 @@ impl pb::workers_server::Workers for WorkersService {
         // read (so a huge one cannot make us allocate).
         let parts = self.farm.span_tiles(header.job_id, rect)?;
         self.farm.check_frame(header.job_id, header.frame)?;
+        let first = s.message().await?;
+        if let Some(Part::Segment(_)) = first.as_ref().and_then(|m| m.part.as_ref()) {
+            return self.submit_segments(header, rect, parts, first, s).await;
+        }
         let expected = rect.pixel_count().saturating_mul(12);
         let mut bytes = Vec::with_capacity(expected.min(64 << 20));
         let mut oversized = false;
-        while let Some(m) = s.message().await? {
+        let mut next = first;
+        while let Some(m) = next {
             match m.part {
                 Some(Part::Pixels(p)) => {
                     if bytes.len() + p.len() > expected {
@@ -476,8 +614,14 @@ impl pb::workers_server::Workers for WorkersService {
                     }
                     bytes.extend_from_slice(&p);
                 }
-                _ => return Err(Status::invalid_argument("a tile upload has one header")),
+                _ => {
+                    return Err(Status::invalid_argument(
+                        "a tile upload has one header, then pixels (or segments, then preview \
+                         sums)",
+                    ))
+                }
             }
+            next = s.message().await?;
         }
         let pixels = match pixels_from_bytes(&bytes) {
             Ok(p) if !oversized => p,

@@ -18,6 +18,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::future::Future;
 use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
@@ -66,9 +67,21 @@ pub struct FarmSnapshot {
 #[derive(Debug, Default)]
 pub struct Metrics {
     grpc: Mutex<BTreeMap<String, Histogram>>,
+    /// PNG segments taken encoded from workers (`trevi_png_segments_total`).
+    png_segments: AtomicU64,
 }
 
 impl Metrics {
+    /// Counts `n` PNG segments taken encoded from a worker and written.
+    pub fn add_png_segments(&self, n: u64) {
+        self.png_segments.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// PNG segments taken encoded from workers since the start.
+    pub fn png_segments(&self) -> u64 {
+        self.png_segments.load(Ordering::Relaxed)
+    }
+
     /// Records one gRPC call to `path` (`/package.Service/Method`).
     pub fn observe_grpc(&self, path: &str, took: Duration) {
         let known = path.starts_with("/trevi.v1.")
@@ -145,6 +158,11 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
             "trevi_jobs_submitted_total",
             "Jobs submitted since the coordinator started.",
             c.jobs_submitted,
+        ),
+        (
+            "trevi_png_segments_total",
+            "PNG segments (16 full-width rows) taken encoded from workers and appended to outputs.",
+            m.png_segments(),
         ),
     ] {
         family(&mut out, name, "counter", help);

@@ -88,6 +88,57 @@ impl Preview {
         self.tiles += 1;
     }
 
+    /// The preview cells (`scale`-square blocks of frame pixels) `rect`
+    /// overlaps, as (first column, first row, columns, rows) of cells;
+    /// `rect` must fit the frame.
+    pub fn cells(&self, rect: Rect) -> (u32, u32, u32, u32) {
+        let s = self.scale;
+        if rect.w == 0 || rect.h == 0 {
+            return (rect.x / s, rect.y / s, 0, 0);
+        }
+        let (cx0, cy0) = (rect.x / s, rect.y / s);
+        let (cx1, cy1) = ((rect.x + rect.w - 1) / s, (rect.y + rect.h - 1) / s);
+        (cx0, cy0, cx1 - cx0 + 1, cy1 - cy0 + 1)
+    }
+
+    /// Adds the box sums a worker computed for `rect` (see
+    /// `PreviewSums` in the proto): for every cell `rect` overlaps
+    /// ([`Preview::cells`]), row-major, the sums of linear R, G, B over
+    /// the rect's pixels in it; each cell's count grows by its overlap
+    /// with `rect`. `tiles` is how many tiles `rect` brings. Sums of the
+    /// wrong length change nothing (the caller checked them).
+    pub fn add_sums(&mut self, rect: Rect, sums: &[f32], tiles: u64) {
+        let (cx0, cy0, cols, rows) = self.cells(rect);
+        if sums.len() != 3 * cols as usize * rows as usize
+            || cx0 + cols > self.width
+            || cy0 + rows > self.height
+        {
+            return;
+        }
+        if self.sum.is_empty() {
+            let n = self.width as usize * self.height as usize;
+            self.sum = vec![[0.0; 3]; n];
+            self.count = vec![0; n];
+        }
+        let s = self.scale;
+        let (x1, y1) = (rect.x + rect.w, rect.y + rect.h);
+        let mut cell = sums.chunks_exact(3);
+        for cy in cy0..cy0 + rows {
+            let h = (y1.min((cy + 1) * s)) - rect.y.max(cy * s);
+            for cx in cx0..cx0 + cols {
+                let w = (x1.min((cx + 1) * s)) - rect.x.max(cx * s);
+                let i = cy as usize * self.width as usize + cx as usize;
+                if let Some(v) = cell.next() {
+                    for (a, b) in self.sum[i].iter_mut().zip(v) {
+                        *a += b;
+                    }
+                }
+                self.count[i] += w * h;
+            }
+        }
+        self.tiles += tiles;
+    }
+
     /// 8-bit sRGB RGBA, row-major; alpha 0 where no tile has arrived yet.
     pub fn to_rgba8(&self) -> Vec<u8> {
         let n = self.width as usize * self.height as usize;
@@ -137,6 +188,48 @@ mod tests {
             }
         }
         v
+    }
+
+    /// The sums a worker would send for `rect`, computed pixel by pixel.
+    fn sums_of(p: &Preview, rect: Rect, f: impl Fn(u32, u32) -> [f32; 3]) -> Vec<f32> {
+        let (cx0, cy0, cols, rows) = p.cells(rect);
+        let mut out = vec![0.0f32; 3 * (cols * rows) as usize];
+        for y in rect.y..rect.y + rect.h {
+            for x in rect.x..rect.x + rect.w {
+                let i = ((y / p.scale - cy0) * cols + (x / p.scale - cx0)) as usize;
+                for (o, v) in out[3 * i..3 * i + 3].iter_mut().zip(f(x, y)) {
+                    *o += v;
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn sums_give_the_preview_tiles_give() {
+        // 1100 wide: scale 3, so full-width bands of 16 rows cut cells.
+        let (w, h) = (1100, 40);
+        let f = |x: u32, y: u32| [(x % 7) as f32 * 0.25, (y % 5) as f32 * 0.5, 1.0];
+        let mut by_tiles = Preview::new(w, h);
+        let mut by_sums = Preview::new(w, h);
+        assert_eq!(by_sums.scale, 3);
+        for (y, rh) in [(0, 16), (16, 16), (32, 8)] {
+            let r = Rect::new(0, y, w, rh);
+            by_tiles.add_tile(r, &tile(r, f));
+            by_sums.add_sums(r, &sums_of(&by_sums, r, f), 2);
+        }
+        assert_eq!(by_sums.count, by_tiles.count);
+        assert_eq!(by_sums.tiles, 6);
+        for (a, b) in by_sums.sum.iter().zip(&by_tiles.sum) {
+            for (x, y) in a.iter().zip(b) {
+                assert!((x - y).abs() <= 1e-4 * y.abs().max(1.0), "{a:?} {b:?}");
+            }
+        }
+        assert_eq!(by_sums.to_rgba8(), by_tiles.to_rgba8());
+        // Sums of the wrong length change nothing.
+        let mut p = Preview::new(w, h);
+        p.add_sums(Rect::new(0, 0, w, 16), &[1.0; 6], 1);
+        assert!(p.sum.is_empty() && p.tiles == 0);
     }
 
     #[test]

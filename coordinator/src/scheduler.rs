@@ -566,6 +566,14 @@ impl Scheduler {
         (idx < j.window.tiles_total()).then(|| j.window.rect(idx))
     }
 
+    /// Whether tile `idx` of `job` is done (`None`: no such job or tile).
+    /// For a result that must be taken whole or not at all (encoded
+    /// segments covering several tiles).
+    pub fn tile_done(&self, job: JobId, idx: u32) -> Option<bool> {
+        let j = self.jobs.get(&job)?;
+        (idx < j.window.tiles_total()).then(|| j.window.tile_state(idx) == TileState::Done)
+    }
+
     /// The next tile for `worker`, if any job has one it may hand out now.
     pub fn lease(&mut self, worker: WorkerId, now: Instant) -> Result<Option<Lease>, SchedError> {
         self.touch(worker, now)?;

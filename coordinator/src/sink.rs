@@ -2,6 +2,7 @@
 //! [`FrameWriter`] stitching its output file; tests and benchmarks plug in
 //! their own.
 
+use trevi_core::output::PngSegment;
 use trevi_core::{FrameWriter, OutputError, Rect};
 
 /// Why a [`TileSink`] could not take a tile or complete its output.
@@ -18,6 +19,15 @@ pub enum SinkError {
 /// Takes a job's tiles as they are accepted.
 pub trait TileSink: Send {
     fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), SinkError>;
+    /// Takes segment `index` of a PNG frame, already encoded (see
+    /// [`FrameWriter::write_segment`]). A sink that cannot refuses it.
+    fn write_segment(&mut self, index: u32, segment: &PngSegment) -> Result<(), SinkError> {
+        let _ = segment;
+        Err(SinkError::Io(std::io::Error::new(
+            std::io::ErrorKind::Unsupported,
+            format!("this output takes no encoded PNG segments (segment {index})"),
+        )))
+    }
     /// Completes the output (for a file: moves it into place).
     fn finish(self: Box<Self>) -> Result<(), SinkError>;
     /// Rows buffered right now.
@@ -27,6 +37,9 @@ pub trait TileSink: Send {
 impl TileSink for FrameWriter {
     fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), SinkError> {
         Ok(FrameWriter::write_tile(self, rect, pixels)?)
+    }
+    fn write_segment(&mut self, index: u32, segment: &PngSegment) -> Result<(), SinkError> {
+        Ok(FrameWriter::write_segment(self, index, segment)?)
     }
     fn finish(self: Box<Self>) -> Result<(), SinkError> {
         Ok(FrameWriter::finish(*self)?)

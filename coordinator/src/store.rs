@@ -11,6 +11,12 @@
 //!   row. Kept out of the database because writing 48 KiB blobs into
 //!   SQLite's log and checkpointing them again cost the coordinator a third
 //!   of its time per tile (docs/benchmarks.md); a small row costs little.
+//! - every span of tiles taken as encoded PNG segments
+//!   ([`Store::put_segment_span`]): the segments, their index, Adler-32 and
+//!   length, and the preview sums, appended once to the same file (about
+//!   0.55 bytes a pixel instead of 12), with a row per tile (`kind` 1)
+//!   pointing at them; a restart replays them ([`Store::replay`]) and a
+//!   damaged one is forgotten with all its tiles.
 //!
 //! On start the coordinator reloads the jobs; for each unfinished one it
 //! starts the output file afresh and replays the stored tiles into it in band
@@ -108,9 +114,29 @@ pub struct SeqLink {
     pub frames_done: u32,
 }
 
-/// A stored tile's row: (tile, rays, offset, len, crc) — where its pixels
-/// are in the job's file and their CRC-32.
-type TileRef = (u32, u64, u64, usize, u32);
+/// A stored tile's row: (tile, rays, offset, len, crc, kind) — where its
+/// pixels are in the job's file and their CRC-32; `kind` 1 when they are
+/// the encoded segments of a span of tiles (the same bytes for each).
+type TileRef = (u32, u64, u64, usize, u32, u8);
+
+/// Row kind: the tile's own float pixels.
+const KIND_FLOATS: u8 = 0;
+/// Row kind: one tile of a span stored as encoded segments.
+const KIND_SEGMENTS: u8 = 1;
+
+/// A stored result, as [`Store::replay`] hands it back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Replayed<'a> {
+    /// One tile's float pixels (the wire's little-endian f32 RGB).
+    Floats { tile: u32, bytes: &'a [u8] },
+    /// A span's encoded segments, as [`Store::put_segment_span`] took them:
+    /// `tiles` tiles from `first`.
+    Segments {
+        first: u32,
+        tiles: u32,
+        bytes: &'a [u8],
+    },
+}
 
 /// The database and the jobs' tile files.
 pub struct Store {
@@ -214,6 +240,27 @@ impl Store {
                 .map_err(db_err)?;
             names
         };
+        // Encoded segments came later still: a tile row's `kind` (0: the
+        // tile's own float pixels; 1: one of the tiles of a span whose
+        // encoded segments are the bytes it points to, shared by the span).
+        let tile_cols: Vec<String> = {
+            let mut q = conn
+                .prepare("PRAGMA table_info(tile_refs)")
+                .map_err(db_err)?;
+            let names = q
+                .query_map([], |r| r.get::<_, String>(1))
+                .map_err(db_err)?
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(db_err)?;
+            names
+        };
+        if !tile_cols.iter().any(|c| c == "kind") {
+            conn.execute(
+                "ALTER TABLE tile_refs ADD COLUMN kind INTEGER NOT NULL DEFAULT 0",
+                [],
+            )
+            .map_err(db_err)?;
+        }
         for col in [
             "frame",
             "parent",
@@ -341,27 +388,7 @@ impl Store {
             if known {
                 continue;
             }
-            let path = inner.dir.join(format!("{job}.f32"));
-            let io = |e: std::io::Error| FarmError::io(format!("tile file {}", path.display()), e);
-            let (file, len) = match inner.files.entry(job) {
-                std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-                std::collections::hash_map::Entry::Vacant(e) => {
-                    let f = std::fs::OpenOptions::new()
-                        .create(true)
-                        .append(true)
-                        .read(true)
-                        .open(&path)
-                        .map_err(io)?;
-                    // Bytes past the last stored row (a write whose commit
-                    // never happened) stay unreferenced: appending after
-                    // them is safe.
-                    let len = f.metadata().map_err(io)?.len();
-                    e.insert((f, len))
-                }
-            };
-            let offset = *len;
-            file.write_all(pixels).map_err(io)?;
-            *len += pixels.len() as u64;
+            let offset = append(&inner.dir, &mut inner.files, job, pixels)?;
             tx.prepare_cached(
                 "INSERT INTO tile_refs (job, tile, rays, offset, len, crc)
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
@@ -381,6 +408,45 @@ impl Store {
         tx.commit().map_err(db_err)
     }
 
+    /// Stores the tiles of a span taken as encoded segments: `bytes` (the
+    /// segments, their index, Adler-32 and length, and the preview sums:
+    /// see `farm::segments`) appended once to the job's file, then a row
+    /// for each of `tiles` (`(tile, rays)`) pointing at them, in one
+    /// transaction, committed before the upload is acknowledged. A tile
+    /// already stored keeps its row (the farm never sends one: it takes a
+    /// span only when none of its tiles is done).
+    pub fn put_segment_span(
+        &self,
+        job: JobId,
+        tiles: &[(u32, u64)],
+        bytes: &[u8],
+    ) -> Result<(), FarmError> {
+        let mut guard = self.lock();
+        let inner = &mut *guard;
+        let tx = inner.conn.transaction().map_err(db_err)?;
+        let offset = append(&inner.dir, &mut inner.files, job, bytes)?;
+        let crc = crc32fast::hash(bytes);
+        for &(tile, rays) in tiles {
+            tx.prepare_cached(
+                "INSERT OR IGNORE INTO tile_refs (job, tile, rays, offset, len, crc, kind)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+            )
+            .and_then(|mut q| {
+                q.execute(params![
+                    job as i64,
+                    tile,
+                    rays as i64,
+                    offset as i64,
+                    bytes.len() as i64,
+                    crc,
+                    KIND_SEGMENTS
+                ])
+            })
+            .map_err(db_err)?;
+        }
+        tx.commit().map_err(db_err)
+    }
+
     /// The bytes of a stored tile, if its file still holds them intact.
     fn read_tile(dir: &Path, job: JobId, offset: u64, len: usize, crc: u32) -> Option<Vec<u8>> {
         let f = File::open(dir.join(format!("{job}.f32"))).ok()?;
@@ -393,7 +459,8 @@ impl Store {
     fn refs(conn: &Connection, job: JobId) -> Result<Vec<TileRef>, FarmError> {
         let mut q = conn
             .prepare(
-                "SELECT tile, rays, offset, len, crc FROM tile_refs WHERE job = ?1 ORDER BY tile",
+                "SELECT tile, rays, offset, len, crc, kind FROM tile_refs WHERE job = ?1
+                 ORDER BY tile",
             )
             .map_err(db_err)?;
         let rows = q
@@ -404,6 +471,7 @@ impl Store {
                     r.get::<_, i64>(2)? as u64,
                     r.get::<_, i64>(3)? as usize,
                     r.get::<_, u32>(4)?,
+                    r.get::<_, u8>(5)?,
                 ))
             })
             .map_err(db_err)?;
@@ -529,8 +597,13 @@ impl Store {
     pub fn tile_list(&self, job: JobId) -> Result<Vec<(u32, u64)>, FarmError> {
         let inner = self.lock();
         let mut good = Vec::new();
-        for (tile, rays, offset, len, crc) in Self::refs(&inner.conn, job)? {
-            if Self::read_tile(&inner.dir, job, offset, len, crc).is_some() {
+        // A span's tiles share their bytes: read and checked once.
+        let mut checked: HashMap<(u64, usize, u32), bool> = HashMap::new();
+        for (tile, rays, offset, len, crc, _) in Self::refs(&inner.conn, job)? {
+            let intact = *checked
+                .entry((offset, len, crc))
+                .or_insert_with(|| Self::read_tile(&inner.dir, job, offset, len, crc).is_some());
+            if intact {
                 good.push((tile, rays));
             } else {
                 tracing::warn!(job, tile, "stored tile damaged; it will be rendered again");
@@ -547,20 +620,59 @@ impl Store {
     }
 
     /// Calls `f` with each stored tile's index and pixel bytes, in tile
-    /// (band) order, one tile in memory at a time.
+    /// (band) order, one tile in memory at a time. Spans stored as encoded
+    /// segments are left out (see [`Store::replay`]).
     pub fn replay_tiles(
         &self,
         job: JobId,
         mut f: impl FnMut(u32, &[u8]) -> Result<(), FarmError>,
     ) -> Result<(), FarmError> {
+        self.replay(job, |r| match r {
+            Replayed::Floats { tile, bytes } => f(tile, bytes),
+            Replayed::Segments { .. } => Ok(()),
+        })
+    }
+
+    /// Calls `f` with each stored result in order of its first tile: a
+    /// tile's float pixels, or a span's encoded segments once for all its
+    /// tiles; one result in memory at a time.
+    pub fn replay(
+        &self,
+        job: JobId,
+        mut f: impl FnMut(Replayed) -> Result<(), FarmError>,
+    ) -> Result<(), FarmError> {
         let inner = self.lock();
-        for (tile, _, offset, len, crc) in Self::refs(&inner.conn, job)? {
+        // (first tile, tiles, offset, len, crc, kind), a span's rows merged.
+        let mut results: Vec<(u32, u32, u64, usize, u32, u8)> = Vec::new();
+        let mut span_at: HashMap<u64, usize> = HashMap::new();
+        for (tile, _, offset, len, crc, kind) in Self::refs(&inner.conn, job)? {
+            if kind == KIND_SEGMENTS {
+                if let Some(&i) = span_at.get(&offset) {
+                    results[i].1 += 1;
+                    continue;
+                }
+                span_at.insert(offset, results.len());
+            }
+            results.push((tile, 1, offset, len, crc, kind));
+        }
+        for (first, tiles, offset, len, crc, kind) in results {
             let bytes = Self::read_tile(&inner.dir, job, offset, len, crc).ok_or_else(|| {
                 FarmError::Damaged(format!(
-                    "tile {tile} of job {job}: its stored pixels are damaged"
+                    "tile {first} of job {job}: its stored pixels are damaged"
                 ))
             })?;
-            f(tile, &bytes)?;
+            f(if kind == KIND_FLOATS {
+                Replayed::Floats {
+                    tile: first,
+                    bytes: &bytes,
+                }
+            } else {
+                Replayed::Segments {
+                    first,
+                    tiles,
+                    bytes: &bytes,
+                }
+            })?;
         }
         Ok(())
     }
@@ -606,6 +718,37 @@ impl Store {
         }
         tx.commit().map_err(db_err)
     }
+}
+
+/// Appends `bytes` to `job`'s tile file (opened once and kept in `files`
+/// with its length) and returns where they start.
+fn append(
+    dir: &Path,
+    files: &mut HashMap<JobId, (File, u64)>,
+    job: JobId,
+    bytes: &[u8],
+) -> Result<u64, FarmError> {
+    let path = dir.join(format!("{job}.f32"));
+    let io = |e: std::io::Error| FarmError::io(format!("tile file {}", path.display()), e);
+    let (file, len) = match files.entry(job) {
+        std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+        std::collections::hash_map::Entry::Vacant(e) => {
+            let f = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .read(true)
+                .open(&path)
+                .map_err(io)?;
+            // Bytes past the last stored row (a write whose commit never
+            // happened) stay unreferenced: appending after them is safe.
+            let len = f.metadata().map_err(io)?.len();
+            e.insert((f, len))
+        }
+    };
+    let offset = *len;
+    file.write_all(bytes).map_err(io)?;
+    *len += bytes.len() as u64;
+    Ok(offset)
 }
 
 fn damaged(dir: &Path, why: &str) -> FarmError {
@@ -799,6 +942,67 @@ mod tests {
         .unwrap();
         assert!(s.tile_list(1).unwrap().is_empty());
         assert!(!path.exists());
+    }
+
+    #[test]
+    fn a_span_of_segments_is_stored_once_replayed_once_and_forgotten_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let s = Store::open(dir.path()).unwrap();
+            s.insert_job(&job(1)).unwrap();
+            s.put_tile(1, 0, 10, &[0; 48]).unwrap();
+            s.put_segment_span(1, &[(1, 11), (2, 12), (3, 13)], &[5; 70])
+                .unwrap();
+            s.put_tile(1, 4, 14, &[4; 48]).unwrap();
+        }
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(
+            s.tile_list(1).unwrap(),
+            vec![(0, 10), (1, 11), (2, 12), (3, 13), (4, 14)]
+        );
+        let mut seen = Vec::new();
+        s.replay(1, |r| {
+            seen.push(match r {
+                Replayed::Floats { tile, bytes } => (tile, 1, bytes.len()),
+                Replayed::Segments {
+                    first,
+                    tiles,
+                    bytes,
+                } => (first, tiles, bytes.len()),
+            });
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(seen, [(0, 1, 48), (1, 3, 70), (4, 1, 48)]);
+        // replay_tiles sees only the float tiles.
+        assert_eq!(replayed(&s, 1).len(), 2);
+        drop(s);
+        // Damage the span's bytes (after tile 0's 48): all three tiles go.
+        let path = dir.path().join("tiles/1.f32");
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[48 + 69] ^= 1;
+        std::fs::write(&path, bytes).unwrap();
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(s.tile_list(1).unwrap(), vec![(0, 10), (4, 14)]);
+    }
+
+    #[test]
+    fn a_database_without_row_kinds_gets_them() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let c = Connection::open(dir.path().join("state.db")).unwrap();
+            c.execute_batch(
+                "CREATE TABLE tile_refs (job INTEGER NOT NULL, tile INTEGER NOT NULL,
+                     rays INTEGER NOT NULL, offset INTEGER NOT NULL, len INTEGER NOT NULL,
+                     crc INTEGER NOT NULL, PRIMARY KEY (job, tile));",
+            )
+            .unwrap();
+        }
+        let s = Store::open(dir.path()).unwrap();
+        s.insert_job(&job(1)).unwrap();
+        s.put_tile(1, 0, 1, &[1; 12]).unwrap();
+        s.put_segment_span(1, &[(1, 2)], &[2; 9]).unwrap();
+        assert_eq!(s.tile_list(1).unwrap(), vec![(0, 1), (1, 2)]);
     }
 
     /// A data directory as a killed coordinator leaves it: the database and

@@ -792,6 +792,7 @@ fn a_worker_acts_only_with_its_own_session_secret() {
                 session: true,
                 multi_tile: false,
                 max_memory: 0,
+                png_segments: false,
             })
             .unwrap();
         (r.id, r.session.expect("asked for"))

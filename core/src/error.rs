@@ -156,6 +156,11 @@ pub enum OutputError {
         expected: usize,
         got: usize,
     },
+    /// An encoded PNG segment the writer cannot take: its framing is
+    /// wrong (see `trevi_core::output::check_segment`), or the frame is
+    /// not a PNG. Nothing was written.
+    #[error("PNG segment {index}: {message}")]
+    BadSegment { index: u32, message: String },
     #[error("the frame is incomplete: {missing} rows were never written")]
     Incomplete { missing: u32 },
     /// The output path names something a rename would replace but must not:

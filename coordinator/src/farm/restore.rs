@@ -1,13 +1,14 @@
 //! Picking up after a restart: the jobs the database holds come back
 //! (ended ones for status and download, unfinished ones with their output
-//! rebuilt from the stored tiles), and new jobs never reuse an id given
-//! before.
+//! rebuilt from the stored tiles, float pixels and encoded segments alike),
+//! and new jobs never reuse an id given before.
 
+use super::segments::decode_stored;
 use super::{lock, validate_pixels, Farm, Output};
 use crate::error::FarmError;
 use crate::preview::Preview;
 use crate::scheduler::{JobInfo, Restored};
-use crate::store::{wall_ms, Store};
+use crate::store::{wall_ms, Replayed, Store};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
@@ -133,19 +134,48 @@ impl Farm {
             .map_err(|e| FarmError::io("cannot create the output", e))?;
         let mut preview = Preview::new(info.spec.width, info.spec.height);
         let mut written = 0;
-        store.replay_tiles(job, |idx, bytes| {
-            let rect = lock(&self.state).sched.tile_rect(job, idx).ok_or_else(|| {
-                FarmError::Damaged(format!("stored tile {idx} is not in the frame"))
-            })?;
-            written += 1;
-            // The wire's format; a ragged length reads as no pixels, which
-            // the pixel count check then refuses.
-            let pixels = trevi_proto::pixels_from_bytes(bytes).unwrap_or_default();
-            validate_pixels(rect, &pixels)?;
-            preview.add_tile(rect, &pixels);
-            writer
-                .write_tile(rect, &pixels)
-                .map_err(|e| FarmError::io("writing the output", e))
+        let tile_rect = |idx: u32| {
+            lock(&self.state)
+                .sched
+                .tile_rect(job, idx)
+                .ok_or_else(|| FarmError::Damaged(format!("stored tile {idx} is not in the frame")))
+        };
+        store.replay(job, |stored| match stored {
+            Replayed::Floats { tile, bytes } => {
+                let rect = tile_rect(tile)?;
+                written += 1;
+                // The wire's format; a ragged length reads as no pixels,
+                // which the pixel count check then refuses.
+                let pixels = trevi_proto::pixels_from_bytes(bytes).unwrap_or_default();
+                validate_pixels(rect, &pixels)?;
+                preview.add_tile(rect, &pixels);
+                writer
+                    .write_tile(rect, &pixels)
+                    .map_err(|e| FarmError::io("writing the output", e))
+            }
+            Replayed::Segments {
+                first,
+                tiles,
+                bytes,
+            } => {
+                // Encoded segments: appended as they were taken, their
+                // sums added to the preview.
+                let span = decode_stored(bytes)?;
+                let start = tile_rect(first)?;
+                if (span.rect.x, span.rect.y) != (start.x, start.y) || span.scale != preview.scale {
+                    return Err(FarmError::Damaged(format!(
+                        "the stored segments of tile {first} do not start at it"
+                    )));
+                }
+                written += u64::from(tiles);
+                for (i, seg) in &span.segments {
+                    writer
+                        .write_segment(*i, seg)
+                        .map_err(|e| FarmError::io("writing the output", e))?;
+                }
+                preview.add_sums(span.rect, &span.sums, u64::from(tiles));
+                Ok(())
+            }
         })?;
         Ok(Output {
             max_rows_held: writer.rows_held(),

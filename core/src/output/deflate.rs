@@ -20,11 +20,11 @@
 pub(super) const ZLIB_HEADER: [u8; 2] = [0x78, 0x01];
 
 /// What a sync flush ends with: an empty stored block's LEN and NLEN.
-pub(super) const SYNC_FLUSH: [u8; 4] = [0x00, 0x00, 0xff, 0xff];
+pub const SYNC_FLUSH: [u8; 4] = [0x00, 0x00, 0xff, 0xff];
 
 /// An empty final block (fixed Huffman codes, only the end-of-block code),
 /// padded to the byte: what ends the stream after the last segment.
-pub(super) const FINAL_EMPTY_BLOCK: [u8; 2] = [0x03, 0x00];
+pub const FINAL_EMPTY_BLOCK: [u8; 2] = [0x03, 0x00];
 
 /// The start of a dynamic Huffman block with `fdeflate`'s code table: the
 /// 54-byte header of `fdeflate` without its two zlib bytes, of which the last
@@ -247,7 +247,7 @@ pub(super) fn deflate_segment(data: &[u8]) -> Vec<u8> {
 const ADLER_BASE: u64 = 65521;
 
 /// The Adler-32 of `data`.
-pub(super) fn adler32(data: &[u8]) -> u32 {
+pub fn adler32(data: &[u8]) -> u32 {
     let mut a = simd_adler32::Adler32::new();
     a.write(data);
     a.finish()

@@ -32,6 +32,21 @@
 //! the last row touched, up to the whole frame if the first row completes
 //! last; the writer accepts any order and still produces the same bytes.
 //!
+//! # Encoded segments
+//!
+//! A PNG frame also takes segments already encoded elsewhere (by a worker,
+//! with [`encode_segment`]): [`FrameWriter::write_segment`]. Such a segment
+//! is held, as its deflate bytes, until every row above it is written, then
+//! appended as it is; float rows and encoded segments mix in any order and
+//! give the same bytes (the segment a worker encodes is the one the writer
+//! would have encoded from the same pixels). Memory held for them =
+//! [`FrameWriter::segments_held`]: the segments after the first one still
+//! missing, at most every segment of the frame but that one, each at most
+//! [`max_segment_deflate_len`] of its filtered bytes (in practice about
+//! 0.55 bytes a pixel on a rendered scene, against 3 for a float row held as
+//! sRGB). In order (each segment arriving after those above it) nothing is
+//! held: a segment is written as it comes.
+//!
 //! # Files
 //!
 //! Pixels go to a temporary file `.{name}.trevi-tmp-{pid}-{n}` in the output
@@ -49,11 +64,12 @@ mod srgb;
 #[cfg(test)]
 mod tests;
 
-pub use self::deflate::adler32_combine;
+pub use self::deflate::{adler32, adler32_combine, FINAL_EMPTY_BLOCK, SYNC_FLUSH};
 pub use self::exr::read_exr_rgb;
 pub use self::png::{
-    decode_png, encode_segment, encode_segment_srgb, png_from_segments, read_png_rgb8,
-    segment_count, segment_rows, PngSegment, PngStream, IDAT_MAX, PNG_ENCODER, SEGMENT_ROWS,
+    check_segment, decode_png, encode_segment, encode_segment_srgb, max_segment_deflate_len,
+    png_from_segments, read_png_rgb8, segment_count, segment_filtered_len, segment_rows,
+    PngSegment, PngStream, IDAT_MAX, PNG_ENCODER, SEGMENT_ROWS,
 };
 pub use self::srgb::{linear_to_srgb8, Srgb8};
 
@@ -62,6 +78,7 @@ use self::pending::PendingRows;
 use self::png::PngSink;
 use crate::error::OutputError;
 use crate::tile::Rect;
+use std::collections::BTreeMap;
 use std::ffi::OsString;
 use std::fs::{self, File, OpenOptions};
 use std::path::{Path, PathBuf};
@@ -205,10 +222,12 @@ impl Drop for TempFile {
 
 /// Pending rows and the encoder they go to.
 enum Encoder {
-    /// Rows as R G B sRGB bytes per pixel.
+    /// Rows as R G B sRGB bytes per pixel, and segments that came encoded
+    /// ([`FrameWriter::write_segment`]) waiting for their turn, by index.
     Png {
         rows: PendingRows<u8>,
         sink: PngSink,
+        held: BTreeMap<u32, PngSegment>,
     },
     /// Rows as three planes of `width` floats: B, G, R (EXR channel order).
     Exr {
@@ -297,6 +316,7 @@ impl FrameWriter {
             Format::Png => Encoder::Png {
                 rows: PendingRows::new(width, samples_per_row),
                 sink: PngSink::new(file, width, height, &display)?,
+                held: BTreeMap::new(),
             },
             Format::Exr => Encoder::Exr {
                 rows: PendingRows::new(width, samples_per_row),
@@ -323,12 +343,70 @@ impl FrameWriter {
         }
     }
 
-    /// How many rows are buffered right now (see the module docs).
+    /// How many rows are buffered right now (see the module docs): rows
+    /// that came as floats, not those of encoded segments held
+    /// ([`FrameWriter::segments_held`]).
     pub fn rows_held(&self) -> usize {
         match &self.encoder {
             Encoder::Png { rows, .. } => rows.len(),
             Encoder::Exr { rows, .. } => rows.len(),
         }
+    }
+
+    /// How many encoded segments wait for an earlier segment right now, and
+    /// their deflate bytes (see the module docs, "Encoded segments").
+    pub fn segments_held(&self) -> (usize, usize) {
+        match &self.encoder {
+            Encoder::Png { held, .. } => (held.len(), held.values().map(|s| s.deflate.len()).sum()),
+            Encoder::Exr { .. } => (0, 0),
+        }
+    }
+
+    /// Adds segment `index` of a PNG frame, already encoded (by a worker,
+    /// with [`encode_segment`]): it waits until every row above it is
+    /// written, then goes into the file as it is. Rows that come as floats
+    /// ([`FrameWriter::write_tile`]) and encoded segments mix freely.
+    ///
+    /// Refused, changing nothing and leaving the writer usable: an EXR
+    /// frame, or a segment whose framing is wrong ([`check_segment`]:
+    /// index, filtered length, deflate bound, sync flush), as
+    /// [`OutputError::BadSegment`]; a segment whose rows were already given,
+    /// as floats or as a segment, as [`OutputError::BadTile`] (with the
+    /// segment's rows as the tile).
+    pub fn write_segment(&mut self, index: u32, segment: &PngSegment) -> Result<(), OutputError> {
+        if let Some(message) = &self.failure {
+            return Err(OutputError::Encode {
+                path: self.path.display().to_string(),
+                message: format!("an earlier write failed: {message}"),
+            });
+        }
+        let (width, height, next_row) = (self.width, self.height, self.next_row);
+        let Encoder::Png { rows, held, .. } = &mut self.encoder else {
+            return Err(OutputError::BadSegment {
+                index,
+                message: "the frame is an EXR file, which takes no PNG segments".to_string(),
+            });
+        };
+        check_segment(width, height, index, segment)
+            .map_err(|message| OutputError::BadSegment { index, message })?;
+        let range = segment_rows(height, index);
+        let overlaps = range.start < next_row
+            || held.contains_key(&index)
+            || range.clone().any(|y| rows.any_written(y, 0, width));
+        if overlaps {
+            return Err(OutputError::BadTile {
+                x: 0,
+                y: range.start,
+                w: width,
+                h: range.end - range.start,
+                width,
+                height,
+            });
+        }
+        held.insert(index, segment.clone());
+        self.flush_complete_rows().inspect_err(|e| {
+            self.failure = Some(e.to_string());
+        })
     }
 
     /// Adds a tile. `pixels` holds `rect.w * rect.h` linear RGB values, row by
@@ -368,10 +446,13 @@ impl FrameWriter {
             });
         }
         // Rows above `next_row` are complete, so any tile reaching them overlaps.
+        // So do rows of an encoded segment waiting for its turn.
         let (x0, x1) = (rect.x, rect.x + rect.w);
         let overlaps = rect.y < self.next_row
             || (rect.y..rect.y + rect.h).any(|y| match &self.encoder {
-                Encoder::Png { rows, .. } => rows.any_written(y, x0, x1),
+                Encoder::Png { rows, held, .. } => {
+                    held.contains_key(&(y / SEGMENT_ROWS)) || rows.any_written(y, x0, x1)
+                }
                 Encoder::Exr { rows, .. } => rows.any_written(y, x0, x1),
             });
         if overlaps {
@@ -410,13 +491,20 @@ impl FrameWriter {
     /// Hands every complete row at the top of the pending rows to the encoder.
     fn flush_complete_rows(&mut self) -> Result<(), OutputError> {
         match &mut self.encoder {
-            Encoder::Png { rows, sink } => {
-                while let Some(segment) = rows.take_block(self.next_row, SEGMENT_ROWS, self.height)
+            Encoder::Png { rows, sink, held } => loop {
+                // `next_row` is always the start of a segment here.
+                let index = self.next_row / SEGMENT_ROWS;
+                if let Some(segment) = held.remove(&index) {
+                    sink.write_segment(&segment)?;
+                    self.next_row = segment_rows(self.height, index).end;
+                } else if let Some(rows) = rows.take_block(self.next_row, SEGMENT_ROWS, self.height)
                 {
-                    sink.write_rows(self.width, &segment)?;
-                    self.next_row += segment.len() as u32;
+                    sink.write_rows(self.width, &rows)?;
+                    self.next_row += rows.len() as u32;
+                } else {
+                    break;
                 }
-            }
+            },
             Encoder::Exr { rows, sink } => {
                 while let Some(block) = rows.take_block(self.next_row, BLOCK_ROWS, self.height) {
                     sink.write_block(self.next_row, &block)?;
@@ -451,7 +539,13 @@ impl FrameWriter {
         }
         if next_row < height {
             let complete = match &encoder {
-                Encoder::Png { rows, .. } => rows.complete_count(),
+                Encoder::Png { rows, held, .. } => {
+                    let segments: u32 = held
+                        .keys()
+                        .map(|&i| segment_rows(height, i).len() as u32)
+                        .sum();
+                    rows.complete_count() + segments as usize
+                }
                 Encoder::Exr { rows, .. } => rows.complete_count(),
             };
             return Err(OutputError::Incomplete {

@@ -67,6 +67,66 @@ pub fn segment_rows(height: u32, index: u32) -> Range<u32> {
     y0..(y0.saturating_add(SEGMENT_ROWS)).min(height)
 }
 
+/// The filtered bytes of segment `index` of a `width` × `height` image:
+/// its rows × (1 + 3 × width).
+pub fn segment_filtered_len(width: u32, height: u32, index: u32) -> u64 {
+    let rows = segment_rows(height, index);
+    u64::from(rows.end - rows.start) * (1 + 3 * u64::from(width))
+}
+
+/// The most deflate bytes a segment of `filtered_len` filtered bytes may
+/// take: 1.5 bytes a byte and 64 more. This encoder writes every byte in
+/// at most 12 bits (its longest literal code; a run of zeros costs less),
+/// after a 52-byte block header and before at most 7 bytes of end code and
+/// sync flush; any deflate stream could also be sent as stored blocks, at
+/// 5 bytes per 65,535, well under it. A segment above it is not this
+/// encoder's, and is refused before its bytes are held.
+pub fn max_segment_deflate_len(filtered_len: u64) -> u64 {
+    filtered_len
+        .saturating_add(filtered_len / 2)
+        .saturating_add(64)
+}
+
+/// Checks the framing of `segment` as segment `index` of a `width` ×
+/// `height` image, what can be checked without inflating it: the index is
+/// one of the image's segments, the filtered length is its rows', the
+/// deflate bytes are at most [`max_segment_deflate_len`] and end in a sync
+/// flush. The message says what is wrong. (Whether the bytes inflate to
+/// that many filtered bytes with that Adler-32, and the pixels are right,
+/// it cannot tell.)
+pub fn check_segment(
+    width: u32,
+    height: u32,
+    index: u32,
+    segment: &PngSegment,
+) -> Result<(), String> {
+    let count = segment_count(height);
+    if index >= count {
+        return Err(format!(
+            "segment {index} is not one of the image's {count} segments"
+        ));
+    }
+    let expected = segment_filtered_len(width, height, index);
+    if segment.filtered_len != expected {
+        return Err(format!(
+            "segment {index} holds {} filtered bytes, not {expected}",
+            segment.filtered_len
+        ));
+    }
+    let most = max_segment_deflate_len(expected);
+    if segment.deflate.len() as u64 > most {
+        return Err(format!(
+            "segment {index} has {} deflate bytes, more than the {most} its {expected} \
+             filtered bytes can take",
+            segment.deflate.len()
+        ));
+    }
+    if !segment.deflate.ends_with(&SYNC_FLUSH) {
+        return Err(format!("segment {index} does not end in a sync flush"));
+    }
+    Ok(())
+}
+
 /// One segment, encoded: a piece of the image's zlib stream and what is
 /// needed to join it to the others.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -273,23 +333,8 @@ impl<W: Write> PngStream<W> {
     /// bytes do not end in a sync flush is refused (`InvalidInput`) and
     /// nothing is written: the framing a segment made elsewhere must have.
     pub fn push(&mut self, segment: &PngSegment) -> io::Result<()> {
-        let invalid = |m: String| Err(io::Error::new(io::ErrorKind::InvalidInput, m));
-        if self.pushed >= self.segments {
-            return invalid(format!("more than the image's {} segments", self.segments));
-        }
-        let rows = segment_rows(self.height, self.pushed);
-        let expected = u64::from(rows.end - rows.start) * (1 + 3 * u64::from(self.width));
-        if segment.filtered_len != expected {
-            return invalid(format!(
-                "segment {} holds {} filtered bytes, not {expected}",
-                self.pushed, segment.filtered_len
-            ));
-        }
-        if !segment.deflate.ends_with(&SYNC_FLUSH) {
-            return invalid(format!(
-                "segment {} does not end in a sync flush",
-                self.pushed
-            ));
+        if let Err(m) = check_segment(self.width, self.height, self.pushed, segment) {
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, m));
         }
         // The chunks cut `header ‖ deflate` every IDAT_MAX bytes.
         let header: &[u8] = if self.pushed == 0 { &ZLIB_HEADER } else { &[] };

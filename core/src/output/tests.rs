@@ -528,3 +528,274 @@ fn frame_writer_is_send() {
     fn assert_send<T: Send>() {}
     assert_send::<FrameWriter>();
 }
+
+/// What a frame is fed: an encoded segment, or a float tile.
+enum Piece {
+    Segment(u32, PngSegment),
+    Tile(Rect),
+}
+
+/// Cuts a `width` × `height` frame into pieces: each segment either encoded
+/// (as a worker would) or as float tiles (some split in x and y), chosen
+/// by `rng`.
+fn pieces(pixels: &[[f32; 3]], width: u32, height: u32, rng: &mut Rng) -> Vec<Piece> {
+    let mut out = Vec::new();
+    for index in 0..segment_count(height) {
+        let rows = segment_rows(height, index);
+        let (y0, h) = (rows.start, rows.end - rows.start);
+        match rng.next() % 3 {
+            0 => {
+                let rect = Rect::new(0, y0, width, h);
+                out.push(Piece::Segment(
+                    index,
+                    encode_segment(width, &cut(pixels, width, rect)),
+                ));
+            }
+            1 => out.push(Piece::Tile(Rect::new(0, y0, width, h))),
+            _ => {
+                // Four tiles: split at a column and at a row.
+                let sx = 1 + (rng.next() % u64::from(width.max(2) - 1)) as u32;
+                let sx = sx.min(width - 1).max(1);
+                let sy = (h / 2).max(1);
+                for (x, w) in [(0, sx), (sx, width - sx)] {
+                    for (y, hh) in [(y0, sy), (y0 + sy, h - sy)] {
+                        if w > 0 && hh > 0 {
+                            out.push(Piece::Tile(Rect::new(x, y, w, hh)));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn segments_mixed_with_floats_in_any_order_give_the_float_only_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    for (width, height) in [(37, 70), (5, 16), (64, 33), (1, 40), (130, 48)] {
+        let pixels = frame(width, height, u64::from(width * 1000 + height));
+        let reference = dir.path().join("ref.png");
+        write_frame(
+            &reference,
+            width,
+            height,
+            &pixels,
+            &[Rect::new(0, 0, width, height)],
+        );
+        let expected = fs::read(&reference).unwrap();
+        for seed in 0..12u64 {
+            let mut rng = Rng(seed);
+            let mut list = pieces(&pixels, width, height, &mut rng);
+            if seed > 0 {
+                rng.shuffle(&mut list);
+            }
+            let path = dir.path().join(format!("mixed-{seed}.png"));
+            let mut writer = FrameWriter::create(&path, width, height).unwrap();
+            for piece in &list {
+                match piece {
+                    Piece::Segment(i, s) => writer.write_segment(*i, s).unwrap(),
+                    Piece::Tile(r) => writer.write_tile(*r, &cut(&pixels, width, *r)).unwrap(),
+                }
+            }
+            assert_eq!(writer.segments_held(), (0, 0));
+            writer.finish().unwrap();
+            assert_eq!(
+                fs::read(&path).unwrap(),
+                expected,
+                "{width}x{height}, seed {seed}"
+            );
+        }
+    }
+}
+
+#[test]
+fn segments_in_order_are_written_at_once_and_out_of_order_are_held() {
+    let dir = tempfile::tempdir().unwrap();
+    let (width, height) = (40, 100); // 7 segments, the last of 4 rows.
+    let pixels = frame(width, height, 9);
+    let segs: Vec<PngSegment> = (0..segment_count(height))
+        .map(|i| {
+            let r = segment_rows(height, i);
+            encode_segment(
+                width,
+                &cut(&pixels, width, Rect::new(0, r.start, width, r.len() as u32)),
+            )
+        })
+        .collect();
+    let expected = png_from_segments(width, height, &segs).unwrap();
+
+    let path = dir.path().join("in-order.png");
+    let mut w = FrameWriter::create(&path, width, height).unwrap();
+    for (i, s) in segs.iter().enumerate() {
+        w.write_segment(i as u32, s).unwrap();
+        assert_eq!(w.segments_held(), (0, 0), "segment {i} written as it came");
+        assert_eq!(w.rows_held(), 0);
+    }
+    w.finish().unwrap();
+    assert_eq!(fs::read(&path).unwrap(), expected);
+
+    // Bottom up: every segment but the first waits, then all go at once.
+    let path = dir.path().join("reversed.png");
+    let mut w = FrameWriter::create(&path, width, height).unwrap();
+    let mut most = (0, 0);
+    for (i, s) in segs.iter().enumerate().rev() {
+        w.write_segment(i as u32, s).unwrap();
+        most = most.max(w.segments_held());
+    }
+    let tail: usize = segs[1..].iter().map(|s| s.deflate.len()).sum();
+    assert_eq!(
+        most,
+        (segs.len() - 1, tail),
+        "at most every segment after the missing one"
+    );
+    assert_eq!(w.segments_held(), (0, 0));
+    w.finish().unwrap();
+    assert_eq!(fs::read(&path).unwrap(), expected);
+}
+
+#[test]
+fn overlapping_and_badly_framed_segments_are_refused_and_change_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (width, height) = (20, 48); // 3 segments.
+    let pixels = frame(width, height, 5);
+    let seg = |i: u32| {
+        let r = segment_rows(height, i);
+        encode_segment(
+            width,
+            &cut(&pixels, width, Rect::new(0, r.start, width, r.len() as u32)),
+        )
+    };
+    let reference = dir.path().join("ref.png");
+    write_frame(
+        &reference,
+        width,
+        height,
+        &pixels,
+        &[Rect::new(0, 0, width, height)],
+    );
+    let path = dir.path().join("out.png");
+    let mut w = FrameWriter::create(&path, width, height).unwrap();
+
+    // Badly framed: refused before it is held.
+    let good = seg(1);
+    let mut short = good.clone();
+    short.filtered_len -= 1;
+    let mut unflushed = good.clone();
+    unflushed.deflate.truncate(good.deflate.len() - 1);
+    let mut huge = good.clone();
+    huge.deflate = vec![0; max_segment_deflate_len(good.filtered_len) as usize - 3];
+    huge.deflate.extend_from_slice(&SYNC_FLUSH);
+    for (i, bad, what) in [
+        (1, &short, "filtered bytes, not"),
+        (1, &unflushed, "sync flush"),
+        (1, &huge, "deflate bytes, more than"),
+        (3, &good, "not one of the image's 3 segments"),
+    ] {
+        let e = w.write_segment(i, bad).unwrap_err();
+        assert!(
+            matches!(&e, OutputError::BadSegment { index, message } if *index == i && message.contains(what)),
+            "{what}: {e}"
+        );
+        assert_eq!(w.segments_held(), (0, 0));
+    }
+
+    // A float pixel in segment 1's rows, then segment 1: overlap.
+    let dot = Rect::new(7, 20, 1, 1);
+    w.write_tile(dot, &cut(&pixels, width, dot)).unwrap();
+    let e = w.write_segment(1, &good).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            OutputError::BadTile {
+                x: 0,
+                y: 16,
+                w: 20,
+                h: 16,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    assert_eq!(w.segments_held(), (0, 0));
+    // Segment 2 held; again, and a float tile into its rows: overlaps.
+    w.write_segment(2, &seg(2)).unwrap();
+    assert_eq!(w.segments_held().0, 1);
+    assert!(matches!(
+        w.write_segment(2, &seg(2)),
+        Err(OutputError::BadTile { .. })
+    ));
+    let into = Rect::new(3, 40, 2, 2);
+    assert!(matches!(
+        w.write_tile(into, &cut(&pixels, width, into)),
+        Err(OutputError::BadTile { .. })
+    ));
+    // Segment 0 goes through; then segment 0 again is below what is written.
+    w.write_segment(0, &seg(0)).unwrap();
+    assert!(matches!(
+        w.write_segment(0, &seg(0)),
+        Err(OutputError::BadTile { .. })
+    ));
+    // The rest of segment 1 as floats completes the frame, as if nothing
+    // had been refused.
+    let incomplete = w.segments_held();
+    assert_eq!(incomplete.0, 1, "segment 2 waits for segment 1's floats");
+    for r in [
+        Rect::new(0, 16, 20, 4),
+        Rect::new(0, 20, 7, 1),
+        Rect::new(8, 20, 12, 1),
+        Rect::new(0, 21, 20, 11),
+    ] {
+        w.write_tile(r, &cut(&pixels, width, r)).unwrap();
+    }
+    assert_eq!(w.segments_held(), (0, 0));
+    w.finish().unwrap();
+    assert_eq!(fs::read(&path).unwrap(), fs::read(&reference).unwrap());
+}
+
+#[test]
+fn an_incomplete_frame_counts_held_segments_as_written_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let (width, height) = (8, 40);
+    let pixels = frame(width, height, 2);
+    let mut w = FrameWriter::create(&dir.path().join("x.png"), width, height).unwrap();
+    let r = Rect::new(0, 32, 8, 8);
+    w.write_segment(2, &encode_segment(width, &cut(&pixels, width, r)))
+        .unwrap();
+    assert!(matches!(
+        w.finish(),
+        Err(OutputError::Incomplete { missing: 32 })
+    ));
+}
+
+#[test]
+fn an_exr_frame_refuses_segments() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut w = FrameWriter::create(&dir.path().join("x.exr"), 4, 16).unwrap();
+    let seg = encode_segment(4, &[[0.5; 3]; 64]);
+    let e = w.write_segment(0, &seg).unwrap_err();
+    assert!(
+        matches!(&e, OutputError::BadSegment { index: 0, message } if message.contains("EXR")),
+        "{e}"
+    );
+}
+
+#[test]
+fn noise_deflates_under_the_stated_bound() {
+    // Random bytes are the worst case for the compressor: almost every
+    // byte a literal, many with its longest codes.
+    let mut rng = Rng(77);
+    for width in [1u32, 3, 50, 700] {
+        let rows: Vec<Vec<u8>> = (0..16)
+            .map(|_| (0..3 * width).map(|_| rng.next() as u8).collect())
+            .collect();
+        let seg = encode_segment_srgb(width, &rows);
+        let most = max_segment_deflate_len(seg.filtered_len);
+        assert!(
+            seg.deflate.len() as u64 <= most,
+            "{width}: {} > {most}",
+            seg.deflate.len()
+        );
+        assert!(check_segment(width, 16, 0, &seg).is_ok());
+    }
+}

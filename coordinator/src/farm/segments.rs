@@ -1,0 +1,747 @@
+//! Leases uploaded as encoded PNG segments (docs/farm.md, "Encoded
+//! segments"): what is checked, how a span is taken whole or not at all,
+//! stored, appended to the output and added to the preview.
+//!
+//! A worker that registered with this coordinator's encoder
+//! ([`trevi_core::output::PNG_ENCODER`]) may upload a lease of whole
+//! 16-row segments of full-width rows as the segments
+//! [`trevi_core::output::encode_segment`] makes, and the preview's box sums
+//! of its pixels. The coordinator never sees those pixels: it checks the
+//! framing of every segment, inflates one per upload in full, stores the
+//! bytes and appends them to the file.
+
+use super::{lock, Farm, TileOutcome};
+use crate::error::FarmError;
+use crate::preview::Preview;
+use crate::scheduler::{Accepted, JobId, LeaseId, WorkerId};
+use std::path::Path;
+use std::time::{Duration, Instant};
+use trevi_core::output::{
+    adler32, check_segment, segment_filtered_len, Format, PngSegment, FINAL_EMPTY_BLOCK,
+    SEGMENT_ROWS,
+};
+use trevi_core::Rect;
+
+/// A lease's result as encoded PNG segments, for [`Farm::put_segments`].
+#[derive(Debug, Clone, Copy)]
+pub struct SegmentUpload<'a> {
+    /// The lease of the span's first tile (the others follow, one each).
+    pub lease: LeaseId,
+    pub job: JobId,
+    /// The lease's rect: whole segments of full-width rows.
+    pub rect: Rect,
+    /// Rays the worker traced for it.
+    pub rays: u64,
+    /// As for [`super::TileResult::worker`]; such a worker must also have
+    /// registered with the coordinator's encoder.
+    pub worker: Option<WorkerId>,
+    /// The rect's segments, top to bottom.
+    pub segments: &'a [PngSegment],
+    /// The preview's box sums over the rect (see `PreviewSums`): three a
+    /// cell, for the cells [`Preview::cells`] gives.
+    pub sums: &'a [f32],
+}
+
+/// What an upload for a rect must hold: [`Farm::segment_plan`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SegmentPlan {
+    /// The frame's size.
+    pub width: u32,
+    pub height: u32,
+    /// The rect's first segment and how many it has.
+    pub first: u32,
+    pub count: u32,
+    /// The preview's cell edge (`Lease.preview_scale`) and the number of
+    /// cells the rect overlaps: the upload carries `3 × cells` sums.
+    pub scale: u32,
+    pub cells: usize,
+}
+
+impl SegmentPlan {
+    /// The filtered length of the rect's `i`-th segment.
+    pub fn filtered_len(&self, i: u32) -> u64 {
+        segment_filtered_len(self.width, self.height, self.first + i)
+    }
+}
+
+/// Which of an upload's `count` segments is inflated in full: one per
+/// upload, picked by mixing the lease id (SplitMix64's finaliser), so that
+/// which one is not always the first, yet the same upload always gets the
+/// same check.
+pub fn sampled_segment(lease: LeaseId, count: u32) -> u32 {
+    let mut z = lease.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z % u64::from(count.max(1))) as u32
+}
+
+/// Inflates segment `index` of a `width`-wide frame in full (miniz_oxide,
+/// an inflater independent of the encoder) and checks what its framing
+/// only claims: the deflate bytes are one stream piece that ends exactly
+/// where they do (no final block inside), inflating to exactly
+/// `filtered_len` bytes whose Adler-32 is the one given, made of rows
+/// that each start with a filter type 0..=4 (the segment's first row 0 or
+/// 1: None or Sub, which do not read the row above). What it still cannot
+/// tell is whether the pixels are the right ones.
+pub fn inflate_check(width: u32, index: u32, seg: &PngSegment) -> Result<(), String> {
+    use miniz_oxide::inflate::core::{decompress, inflate_flags, DecompressorOxide};
+    use miniz_oxide::inflate::TINFLStatus;
+    let expected = usize::try_from(seg.filtered_len)
+        .map_err(|_| format!("segment {index} claims {} bytes", seg.filtered_len))?;
+    let stream = [&seg.deflate[..], &FINAL_EMPTY_BLOCK[..]].concat();
+    // One byte more than claimed: a longer segment shows as filling it.
+    let mut out = vec![0u8; expected + 1];
+    let mut d = DecompressorOxide::new();
+    let (status, read, wrote) = decompress(
+        &mut d,
+        &stream,
+        &mut out,
+        0,
+        inflate_flags::TINFL_FLAG_USING_NON_WRAPPING_OUTPUT_BUF,
+    );
+    if status != TINFLStatus::Done || wrote > expected {
+        return Err(format!(
+            "segment {index} does not inflate to {expected} bytes ({status:?} after {wrote})"
+        ));
+    }
+    if read != stream.len() {
+        return Err(format!(
+            "segment {index} ends its deflate stream after {read} of its {} bytes",
+            seg.deflate.len()
+        ));
+    }
+    if wrote != expected {
+        return Err(format!(
+            "segment {index} inflates to {wrote} bytes, not the {expected} it claims"
+        ));
+    }
+    let out = &out[..expected];
+    let got = adler32(out);
+    if got != seg.adler32 {
+        return Err(format!(
+            "segment {index}'s bytes have Adler-32 {got:#010x}, not the {:#010x} it claims",
+            seg.adler32
+        ));
+    }
+    let stride = 1 + 3 * width as usize;
+    for (row, bytes) in out.chunks(stride).enumerate() {
+        let most = if row == 0 { 1 } else { 4 };
+        if bytes[0] > most {
+            return Err(format!(
+                "segment {index}'s row {row} has filter type {}, not 0..={most}",
+                bytes[0]
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Checks an upload against its plan: the segments' count and framing
+/// (every one), one of them inflated in full ([`sampled_segment`],
+/// [`inflate_check`]), and the preview sums' count and values (finite,
+/// not negative). The message says what is wrong.
+pub fn check_upload(plan: &SegmentPlan, up: &SegmentUpload) -> Result<(), String> {
+    if up.segments.len() != plan.count as usize {
+        return Err(format!(
+            "{} segments uploaded, but rows {}..{} are {} segments",
+            up.segments.len(),
+            up.rect.y,
+            up.rect.y + up.rect.h,
+            plan.count
+        ));
+    }
+    for (i, seg) in (plan.first..).zip(up.segments) {
+        check_segment(plan.width, plan.height, i, seg)?;
+    }
+    if up.sums.len() != 3 * plan.cells {
+        return Err(format!(
+            "{} preview sums uploaded, but the rect overlaps {} preview cells of {} pixels: {} \
+             sums",
+            up.sums.len(),
+            plan.cells,
+            plan.scale,
+            3 * plan.cells
+        ));
+    }
+    if let Some(k) = up.sums.iter().position(|v| !(0.0..=f32::MAX).contains(v)) {
+        return Err(format!(
+            "preview sum {k} (cell {}) is {}: sums are finite and not negative",
+            k / 3,
+            up.sums[k]
+        ));
+    }
+    let i = sampled_segment(up.lease, plan.count);
+    inflate_check(plan.width, plan.first + i, &up.segments[i as usize])
+}
+
+/// The bytes a span's upload is stored as (and replayed from after a
+/// restart), little-endian: `TSG1`, the rect (x, y, w, h), the preview's
+/// scale, the segment count and for each its index, Adler-32, filtered
+/// length, deflate length and deflate bytes, then the sum count and the
+/// sums.
+pub(super) fn encode_stored(plan: &SegmentPlan, rect: Rect, up: &SegmentUpload) -> Vec<u8> {
+    let deflate: usize = up.segments.iter().map(|s| s.deflate.len()).sum();
+    let mut b = Vec::with_capacity(32 + 20 * up.segments.len() + deflate + 4 * up.sums.len());
+    b.extend_from_slice(b"TSG1");
+    for v in [rect.x, rect.y, rect.w, rect.h, plan.scale, plan.count] {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    for (i, s) in (plan.first..).zip(up.segments) {
+        b.extend_from_slice(&i.to_le_bytes());
+        b.extend_from_slice(&s.adler32.to_le_bytes());
+        b.extend_from_slice(&s.filtered_len.to_le_bytes());
+        b.extend_from_slice(&(s.deflate.len() as u32).to_le_bytes());
+        b.extend_from_slice(&s.deflate);
+    }
+    b.extend_from_slice(&(up.sums.len() as u32).to_le_bytes());
+    for v in up.sums {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    b
+}
+
+/// A stored span, decoded.
+pub(super) struct StoredSpan {
+    pub rect: Rect,
+    pub scale: u32,
+    pub segments: Vec<(u32, PngSegment)>,
+    pub sums: Vec<f32>,
+}
+
+/// Reads what [`encode_stored`] wrote; anything malformed (which the
+/// CRC-32 the store checks makes unlikely) is [`FarmError::Damaged`].
+/// Every length is checked against what is left before it is allocated.
+pub(super) fn decode_stored(bytes: &[u8]) -> Result<StoredSpan, FarmError> {
+    let damaged = |what: &str| FarmError::Damaged(format!("a stored span of segments: {what}"));
+    let mut rest = bytes;
+    let mut take = |n: usize| -> Result<&[u8], FarmError> {
+        if rest.len() < n {
+            return Err(damaged("it ends early"));
+        }
+        let (a, b) = rest.split_at(n);
+        rest = b;
+        Ok(a)
+    };
+    if take(4)? != b"TSG1" {
+        return Err(damaged("not the format this coordinator writes"));
+    }
+    let mut u32s = [0u32; 6];
+    for v in &mut u32s {
+        *v = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes"));
+    }
+    let [x, y, w, h, scale, count] = u32s;
+    let mut segments = Vec::new();
+    for _ in 0..count {
+        let head = take(20)?;
+        let index = u32::from_le_bytes(head[0..4].try_into().expect("4 bytes"));
+        let adler = u32::from_le_bytes(head[4..8].try_into().expect("4 bytes"));
+        let filtered_len = u64::from_le_bytes(head[8..16].try_into().expect("8 bytes"));
+        let len = u32::from_le_bytes(head[16..20].try_into().expect("4 bytes"));
+        let deflate = take(len as usize)?.to_vec();
+        segments.push((
+            index,
+            PngSegment {
+                deflate,
+                adler32: adler,
+                filtered_len,
+            },
+        ));
+    }
+    let n = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes")) as usize;
+    let raw = take(n.checked_mul(4).ok_or_else(|| damaged("too many sums"))?)?;
+    let sums = raw
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+        .collect();
+    if !rest.is_empty() {
+        return Err(damaged("bytes after its end"));
+    }
+    Ok(StoredSpan {
+        rect: Rect::new(x, y, w, h),
+        scale,
+        segments,
+        sums,
+    })
+}
+
+/// The rect of whole segments a span's plan covers, as a message when it
+/// is not one (`width` × `height` frame).
+fn whole_segments(rect: Rect, width: u32, height: u32) -> Result<(u32, u32), String> {
+    let end = rect.y.checked_add(rect.h).filter(|&e| e <= height);
+    let Some(end) = end else {
+        return Err(format!(
+            "rows {}..+{} are not in the {width}x{height} frame",
+            rect.y, rect.h
+        ));
+    };
+    if rect.x != 0 || rect.w != width {
+        return Err(format!(
+            "columns {}..{} are not the frame's full width {width}",
+            rect.x,
+            rect.x.saturating_add(rect.w)
+        ));
+    }
+    if rect.h == 0 || rect.y % SEGMENT_ROWS != 0 || (end % SEGMENT_ROWS != 0 && end != height) {
+        return Err(format!(
+            "rows {}..{end} are not whole {SEGMENT_ROWS}-row segments",
+            rect.y
+        ));
+    }
+    let first = rect.y / SEGMENT_ROWS;
+    Ok((first, end.div_ceil(SEGMENT_ROWS) - first))
+}
+
+impl Farm {
+    /// What an upload of encoded segments for `rect` of `job` must hold
+    /// (checked before any of it is read): `rect` is whole 16-row segments
+    /// of full-width rows of a PNG frame; otherwise
+    /// [`FarmError::BadTile`] saying why.
+    pub fn segment_plan(&self, job: JobId, rect: Rect) -> Result<SegmentPlan, FarmError> {
+        let spec = lock(&self.state)
+            .sched
+            .info(job, Instant::now())
+            .ok_or(FarmError::UnknownJob(job))?
+            .spec;
+        if Format::from_path(Path::new(&spec.output_name)) != Some(Format::Png) {
+            return Err(FarmError::BadTile(format!(
+                "job {job} writes {}, not a PNG: it takes no encoded segments",
+                spec.output_name
+            )));
+        }
+        let (width, height) = (spec.width, spec.height);
+        let (first, count) = whole_segments(rect, width, height).map_err(|m| {
+            FarmError::BadTile(format!("an upload of encoded segments for job {job}: {m}"))
+        })?;
+        let preview = Preview::new(width, height);
+        let (_, _, cols, rows) = preview.cells(rect);
+        Ok(SegmentPlan {
+            width,
+            height,
+            first,
+            count,
+            scale: preview.scale,
+            cells: cols as usize * rows as usize,
+        })
+    }
+
+    /// The preview cell edge a lease of `job` asks its sums for
+    /// (`Lease.preview_scale`); 0 for an unknown job.
+    pub fn preview_scale(&self, job: JobId) -> u32 {
+        lock(&self.state)
+            .sched
+            .info(job, Instant::now())
+            .map_or(0, |i| Preview::new(i.spec.width, i.spec.height).scale)
+    }
+
+    /// Takes a lease's result as encoded segments: `up.rect` is the span's
+    /// rect, `parts` its tiles in row-major order ([`Farm::span_tiles`]),
+    /// whose leases are `up.lease`, `up.lease + 1`, ….
+    ///
+    /// An invalid upload ([`check_upload`], or a worker that did not
+    /// register with this coordinator's encoder) re-queues every tile of
+    /// the span as an invalid float result does, and is the error. A valid
+    /// one is taken whole or not at all: if any of its tiles is already
+    /// done (another result won it) or the job is over, nothing is taken
+    /// ([`TileOutcome::Ignored`]) and the span's other tiles this worker
+    /// still holds are given back to the queue. That is safe because the
+    /// segments cannot be cut: rows someone else already gave cannot be
+    /// given again, and the tiles not done are re-rendered (as floats or
+    /// segments, the same pixels either way). Otherwise every tile is
+    /// marked done, the upload stored ([`crate::store::Store::put_segment_span`])
+    /// before this returns, then its segments are appended to the output
+    /// ([`trevi_core::FrameWriter::write_segment`]), its sums added to the
+    /// preview, and `trevi_png_segments_total` counts them.
+    pub fn put_segments(
+        &self,
+        up: SegmentUpload,
+        parts: &[Rect],
+        render: Option<Duration>,
+    ) -> Result<TileOutcome, FarmError> {
+        let job = up.job;
+        let plan = match self.segment_plan(job, up.rect) {
+            Ok(p) => p,
+            Err(FarmError::BadTile(m)) => {
+                return Err(self.reject_segments(up.lease, job, parts, up.worker, m))
+            }
+            Err(e) => return Err(e),
+        };
+        // The parts must tile the rect (the gRPC path has them from
+        // `span_tiles`; a caller of this API might not).
+        let inside = parts.iter().all(|p| {
+            p.x >= up.rect.x
+                && p.y >= up.rect.y
+                && p.x + p.w <= up.rect.x + up.rect.w
+                && p.y + p.h <= up.rect.y + up.rect.h
+        });
+        let area: usize = parts.iter().map(|p| p.pixel_count()).sum();
+        if parts.is_empty() || !inside || area != up.rect.pixel_count() {
+            return Err(FarmError::BadTile(format!(
+                "the tiles given do not make up {:?}",
+                up.rect
+            )));
+        }
+        let valid = check_upload(&plan, &up);
+        let now = Instant::now();
+        let mut st = lock(&self.state);
+        for (i, &part) in parts.iter().enumerate() {
+            st.sched
+                .check_lease(job, part, up.lease + i as u64, up.worker)?;
+        }
+        let valid = valid.and_then(|()| match up.worker {
+            Some(w) if !st.segment_workers.contains(&w) => Err(format!(
+                "worker {w} did not register with this coordinator's PNG encoder \"{}\"",
+                trevi_core::output::PNG_ENCODER
+            )),
+            _ => Ok(()),
+        });
+        if let Err(m) = valid {
+            drop(st);
+            return Err(self.reject_segments(up.lease, job, parts, up.worker, m));
+        }
+        let mut idx = Vec::with_capacity(parts.len());
+        let mut any_done = false;
+        for &part in parts {
+            let i = st
+                .sched
+                .tile_index(job, part)
+                .ok_or_else(|| FarmError::BadTile(format!("{part:?} is not a tile")))?;
+            any_done |= st.sched.tile_done(job, i) != Some(false);
+            idx.push(i);
+        }
+        let over = st.sched.info(job, now).is_none_or(|i| i.state.is_final());
+        let out = st.outputs.get(&job).cloned();
+        let (Some(out), false, false) = (out, any_done, over) else {
+            // Not taken: give back what this worker still holds of it.
+            if let Some(w) = up.worker {
+                for (i, &t) in idx.iter().enumerate() {
+                    if st.sched.tile_done(job, t) == Some(false) {
+                        let _ = st.sched.return_lease(w, up.lease + i as u64, None, now);
+                    }
+                }
+            }
+            drop(st);
+            self.work.notify_waiters();
+            return Ok(TileOutcome::Ignored);
+        };
+        // Rays shared by pixels, as for a span of float tiles.
+        let whole = up.rect.pixel_count().max(1) as u128;
+        let mut rays_left = up.rays;
+        let mut stored = Vec::with_capacity(parts.len());
+        for (k, (&part, &i)) in parts.iter().zip(&idx).enumerate() {
+            let rays = if k + 1 == parts.len() {
+                rays_left
+            } else {
+                let share = (u128::from(up.rays) * part.pixel_count() as u128 / whole) as u64;
+                rays_left -= share.min(rays_left);
+                share
+            };
+            // Checked not done under this same lock: each is new.
+            if let Accepted::New { .. } = st.sched.accept_rendered(job, part, rays, render, now)? {
+                stored.push((i, rays));
+            }
+        }
+        st.publish(job);
+        drop(st);
+        self.work.notify_waiters();
+
+        if let Some(store) = &self.store {
+            let bytes = encode_stored(&plan, up.rect, &up);
+            if let Err(e) = store.put_segment_span(job, &stored, &bytes) {
+                lock(&out).sink = None;
+                self.end_job(
+                    job,
+                    Err(format!("storing the segments of tile {}: {e}", stored[0].0)),
+                );
+                return Err(e);
+            }
+        }
+        let taken = self.write_segments(
+            job,
+            &out,
+            up.rect,
+            plan.first,
+            up.segments.iter(),
+            up.sums,
+            parts.len() as u64,
+        )?;
+        Ok(if taken {
+            TileOutcome::Accepted
+        } else {
+            TileOutcome::Ignored // Cancelled meanwhile.
+        })
+    }
+
+    /// Refuses an upload of encoded segments for the span `parts` of `job`
+    /// (leases `lease`, `lease + 1`, …) because of `why`: when the leases
+    /// are `worker`'s, every tile is re-queued as for an invalid float
+    /// result (counting against it). Returns the error for the worker:
+    /// [`FarmError::BadTile`] with `why`, or the lease check's refusal.
+    pub fn reject_segments(
+        &self,
+        lease: LeaseId,
+        job: JobId,
+        parts: &[Rect],
+        worker: Option<WorkerId>,
+        why: String,
+    ) -> FarmError {
+        let mut st = lock(&self.state);
+        for (i, &part) in parts.iter().enumerate() {
+            if let Err(e) = st.sched.check_lease(job, part, lease + i as u64, worker) {
+                return e.into();
+            }
+        }
+        let e = FarmError::BadTile(why);
+        for i in 0..parts.len() as u64 {
+            st.sched
+                .reject_tile(lease + i, &format!("invalid result: {e}"));
+        }
+        let failed = st.sched.take_failed();
+        drop(st);
+        tracing::warn!(job, lease, error = %e, "segments rejected; tiles re-queued");
+        self.work.notify_waiters();
+        self.fail_jobs(failed);
+        e
+    }
+
+    /// Appends a span's segments (from index `first`) to the job's output,
+    /// adds its sums to the preview and counts its `tiles`; finishes the
+    /// output with its last tile. False when the output is gone (the job
+    /// was cancelled meanwhile).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn write_segments<'s>(
+        &self,
+        job: JobId,
+        out: &std::sync::Mutex<super::Output>,
+        rect: Rect,
+        first: u32,
+        segments: impl Iterator<Item = &'s PngSegment>,
+        sums: &[f32],
+        tiles: u64,
+    ) -> Result<bool, FarmError> {
+        let mut guard = lock(out);
+        let o = &mut *guard;
+        let Some(sink) = o.sink.as_mut() else {
+            return Ok(false);
+        };
+        let mut n = 0;
+        for (i, seg) in (first..).zip(segments) {
+            if let Err(e) = sink.write_segment(i, seg) {
+                o.sink = None;
+                drop(guard); // end_job takes the output's lock for its preview.
+                let e = FarmError::io(format!("writing the output of job {job}"), e);
+                self.end_job(job, Err(e.to_string()));
+                return Err(e);
+            }
+            n += 1;
+        }
+        self.metrics.add_png_segments(n);
+        o.max_rows_held = o.max_rows_held.max(sink.rows_held());
+        o.written += tiles;
+        o.preview.add_sums(rect, sums, tiles);
+        if o.written == o.total {
+            let sink = o.sink.take().expect("checked above");
+            let result = sink.finish();
+            drop(guard);
+            self.end_job(
+                job,
+                result.map_err(|e| format!("finishing the output: {e}")),
+            );
+        }
+        Ok(true)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trevi_core::output::encode_segment;
+
+    fn seg(width: u32, rows: u32, seed: u32) -> PngSegment {
+        let px: Vec<[f32; 3]> = (0..width * rows)
+            .map(|i| {
+                let v = ((i * 7 + seed) % 23) as f32 / 23.0;
+                [v, 1.0 - v, 0.5]
+            })
+            .collect();
+        encode_segment(width, &px)
+    }
+
+    #[test]
+    fn a_segment_inflates_to_what_it_claims() {
+        let s = seg(9, 16, 1);
+        inflate_check(9, 0, &s).unwrap();
+        // A wrong Adler-32.
+        let mut bad = s.clone();
+        bad.adler32 ^= 1;
+        assert!(inflate_check(9, 0, &bad).unwrap_err().contains("Adler-32"));
+        // A wrong length, either way.
+        let mut bad = s.clone();
+        bad.filtered_len -= 1;
+        assert!(inflate_check(9, 0, &bad)
+            .unwrap_err()
+            .contains("inflate to"));
+        let mut bad = s.clone();
+        bad.filtered_len += 1;
+        assert!(inflate_check(9, 0, &bad)
+            .unwrap_err()
+            .contains("inflates to 448 bytes, not the 449"));
+        // Garbage in place of the deflate bytes, framed right.
+        let mut bad = s.clone();
+        bad.deflate = [&[0xffu8; 40][..], &trevi_core::output::SYNC_FLUSH].concat();
+        assert!(inflate_check(9, 0, &bad).is_err());
+        // A final block inside: the stream would end there.
+        let mut bad = s.clone();
+        bad.deflate = [
+            &s.deflate[..],
+            &FINAL_EMPTY_BLOCK[..],
+            &trevi_core::output::SYNC_FLUSH,
+        ]
+        .concat();
+        assert!(inflate_check(9, 0, &bad)
+            .unwrap_err()
+            .contains("ends its deflate stream"));
+    }
+
+    #[test]
+    fn a_bad_filter_type_is_found() {
+        // Rows of raw bytes with filter types of our choosing, deflated by
+        // a stored block (any valid deflate is accepted).
+        let stride = 1 + 3 * 2;
+        for (types, ok) in [
+            ([0u8, 4], true),
+            ([1, 2], true),
+            ([2, 0], false),
+            ([0, 5], false),
+        ] {
+            let mut raw = Vec::new();
+            for t in types {
+                raw.push(t);
+                raw.extend_from_slice(&[9; 6]);
+            }
+            assert_eq!(raw.len(), 2 * stride);
+            let mut deflate = vec![0u8, raw.len() as u8, 0, !(raw.len() as u8), 0xff];
+            deflate.extend_from_slice(&raw);
+            // The sync flush: an empty stored block's header byte, LEN, NLEN.
+            deflate.push(0);
+            deflate.extend_from_slice(&trevi_core::output::SYNC_FLUSH);
+            let s = PngSegment {
+                adler32: adler32(&raw),
+                filtered_len: raw.len() as u64,
+                deflate,
+            };
+            assert_eq!(inflate_check(2, 3, &s).is_ok(), ok, "{types:?}");
+        }
+    }
+
+    /// The cost of the full check of one segment against encoding it, on
+    /// a 1920-wide segment of a smooth image with a little noise and of
+    /// pure noise (the worst case). Prints figures; run by hand:
+    /// `cargo test -p trevi-coordinator --lib inflate_check_cost -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn inflate_check_cost() {
+        let width = 1920u32;
+        let mut state = 1u64;
+        let mut rnd = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for (name, noise) in [("smooth", 0.02f32), ("noise", 1.0)] {
+            let px: Vec<[f32; 3]> = (0..width * 16)
+                .map(|i| {
+                    let (x, y) = ((i % width) as f32, (i / width) as f32);
+                    let base = [x / 1920.0, y / 16.0, 0.5];
+                    base.map(|c| (c * (1.0 - noise) + noise * rnd()).max(0.0))
+                })
+                .collect();
+            let reps = 200;
+            let t = std::time::Instant::now();
+            let mut seg = encode_segment(width, &px);
+            for _ in 1..reps {
+                seg = encode_segment(width, &px);
+            }
+            let enc = t.elapsed().as_secs_f64() / f64::from(reps);
+            let t = std::time::Instant::now();
+            for _ in 0..reps {
+                inflate_check(width, 0, &seg).unwrap();
+            }
+            let chk = t.elapsed().as_secs_f64() / f64::from(reps);
+            let n = f64::from(width * 16);
+            println!(
+                "{name}: {} deflate bytes ({:.2} a pixel); encode {:.2} ns/pixel, \
+                 inflate check {:.2} ns/pixel ({:.0} us a segment)",
+                seg.deflate.len(),
+                seg.deflate.len() as f64 / n,
+                enc * 1e9 / n,
+                chk * 1e9 / n,
+                chk * 1e6
+            );
+        }
+    }
+
+    #[test]
+    fn the_sampled_segment_is_in_range_and_varies() {
+        let picks: std::collections::BTreeSet<u32> =
+            (0..64).map(|l| sampled_segment(l, 4)).collect();
+        assert_eq!(picks.into_iter().collect::<Vec<_>>(), [0, 1, 2, 3]);
+        assert_eq!(sampled_segment(5, 1), 0);
+        assert_eq!(sampled_segment(5, 0), 0);
+    }
+
+    #[test]
+    fn stored_spans_read_back_and_damage_is_typed() {
+        let segs = [seg(5, 16, 1), seg(5, 4, 2)];
+        let plan = SegmentPlan {
+            width: 5,
+            height: 36,
+            first: 1,
+            count: 2,
+            scale: 1,
+            cells: 2,
+        };
+        let rect = Rect::new(0, 16, 5, 20);
+        let up = SegmentUpload {
+            lease: 1,
+            job: 1,
+            rect,
+            rays: 0,
+            worker: None,
+            segments: &segs,
+            sums: &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+        };
+        let b = encode_stored(&plan, rect, &up);
+        let s = decode_stored(&b).unwrap();
+        assert_eq!((s.rect, s.scale), (rect, 1));
+        assert_eq!(s.segments, vec![(1, segs[0].clone()), (2, segs[1].clone())]);
+        assert_eq!(s.sums, up.sums);
+        for cut in [0, 3, 10, b.len() - 1] {
+            assert!(matches!(
+                decode_stored(&b[..cut]),
+                Err(FarmError::Damaged(_))
+            ));
+        }
+        let mut long = b.clone();
+        long.push(0);
+        assert!(matches!(decode_stored(&long), Err(FarmError::Damaged(_))));
+    }
+
+    #[test]
+    fn only_whole_segments_of_full_rows_make_a_plan() {
+        assert_eq!(whole_segments(Rect::new(0, 0, 10, 16), 10, 40), Ok((0, 1)));
+        assert_eq!(whole_segments(Rect::new(0, 16, 10, 24), 10, 40), Ok((1, 2)));
+        for (r, what) in [
+            (Rect::new(1, 0, 9, 16), "full width"),
+            (Rect::new(0, 0, 9, 16), "full width"),
+            (Rect::new(0, 8, 10, 16), "whole 16-row"),
+            (Rect::new(0, 0, 10, 8), "whole 16-row"),
+            (Rect::new(0, 0, 10, 0), "whole 16-row"),
+            (Rect::new(0, 32, 10, 16), "not in the"),
+        ] {
+            let m = whole_segments(r, 10, 40).unwrap_err();
+            assert!(m.contains(what), "{r:?}: {m}");
+        }
+    }
+}
