@@ -620,6 +620,19 @@ impl Farm {
         Ok(lock(&self.state).sched.span_tiles(job, rect)?)
     }
 
+    /// [`Farm::span_tiles`] with the cap of the upload's kind: encoded
+    /// segments or floats (see [`Scheduler::span_tiles_as`]).
+    pub fn span_tiles_as(
+        &self,
+        job: JobId,
+        rect: Rect,
+        png_segments: bool,
+    ) -> Result<Vec<Rect>, FarmError> {
+        Ok(lock(&self.state)
+            .sched
+            .span_tiles_as(job, rect, png_segments)?)
+    }
+
     /// Takes the result of a lease of several tiles: `r.rect` is their
     /// union, `parts` its tiles in row-major order (band by band, left to
     /// right: [`Farm::span_tiles`]), whose leases are `r.lease`,

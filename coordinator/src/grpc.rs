@@ -592,12 +592,18 @@ impl pb::workers_server::Workers for WorkersService {
         self.farm.check_session(header.worker_id, &header.session)?;
         let rect = rect_from(header.rect).map_err(|e| Status::invalid_argument(e.to_string()))?;
         // A rectangle that is not one of the job's tiles (or a span of
-        // them, at most `max_lease_pixels`) is refused before any pixel is
-        // read (so a huge one cannot make us allocate).
-        let parts = self.farm.span_tiles(header.job_id, rect)?;
-        self.farm.check_frame(header.job_id, header.frame)?;
+        // them, at most `max_lease_pixels` for floats and
+        // `max_segment_lease_pixels` for segments) is refused before more
+        // than the first part (itself within the message size limit) is
+        // read, so a huge one cannot make us allocate.
         let first = s.message().await?;
-        if let Some(Part::Segment(_)) = first.as_ref().and_then(|m| m.part.as_ref()) {
+        let segments = matches!(
+            first.as_ref().and_then(|m| m.part.as_ref()),
+            Some(Part::Segment(_))
+        );
+        let parts = self.farm.span_tiles_as(header.job_id, rect, segments)?;
+        self.farm.check_frame(header.job_id, header.frame)?;
+        if segments {
             return self.submit_segments(header, rect, parts, first, s).await;
         }
         let expected = rect.pixel_count().saturating_mul(12);
