@@ -230,7 +230,9 @@ mod tests {
                     h ^= h >> 15;
                     h = h.wrapping_mul(2246822519);
                     let noise = (h >> 20) as f32 / 4096.0;
-                    *v = 0.8 * (x as f32 / 50.0).sin().abs() + 0.3 * noise + (y as f32 / 90.0);
+                    // A triangle wave across, a ramp down, and noise.
+                    let tri = ((x % 50) as f32 / 25.0 - 1.0).abs();
+                    *v = 0.8 * tri + 0.3 * noise + (y as f32 / 90.0);
                 }
                 out.push(c);
             }
