@@ -631,17 +631,31 @@ fn ramp_rows(w: u32, y0: u32, y1: u32, h: u32, noise: f32) -> Vec<[f32; 3]> {
 
 /// Every segment of a `w`×`h` frame encoded with `encode_segment`, from
 /// [`ramp_rows`] with the noise that brings them to about `target` bytes a
-/// pixel (bisected on the first segment).
+/// pixel (bisected on three of them).
 fn ready_segments(w: u32, h: u32, target: f64) -> ReadySegments {
     use rayon::prelude::*;
     use trevi_core::output::{encode_segment, segment_count, segment_rows};
-    let first = segment_rows(h, 0);
-    let px0 = f64::from(w) * f64::from(first.end - first.start);
+    // Calibrated on three segments spread over the frame (the ramp makes
+    // them differ).
+    let n = segment_count(h);
+    let sample: Vec<_> = [0, n / 2, n.saturating_sub(1)]
+        .into_iter()
+        .map(|i| segment_rows(h, i))
+        .collect();
+    let px0: f64 = sample
+        .iter()
+        .map(|r| f64::from(w) * f64::from(r.end - r.start))
+        .sum();
     let size = |noise: f32| {
-        encode_segment(w, &ramp_rows(w, first.start, first.end, h, noise))
-            .deflate
-            .len() as f64
-            / px0
+        let bytes: usize = sample
+            .iter()
+            .map(|r| {
+                encode_segment(w, &ramp_rows(w, r.start, r.end, h, noise))
+                    .deflate
+                    .len()
+            })
+            .sum();
+        bytes as f64 / px0
     };
     let (mut lo, mut hi) = (0f32, 1f32);
     for _ in 0..20 {
