@@ -122,11 +122,12 @@ fn a_coordinator_killed_mid_frame_and_a_worker_killed_change_no_byte() {
         dir.logs()
     );
 
-    // A few more tiles on the restarted coordinator, then kill a worker
-    // (SIGKILL: its leases come back when they run out).
-    let at = (resumed.tiles_done + 8).min(TILES - 1);
-    wait_for(&dir, &format!("{at} tiles done"), 120, || {
-        try_job(&rt, &c, 1).is_some_and(|s| s.tiles_done >= at)
+    // Once the restarted coordinator has taken work again and the third
+    // worker has registered with it, kill that worker (SIGKILL: its leases
+    // come back when they run out).
+    wait_for(&dir, "work on the restarted coordinator", 120, || {
+        dir.read_log("worker2").matches("registered").count() >= 2
+            && try_job(&rt, &c, 1).is_some_and(|s| s.tiles_done > resumed.tiles_done)
     });
     let s = try_job(&rt, &c, 1).unwrap();
     assert!(
