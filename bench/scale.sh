@@ -1,12 +1,15 @@
 #!/usr/bin/env bash
 # The farm at scale without a cluster (docs/benchmarks.md "The farm at
 # scale"): one process of N simulated workers against one real coordinator
-# on loopback, for N in a sweep, with one tile per lease and with leases
-# sized from the measured cost (multi-tile), on a cheap and an expensive
-# scene's measured per-pixel cost.
+# on loopback, for N in a sweep, with one tile per lease, with leases
+# sized from the measured cost (multi-tile), and with sized leases uploaded
+# as encoded PNG segments (segments), on a cheap and an expensive scene's
+# measured per-pixel cost.
 #
 #   bench/scale.sh [CORES] [N...]     # default 16 cores, N = 1 3 10 30 100 300 1000
 #   CHEAP_NS=4734 EXPENSIVE_NS=31010 bench/scale.sh ...   # costs given, not measured
+#   MODES="multi segments" bench/scale.sh ...   # some modes only (default: single multi segments)
+#   SEG_SIZE=8192 bench/scale.sh ...   # the segments mode's frame edge (default 8192)
 #
 # 1. `farm_bench cost` measures ns per pixel of examples/cornell.xml: camera
 #    `corner` (Whitted: shadows, reflection, refraction; the cheap scene) and
@@ -20,6 +23,15 @@
 #    against the modelled demand, lease latency p50/p99, coordinator CPU and
 #    peak RSS. The load average is printed with every line: on a shared
 #    machine the figures are only as quiet as it is.
+# 3. The segments mode (`scale --segments`): the workers announce the PNG
+#    encoder and upload a `png_segments` lease as precomputed segments of
+#    about 0.55 bytes a pixel (the cheap scene's) and preview sums; frames
+#    of SEG_SIZE² (8192² by default, so that fewer frames are in flight:
+#    1,000 workers with two leases of a second each need about 100 of them)
+#    kept queued in a number derived from N (see farm_bench.rs), which the
+#    coordinator is allowed (--max-jobs-per-submitter). Against a
+#    coordinator without the segment path every lease is uploaded as floats
+#    and the report says "0 of ... leases uploaded as segments".
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cores=${1:-16}
@@ -43,7 +55,8 @@ echo "cost per pixel: cheap $cheap ns, expensive $expensive ns"
 start_coordinator() {
     # The previous coordinator's port must not be read as this one's.
     rm -rf "$work/data" "$work/coord.out"
-    taskset -c 0 $R/trevi-coordinator --listen 127.0.0.1:0 --data-dir "$work/data" >"$work/coord.out" 2>"$work/coord.err" &
+    taskset -c 0 $R/trevi-coordinator --listen 127.0.0.1:0 --data-dir "$work/data" \
+        --max-jobs-per-submitter 100000 >"$work/coord.out" 2>"$work/coord.err" &
     CP=$!
     for _ in $(seq 100); do
         PORT=$(sed -n 's/listening on .*:\([0-9]*\)/\1/p' "$work/coord.out" 2>/dev/null || true)
@@ -57,11 +70,17 @@ start_coordinator() {
 
 for scene in cheap expensive; do
     cost=${!scene}
-    for mode in single multi; do
-        flag=(); [ "$mode" = multi ] && flag=(--multi)
+    for mode in ${MODES:-single multi segments}; do
+        flag=()
+        case $mode in
+        single) ;;
+        multi) flag=(--multi) ;;
+        segments) flag=(--segments --width "${SEG_SIZE:-8192}" --height "${SEG_SIZE:-8192}") ;;
+        *) echo "unknown mode $mode" >&2; exit 1 ;;
+        esac
         for n in "${ns[@]}"; do
             start_coordinator
-            echo -n "$scene (load $(load)) "
+            echo -n "$scene $mode (load $(load)) "
             taskset -c 1 "$B" scale --coordinator "http://127.0.0.1:$PORT" --pid "$CP" \
                 --workers "$n" --cores "$cores" --cost-ns "$cost" "${flag[@]}" --secs "${SECS:-8}"
             kill "$CP"; wait "$CP" 2>/dev/null || true

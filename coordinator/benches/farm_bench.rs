@@ -8,8 +8,9 @@
 //! cargo bench -p trevi-coordinator --bench farm_bench -- cost SCENE.xml [--camera ID] [--tiles 16]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- encode SCENE.xml [--camera ID] [--reps 5]
 //! cargo bench -p trevi-coordinator --bench farm_bench -- scale --coordinator URL --pid PID \
-//!     --workers N [--cores 16] --cost-ns NS [--multi] [--secs 8] [--warmup 3] [--jobs 4] \
-//!     [--width 2048] [--height 2048] [--tile 64]
+//!     --workers N [--cores 16] --cost-ns NS [--multi] [--secs 8] [--warmup 3] [--jobs K] \
+//!     [--width 2048] [--height 2048] [--tile 64] \
+//!     [--segments [--seg-bytes-per-pixel 0.55] [--lease-pixels P]]
 //! ```
 //!
 //! `ingest`: synthetic workers that replay ready tiles (noise, so the PNG
@@ -35,6 +36,25 @@
 //! measures for `--secs`: tiles/s against what the modelled workers could
 //! render (the demand), lease latency p50/p99 (the `LeaseTile` calls that
 //! brought work), the coordinator's CPU and peak RSS from /proc.
+//!
+//! `scale --segments`: the workers also announce the coordinator's PNG
+//! encoder (`RegisterRequest.png_encoder` = `PNG_ENCODER`, implying
+//! `--multi`) and upload a lease with `png_segments` as `trevi-worker`
+//! does: its 16-row segments, encoded before the clock starts (one per
+//! segment index of the frame, from a smooth ramp with noise whose
+//! amplitude is chosen so that the segments come to about
+//! `--seg-bytes-per-pixel` bytes a pixel: 0.55 is the cheap scene's, see
+//! `encode`), and its preview sums (one cell per `preview_scale` square the
+//! rect overlaps). A lease without `png_segments` is uploaded as floats,
+//! as without the flag, so the mode runs against any coordinator; the
+//! report says how many leases came as segments. Frames kept queued
+//! (`--jobs`, 4 by default without `--segments`) are derived from N with
+//! it, so that every worker has work: each of the N workers holds up to two
+//! leases of about `--lease-pixels` pixels (default: a second of its
+//! `--cores` at `--cost-ns`, what a lease aims at), so
+//! K = ceil(2 × N × lease pixels / frame pixels) + 2, at least 4; the
+//! coordinator must allow that many unfinished jobs per submitter
+//! (`--max-jobs-per-submitter`, 1000 by default).
 //!
 //! `encode`: what the PNG part of ingesting costs per pixel, and what is
 //! left to the coordinator when workers encode row segments themselves
@@ -576,6 +596,116 @@ struct ScaleStats {
     leases: u64,
     /// Microseconds of the `LeaseTile` calls that brought work.
     latency_us: Vec<u32>,
+    /// Leases uploaded as encoded segments, and their pixels and bytes.
+    segment_leases: u64,
+    segment_pixels: u64,
+    segment_bytes: u64,
+}
+
+/// A frame's PNG segments, encoded once, and the bytes a pixel they take.
+struct ReadySegments {
+    segments: Vec<pb::EncodedSegment>,
+    bytes_per_pixel: f64,
+    noise: f32,
+}
+
+/// Linear pixels of rows `y0..y1` of a `w`-wide frame: a smooth ramp with
+/// `noise` (linear units, deterministic) on it.
+fn ramp_rows(w: u32, y0: u32, y1: u32, h: u32, noise: f32) -> Vec<[f32; 3]> {
+    let mut out = Vec::with_capacity(w as usize * (y1 - y0) as usize);
+    for y in y0..y1 {
+        for x in 0..w {
+            let mut k =
+                (x.wrapping_mul(73856093) ^ y.wrapping_mul(19349663)).wrapping_mul(2654435761);
+            let (u, v) = (x as f32 / w as f32, y as f32 / h.max(1) as f32);
+            let base = [0.15 + 0.6 * u, 0.25 + 0.5 * v, 0.4 + 0.3 * u * v];
+            out.push(base.map(|b| {
+                k ^= k >> 15;
+                k = k.wrapping_mul(2246822519);
+                b + noise * ((k >> 8) as f32 / (1u32 << 24) as f32)
+            }));
+        }
+    }
+    out
+}
+
+/// Every segment of a `w`×`h` frame encoded with `encode_segment`, from
+/// [`ramp_rows`] with the noise that brings them to about `target` bytes a
+/// pixel (bisected on three of them).
+fn ready_segments(w: u32, h: u32, target: f64) -> ReadySegments {
+    use rayon::prelude::*;
+    use trevi_core::output::{encode_segment, segment_count, segment_rows};
+    // Calibrated on three segments spread over the frame (the ramp makes
+    // them differ).
+    let n = segment_count(h);
+    let sample: Vec<_> = [0, n / 2, n.saturating_sub(1)]
+        .into_iter()
+        .map(|i| segment_rows(h, i))
+        .collect();
+    let px0: f64 = sample
+        .iter()
+        .map(|r| f64::from(w) * f64::from(r.end - r.start))
+        .sum();
+    let size = |noise: f32| {
+        let bytes: usize = sample
+            .iter()
+            .map(|r| {
+                encode_segment(w, &ramp_rows(w, r.start, r.end, h, noise))
+                    .deflate
+                    .len()
+            })
+            .sum();
+        bytes as f64 / px0
+    };
+    let (mut lo, mut hi) = (0f32, 1f32);
+    for _ in 0..20 {
+        let mid = 0.5 * (lo + hi);
+        if size(mid) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let noise = 0.5 * (lo + hi);
+    let segments: Vec<pb::EncodedSegment> = (0..segment_count(h))
+        .into_par_iter()
+        .map(|i| {
+            let rows = segment_rows(h, i);
+            let s = encode_segment(w, &ramp_rows(w, rows.start, rows.end, h, noise));
+            pb::EncodedSegment {
+                index: i,
+                deflate: s.deflate,
+                adler32: s.adler32,
+                filtered_len: s.filtered_len,
+            }
+        })
+        .collect();
+    let bytes: usize = segments.iter().map(|s| s.deflate.len()).sum();
+    ReadySegments {
+        segments,
+        bytes_per_pixel: bytes as f64 / (f64::from(w) * f64::from(h)),
+        noise,
+    }
+}
+
+/// Plausible preview sums for `rect` in cells of `scale` (half-grey
+/// pixels): as many floats as the proto's `PreviewSums` asks.
+fn preview_for(rect: Rect, scale: u32) -> Vec<f32> {
+    let s = scale.max(1);
+    if rect.w == 0 || rect.h == 0 {
+        return Vec::new();
+    }
+    let cells = |a: u32, n: u32| {
+        (a / s..=(a + n - 1) / s).map(move |c| (c * s).max(a)..((c + 1) * s).min(a + n))
+    };
+    let mut out = Vec::new();
+    for ys in cells(rect.y, rect.h) {
+        for xs in cells(rect.x, rect.w) {
+            let n = ((ys.end - ys.start) * (xs.end - xs.start)) as f32;
+            out.extend([0.5 * n; 3]);
+        }
+    }
+    out
 }
 
 fn scale(args: &[String]) {
@@ -588,17 +718,44 @@ fn scale(args: &[String]) {
         .expect("--cost-ns (see the cost mode)")
         .parse::<f64>()
         .expect("a number");
-    let multi = args.iter().any(|a| a == "--multi");
+    let segments = args.iter().any(|a| a == "--segments");
+    let multi = segments || args.iter().any(|a| a == "--multi");
     let secs = num(args, "--secs", 8);
     let warmup = num(args, "--warmup", 3);
-    let jobs_kept = num(args, "--jobs", 4) as usize;
     let (w, h) = (
         num(args, "--width", 2048) as u32,
         num(args, "--height", 2048) as u32,
     );
     let tile = num(args, "--tile", 64) as u32;
-    // Ready pixels for the widest lease: a band's worth.
+    // Frames kept queued: given, 4 for floats, or enough for N workers
+    // holding two leases of about a second each (see the module's doc).
+    let lease_pixels = arg(args, "--lease-pixels").map_or(f64::from(cores) * 1e9 / cost_ns, |v| {
+        v.parse::<f64>().expect("a number")
+    });
+    let derived =
+        ((2.0 * workers as f64 * lease_pixels / (f64::from(w) * f64::from(h))).ceil() as usize + 2)
+            .max(4);
+    let jobs_kept = match arg(args, "--jobs") {
+        Some(k) => k.parse().expect("a number"),
+        None if segments => derived,
+        None => 4,
+    };
+    // Ready pixels for a band; bigger leases repeat them.
     let ready: Arc<Vec<u8>> = Arc::new(smooth_tile(1, w, tile));
+    let encoded = segments.then(|| {
+        let target = arg(args, "--seg-bytes-per-pixel").map_or(0.55, |v| v.parse().expect("a number"));
+        let t0 = Instant::now();
+        let r = ready_segments(w, h, target);
+        eprintln!(
+            "scale: {} segments of {w}x{h} encoded in {:.1} s: {:.3} bytes/pixel (noise {:.4}), {jobs_kept} frames kept queued",
+            r.segments.len(),
+            t0.elapsed().as_secs_f64(),
+            r.bytes_per_pixel,
+            r.noise
+        );
+        Arc::new(r)
+    });
+    let seg_bpp = encoded.as_ref().map(|r| r.bytes_per_pixel);
     let stats = Arc::new(Mutex::new(ScaleStats::default()));
     let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let rt = tokio::runtime::Runtime::new().unwrap();
@@ -678,6 +835,11 @@ fn scale(args: &[String]) {
                         name: format!("sim-{i}"),
                         threads: cores,
                         multi_tile: multi,
+                        png_encoder: if segments {
+                            trevi_core::output::PNG_ENCODER.into()
+                        } else {
+                            String::new()
+                        },
                         ..Default::default()
                     })
                     .await
@@ -692,6 +854,7 @@ fn scale(args: &[String]) {
             for _ in 0..2 {
                 let (mut wc, session, render) = (wc.clone(), reg.session.clone(), render.clone());
                 let (ready, stats, stop) = (ready.clone(), stats.clone(), stop.clone());
+                let encoded = encoded.clone();
                 let id = reg.worker_id;
                 tasks.push(tokio::spawn(async move {
                     while !stop.load(Ordering::Relaxed) {
@@ -718,7 +881,6 @@ fn scale(args: &[String]) {
                         );
                         tokio::time::sleep(render).await;
                         drop(permit);
-                        let bytes = &ready[..px as usize * 12];
                         let mut msgs = vec![pb::TileUpload {
                             part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
                                 worker_id: id,
@@ -733,14 +895,47 @@ fn scale(args: &[String]) {
                                 render_micros: Some(render.as_micros() as u64),
                             })),
                         }];
-                        msgs.extend(bytes.chunks(trevi_proto::CHUNK_SIZE).map(|c| pb::TileUpload {
-                            part: Some(pb::tile_upload::Part::Pixels(c.to_vec())),
-                        }));
+                        let mut seg_bytes = 0u64;
+                        match encoded.as_deref().filter(|_| lease.png_segments) {
+                            Some(enc) => {
+                                // The rect's segments, as trevi-worker uploads them.
+                                let first = rect.y / trevi_core::output::SEGMENT_ROWS;
+                                let n = rect.h.div_ceil(trevi_core::output::SEGMENT_ROWS);
+                                for s in enc.segments.iter().skip(first as usize).take(n as usize) {
+                                    seg_bytes += s.deflate.len() as u64;
+                                    msgs.push(pb::TileUpload {
+                                        part: Some(pb::tile_upload::Part::Segment(s.clone())),
+                                    });
+                                }
+                                msgs.push(pb::TileUpload {
+                                    part: Some(pb::tile_upload::Part::Preview(pb::PreviewSums {
+                                        sums: preview_for(rect, lease.preview_scale),
+                                    })),
+                                });
+                            }
+                            None => {
+                                // Floats: the ready band's bytes, repeated
+                                // for a lease bigger than a band.
+                                let mut left = px as usize * 12;
+                                while left > 0 {
+                                    let n = left.min(trevi_proto::CHUNK_SIZE).min(ready.len());
+                                    msgs.push(pb::TileUpload {
+                                        part: Some(pb::tile_upload::Part::Pixels(ready[..n].to_vec())),
+                                    });
+                                    left -= n;
+                                }
+                            }
+                        }
                         let Ok(ack) = wc.submit_tile(tokio_stream::iter(msgs)).await else {
                             return;
                         };
                         let mut st = stats.lock().unwrap();
                         if st.measuring {
+                            if lease.png_segments && encoded.is_some() {
+                                st.segment_leases += 1;
+                                st.segment_pixels += px;
+                                st.segment_bytes += seg_bytes;
+                            }
                             st.leases += 1;
                             st.latency_us.push(latency.as_micros().min(u32::MAX as u128) as u32);
                             if ack.into_inner().accepted {
@@ -779,13 +974,29 @@ fn scale(args: &[String]) {
             "scale: workers {workers} x {cores} cores, {cost_ns:.0} ns/pixel, {}: {tiles_s:.0} tiles/s \
              ({:.1} Mpixel/s) of {demand:.0} modelled ({:.0} %), {:.1} tiles/lease, lease p50 {:.2} ms \
              p99 {:.2} ms, coordinator CPU {cpu} of one core, peak RSS {rss}",
-            if multi { "multi-tile leases" } else { "one tile per lease" },
+            if segments {
+                "sized leases, encoded segments"
+            } else if multi {
+                "multi-tile leases"
+            } else {
+                "one tile per lease"
+            },
             tiles_s * f64::from(tile * tile) / 1e6,
             tiles_s / demand * 100.0,
             st.tiles as f64 / st.leases.max(1) as f64,
             pct(0.5),
             pct(0.99),
         );
+        if let Some(bpp) = seg_bpp {
+            println!(
+                "segments: {jobs_kept} frames kept queued; {} of {} leases uploaded as segments \
+                 ({:.3} bytes/pixel sent, {:.3} prepared), the rest as floats",
+                st.segment_leases,
+                st.leases,
+                st.segment_bytes as f64 / st.segment_pixels.max(1) as f64,
+                bpp,
+            );
+        }
         for t in tasks {
             t.abort();
         }

@@ -13,6 +13,13 @@
 //! render cost it measures): their union is rendered as one rectangle, which
 //! gives the same pixels, and uploaded once.
 //!
+//! The worker registers with its PNG segment encoder's name
+//! (`trevi_core::output::PNG_ENCODER`). A lease with `png_segments` is
+//! uploaded as encoded 16-row PNG segments and preview sums instead of
+//! floats ([`segments`]): the worker checks the pixels (a pixel not finite
+//! and non-negative fails the lease, which goes back with an error naming
+//! it) and encodes the segments on the render threads.
+//!
 //! A lease is held only by a tile being worked on: a loop takes the render
 //! threads before it asks for a lease, so no tile waits behind another while
 //! its lease is kept alive. A render stops within a pixel once its lease is
@@ -34,6 +41,7 @@ pub mod pause;
 pub mod priority;
 pub use memory::MaxMemory;
 pub mod scenes;
+pub mod segments;
 pub use pause::{Pause, PauseConfig};
 pub use priority::Priority;
 
@@ -470,9 +478,9 @@ struct Me {
 
 /// How working on one leased tile ended.
 enum TileEnd {
-    /// The pixels, the rays traced, and how long the render itself took
+    /// The result, the rays traced, and how long the render itself took
     /// (told to the coordinator, which sizes leases from it).
-    Rendered(Vec<[f32; 3]>, u64, Duration),
+    Rendered(Payload, u64, Duration),
     /// The coordinator no longer wants it (the job was cancelled or the
     /// lease expired): the render was stopped.
     Dropped,
@@ -485,6 +493,15 @@ enum TileEnd {
     /// The scene needs about this many bytes, more than `--max-memory`:
     /// declined without building it (see [`memory`]).
     Declined(u64),
+}
+
+/// What a rendered lease uploads.
+enum Payload {
+    /// The pixels, as floats.
+    Floats(Vec<[f32; 3]>),
+    /// For a lease with `png_segments`: the rect's encoded segments and
+    /// preview sums (see [`segments`]).
+    Segments(segments::EncodedRect),
 }
 
 /// Sets a render's cancellation flag when dropped, so a loop aborted midway
@@ -532,8 +549,9 @@ impl Session {
                 threads: self.threads as u32,
                 multi_tile: true,
                 max_memory: self.max_memory.0,
-                // Not yet: segment leases come with the segment path.
-                png_encoder: String::new(),
+                // Segment leases (`Lease.png_segments`) are encoded by
+                // this encoder; see [`segments`].
+                png_encoder: trevi_core::output::PNG_ENCODER.into(),
             })
             .await
         {
@@ -693,14 +711,14 @@ impl Session {
             drop(permit);
             let (x, y, id) = (rect.x, rect.y, lease.lease_id);
             match end {
-                TileEnd::Rendered(pixels, rays, took) => {
+                TileEnd::Rendered(payload, rays, took) => {
                     // One line per tile, also for a span of several: the
                     // logs count tiles, not leases.
                     for id in span_ids(&lease) {
                         tracing::debug!(lease = id, job = lease.job_id, x, y, "tile rendered");
                     }
                     let rendered = Rendered { rays, took };
-                    if let Err(s) = self.send(&me, &lease, rect, rendered, &pixels).await {
+                    if let Err(s) = self.send(&me, &lease, rect, rendered, payload).await {
                         if s.code() == Code::InvalidArgument {
                             tracing::error!(lease = id, "tile rejected: {}", s.message());
                         } else {
@@ -844,6 +862,12 @@ impl Session {
                     return TileEnd::Failed(format!("the scene has no camera \"{camera}\""));
                 };
                 let pool = s.pool.clone();
+                // For a segment lease: the frame's size and the preview's
+                // cell edge, to check the rect and encode it.
+                let segments = lease.png_segments.then(|| {
+                    let r = &scene.desc.cameras[camera].render;
+                    (r.width, r.height, lease.preview_scale)
+                });
                 let job = tokio::task::spawn_blocking(move || {
                     pool.install(|| {
                         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -851,13 +875,26 @@ impl Session {
                                 f.strike(rect);
                             }
                             let start = std::time::Instant::now();
-                            trevi_core::tile::render_tile_cancellable(&scene, camera, rect, &cancel)
-                                .map(|r| (r, start.elapsed()))
+                            let r = trevi_core::tile::render_tile_cancellable(
+                                &scene, camera, rect, &cancel,
+                            )?;
+                            // The encoding counts as the lease's render time:
+                            // it is the worker's time that the coordinator
+                            // sizes leases from.
+                            let payload = match segments {
+                                None => Ok(Payload::Floats(r.pixels)),
+                                Some((w, h, scale)) => {
+                                    segments::encode_rect(rect, w, h, scale, &r.pixels)
+                                        .map(Payload::Segments)
+                                }
+                            };
+                            Ok((payload, r.rays, start.elapsed()))
                         }))
                     })
                 });
                 match job.await {
-                    Ok(Ok(Ok((r, took)))) => TileEnd::Rendered(r.pixels, r.rays, took),
+                    Ok(Ok(Ok((Ok(payload), rays, took)))) => TileEnd::Rendered(payload, rays, took),
+                    Ok(Ok(Ok((Err(e), ..)))) => TileEnd::Failed(e.to_string()),
                     Ok(Ok(Err(trevi_core::tile::Cancelled))) => TileEnd::Dropped,
                     Ok(Err(panic)) => TileEnd::Failed(format!(
                         "the render panicked: {}",
@@ -1018,9 +1055,16 @@ impl Session {
         lease: &pb::Lease,
         rect: Rect,
         rendered: Rendered,
-        pixels: &[[f32; 3]],
+        payload: Payload,
     ) -> Result<bool, tonic::Status> {
-        let msgs = tile_messages(me.id, &me.session, lease, rect, rendered, pixels);
+        let msgs = match payload {
+            Payload::Floats(pixels) => {
+                tile_messages(me.id, &me.session, lease, rect, rendered, &pixels)
+            }
+            Payload::Segments(encoded) => {
+                segments::segment_messages(me.id, &me.session, lease, rect, rendered, encoded)
+            }
+        };
         let ack = self
             .workers
             .submit_tile(tokio_stream::iter(msgs))
@@ -1061,8 +1105,23 @@ pub fn tile_messages(
 ) -> Vec<pb::TileUpload> {
     use pb::tile_upload::Part;
     let bytes = pixels_to_bytes(pixels);
-    let mut msgs = vec![pb::TileUpload {
-        part: Some(Part::Header(pb::TileHeader {
+    let mut msgs = vec![header_message(worker, session, lease, rect, rendered)];
+    msgs.extend(bytes.chunks(CHUNK_SIZE).map(|c| pb::TileUpload {
+        part: Some(Part::Pixels(c.to_vec())),
+    }));
+    msgs
+}
+
+/// The first message of an upload, floats or segments: the header.
+pub(crate) fn header_message(
+    worker: u64,
+    session: &[u8],
+    lease: &pb::Lease,
+    rect: Rect,
+    rendered: Rendered,
+) -> pb::TileUpload {
+    pb::TileUpload {
+        part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
             worker_id: worker,
             lease_id: lease.lease_id,
             job_id: lease.job_id,
@@ -1072,9 +1131,5 @@ pub fn tile_messages(
             frame: lease.frame,
             render_micros: Some(rendered.took.as_micros().min(u128::from(u64::MAX)) as u64),
         })),
-    }];
-    msgs.extend(bytes.chunks(CHUNK_SIZE).map(|c| pb::TileUpload {
-        part: Some(Part::Pixels(c.to_vec())),
-    }));
-    msgs
+    }
 }
