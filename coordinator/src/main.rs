@@ -87,6 +87,12 @@ struct Args {
               .range(1..=MAX_FRAMES_IN_PROGRESS as u64),
           default_value_t = defaults().limits.frames_in_progress)]
     frames_in_progress: usize,
+    /// How much of a worker's time one lease of several tiles aims at, in
+    /// milliseconds (docs/farm.md, "Lease sizing"): longer leases cost the
+    /// coordinator less a pixel, shorter ones lose less to a killed worker.
+    #[arg(long, env = "TREVI_LEASE_TARGET_MS", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.lease_target.as_millis() as u64)]
+    lease_target_ms: u64,
     /// Token submitters must present (`trevi-submit --token`); without it
     /// anyone who reaches the coordinator may submit and read jobs.
     #[arg(long, env = "TREVI_SUBMIT_TOKEN", hide_env_values = true)]
@@ -186,6 +192,7 @@ impl Args {
                 max_tile_losses: self.max_tile_losses,
                 memory_grace: Duration::from_millis(self.memory_grace_ms),
                 frames_in_progress: self.frames_in_progress,
+                lease_target: Duration::from_millis(self.lease_target_ms),
                 http_header_timeout: Duration::from_millis(self.http_header_timeout_ms),
                 http_max_connections: self.http_max_connections,
                 ..d.limits

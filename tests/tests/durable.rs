@@ -10,6 +10,7 @@ use trevi_proto::pb;
 
 const TILES_IN_FLIGHT: usize = 2;
 const WORKERS: usize = 2;
+const SHORT_LEASES: &[&str] = &["--lease-target-ms", "100"];
 
 #[test]
 fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
@@ -20,7 +21,10 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
         &SLOW_SCENE.replace(r#"width="96" height="64""#, r#"width="128" height="96""#),
     );
     let expected = embedded(&dir, &scene, "embedded.png");
-    let mut c = coordinator_with(&dir, "127.0.0.1:0", "coordinator0", &[], &[]);
+    // Leases of a tenth of a second: a one-second lease of whole bands
+    // would bring half the frame at once, and the kills would not land
+    // mid-job.
+    let mut c = coordinator_with(&dir, "127.0.0.1:0", "coordinator0", SHORT_LEASES, &[]);
     let (url, addr) = (c.url.clone(), c.addr.clone());
     let workers: Vec<Proc> = (0..WORKERS)
         .map(|i| {
@@ -57,7 +61,13 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
         }
         drop(c); // SIGKILL
         kills += 1;
-        c = coordinator_with(&dir, &addr, &format!("coordinator{}", i + 1), &[], &[]);
+        c = coordinator_with(
+            &dir,
+            &addr,
+            &format!("coordinator{}", i + 1),
+            SHORT_LEASES,
+            &[],
+        );
         // What the restarted coordinator found.
         if at > 0 {
             let s = try_job(&rt, &c, 1).expect("the job survived the restart");
