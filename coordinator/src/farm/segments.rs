@@ -639,7 +639,8 @@ mod tests {
     /// pure noise (the worst case). Prints figures; run by hand:
     /// `cargo test -p trevi-coordinator --lib inflate_check_cost -- --ignored --nocapture`.
     #[test]
-    #[ignore]
+    #[ignore = "a measurement that prints the inflate check's cost (docs/farm.md, \
+                Encoded segments) and asserts nothing; run it as said above"]
     fn inflate_check_cost() {
         let width = 1920u32;
         let mut state = 1u64;
