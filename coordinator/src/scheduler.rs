@@ -317,6 +317,13 @@ fn whole_segments(y0: u32, y1: u32, height: u32) -> bool {
     y0 % SEGMENT_ROWS == 0 && (y1 % SEGMENT_ROWS == 0 || y1 == height)
 }
 
+/// Two jobs render the same shot: the same bundle and camera (frames of a
+/// sequence, the same scene again), so one's measured cost is the other's
+/// first estimate.
+fn same_shot(a: &JobSpec, b: &JobSpec) -> bool {
+    a.bundle_hash == b.bundle_hash && a.camera == b.camera
+}
+
 /// What a lease starting at pending tile `first` covers (`None`: nothing
 /// may go out from there now). `want(cap)` is how many tiles the sizer
 /// gives the worker under a cap of `cap` pixels (1 for a worker that takes
@@ -342,14 +349,21 @@ fn span_plan(
     let tile = spec.tile_size.max(1);
     // Counted as a full band: the last band, shorter, is then under its cap.
     let band_pixels = (width as u64 * tile.min(height) as u64).max(1);
-    let most_bands = |cap: u64| -> u32 {
-        let by_time = want(cap) / cols;
+    // The whole bands within what the sizer wants; with `at_least_one` (a
+    // segment lease, which can only be whole bands), one band when it
+    // wants half a band or more.
+    let most_bands = |cap: u64, at_least_one: bool| -> u32 {
+        let want = want(cap);
+        let by_time = match want / cols {
+            0 if at_least_one && want.saturating_mul(2) >= cols => 1,
+            n => n,
+        };
         let by_pixels = u32::try_from(cap / band_pixels).unwrap_or(u32::MAX);
         by_time.min(by_pixels).min(MAX_SPAN_TILES / cols)
     };
     if first % cols == 0 {
         if may_encode {
-            let n = window.whole_bands(band, most_bands(cfg.max_segment_lease_pixels), true);
+            let n = window.whole_bands(band, most_bands(cfg.max_segment_lease_pixels, true), true);
             let y0 = band * tile;
             let whole = (1..=n)
                 .rev()
@@ -361,7 +375,7 @@ fn span_plan(
                 });
             }
         }
-        let n = window.whole_bands(band, most_bands(cfg.max_lease_pixels), false);
+        let n = window.whole_bands(band, most_bands(cfg.max_lease_pixels, false), false);
         if n > 0 {
             return Some(SpanPlan::Bands {
                 bands: n,
@@ -487,8 +501,9 @@ impl Scheduler {
         // gives the new one its first estimate (see [`lease_size`]).
         let seed = self.queue.iter().find_map(|&(_, other)| {
             let o = self.jobs.get(&other)?;
-            let same = o.spec.bundle_hash == spec.bundle_hash && o.spec.camera == spec.camera;
-            same.then(|| self.sizer.cost(other)).flatten()
+            same_shot(&o.spec, &spec)
+                .then(|| self.sizer.cost(other))
+                .flatten()
         });
         if let Some(cost) = seed {
             self.sizer.seed(id, cost);
@@ -1080,6 +1095,7 @@ impl Scheduler {
         render: Option<Duration>,
         now: Instant,
     ) -> Result<Accepted, SchedError> {
+        let measured_before = self.sizer.cost(job).is_some();
         let j = self.jobs.get_mut(&job).ok_or(SchedError::UnknownJob(job))?;
         if j.state.is_final() {
             self.counters.tiles_ignored += 1;
@@ -1122,7 +1138,30 @@ impl Scheduler {
         if let Some(w) = worker {
             self.workers.credit(w, rays, now);
         }
+        if !measured_before {
+            self.seed_unmeasured_like(job);
+        }
         Ok(Accepted::New { last })
+    }
+
+    /// `job` has just been measured for the first time: its unfinished
+    /// siblings (the same scene and camera) not measured yet start from its
+    /// cost. Frames submitted together (a sequence's first frames, a batch)
+    /// would otherwise each begin with single-tile leases until each has
+    /// its own measurement; on a big farm that is thousands of them.
+    fn seed_unmeasured_like(&mut self, job: JobId) {
+        let (Some(cost), Some(j)) = (self.sizer.cost(job), self.jobs.get(&job)) else {
+            return;
+        };
+        for &(_, other) in &self.queue {
+            let like = self
+                .jobs
+                .get(&other)
+                .is_some_and(|o| same_shot(&o.spec, &j.spec));
+            if like && self.sizer.cost(other).is_none() {
+                self.sizer.seed(other, cost);
+            }
+        }
     }
 
     /// An invalid result arrived under `lease`: put the tile back at once

@@ -44,9 +44,13 @@
 //! tiles as `threads` cores render in about [`Limits::lease_target`], at
 //! least one, at most [`Limits::max_lease_pixels`] pixels
 //! ([`Limits::max_segment_lease_pixels`] for a segment lease), as whole
-//! bands when they fit, the rest of the band otherwise. A job submitted while an unfinished job of the
-//! same bundle and camera has a measured cost (the next frame of a
-//! sequence, the same scene again) starts from that cost; otherwise, until
+//! bands when they fit, the rest of the band otherwise (a segment lease,
+//! which can only be whole bands, takes one band when the share is
+//! between half a band and one). A job submitted while an
+//! unfinished job of the same bundle and camera has a measured cost (the
+//! next frame of a sequence, the same scene again) starts from that cost,
+//! and jobs submitted together before any was measured all start from the
+//! first measurement of any of them; otherwise, until
 //! it has a measurement, its leases are single tiles (they make the first
 //! measurements): on a busy farm every worker asking meanwhile got one, and
 //! a new frame began with hundreds of single-tile leases. A worker that does not
@@ -395,21 +399,10 @@ mod tests {
     /// another bundle, starts unmeasured.
     #[test]
     fn a_job_like_a_measured_one_starts_from_its_cost() {
-        use crate::scheduler::JobSpec;
         use std::time::Instant;
         use trevi_core::tile::Rect;
         let now = Instant::now();
         let (mut s, w) = scheduler_with_span_worker(now, "w", 4);
-        let spec = |hash: &str, camera: &str| JobSpec {
-            frame: None,
-            bundle_hash: hash.into(),
-            camera: camera.into(),
-            priority: 0,
-            width: 100,
-            height: 20,
-            tile_size: 10,
-            output_name: "o.png".into(),
-        };
         let first = s.submit(spec("h", "c"), now);
         let l = s.lease(w, now).unwrap().unwrap();
         assert_eq!((l.job, l.tiles), (first, 1));
@@ -433,6 +426,59 @@ mod tests {
         let l = s.lease(w, t).unwrap().unwrap();
         assert_eq!((l.job, l.tiles), (like, 20));
         assert_eq!(l.rect, Rect::new(0, 0, 100, 20));
+    }
+
+    /// A 100×20 frame in tiles of 10 of bundle `hash`, camera `camera`.
+    fn spec(hash: &str, camera: &str) -> crate::scheduler::JobSpec {
+        crate::scheduler::JobSpec {
+            frame: None,
+            bundle_hash: hash.into(),
+            camera: camera.into(),
+            priority: 0,
+            width: 100,
+            height: 20,
+            tile_size: 10,
+            output_name: "o.png".into(),
+        }
+    }
+
+    /// Jobs of one shot submitted together, none measured (a sequence's
+    /// first frames): the first measurement of any of them is every
+    /// unmeasured sibling's first estimate, so their first leases are
+    /// spans; another camera's job stays unmeasured, and a sibling already
+    /// measured keeps its own cost.
+    #[test]
+    fn the_first_measurement_of_a_shot_sizes_its_unmeasured_siblings() {
+        use std::time::Instant;
+        let now = Instant::now();
+        let (mut s, w) = scheduler_with_span_worker(now, "w", 4);
+        let a = s.submit(spec("h", "c"), now);
+        let b = s.submit(spec("h", "c"), now);
+        let other_camera = s.submit(spec("h", "d"), now);
+        let measured = s.submit(spec("h", "c"), now);
+        s.sizer.seed(measured, 0.5);
+        assert_eq!(s.measured_cost(b), None);
+        let l = s.lease(w, now).unwrap().unwrap();
+        assert_eq!((l.job, l.tiles), (a, 1));
+        let t = now + Duration::from_millis(1);
+        s.accept_rendered(a, l.rect, 1, Some(Duration::from_millis(1)), t)
+            .unwrap();
+        let cost = s.measured_cost(a).unwrap();
+        assert_eq!(s.measured_cost(b), Some(cost));
+        assert_eq!(s.measured_cost(other_camera), None);
+        assert_eq!(s.measured_cost(measured), Some(0.5));
+        // A second measurement of `a` moves only `a`'s cost.
+        let l = s.lease(w, t).unwrap().unwrap();
+        assert_eq!(l.job, a);
+        let tile = trevi_core::tile::Rect::new(l.rect.x, l.rect.y, 10, 10);
+        s.accept_rendered(a, tile, 1, Some(Duration::from_millis(900)), t + S)
+            .unwrap();
+        assert_ne!(s.measured_cost(a), Some(cost));
+        assert_eq!(s.measured_cost(b), Some(cost));
+        s.cancel(a, t).unwrap();
+        let l = s.lease(w, t).unwrap().unwrap();
+        assert_eq!(l.job, b);
+        assert!(l.tiles > 1, "{l:?}");
     }
 
     #[test]

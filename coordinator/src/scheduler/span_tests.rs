@@ -422,3 +422,42 @@ fn a_segment_lease_is_about_a_second_of_a_16_thread_worker_on_the_cheap_scene() 
     // 2^20 pixels: 8 bands (983,040 pixels), a third of a second.
     assert_eq!(f.rect, Rect::new(0, 27 * 64, 1920, 8 * 64));
 }
+
+/// A segment lease can only be whole bands: from half a band of the
+/// worker's share it takes at least one (0.65 of a band gets the band, as
+/// segments), above one band the whole bands within the share (1.65 gets
+/// one). Under half a band the share stays as it is (floats, part of the
+/// band), and a float lease takes the whole bands within its share or the
+/// share itself. (An expensive scene's second of 16 threads is about one
+/// band of an 8192-pixel-wide frame: without this its leases were never
+/// segments.)
+#[test]
+fn a_segment_lease_takes_a_whole_band_from_half_a_band_of_share() {
+    let now = Instant::now();
+    let mut s = sched(Limits::default());
+    let enc = worker(&mut s, now, 1, true, true);
+    let floats = worker(&mut s, now, 1, true, false);
+    let target = Limits::default().lease_target.as_secs_f64();
+    // 160 × 64 in tiles of 16: bands of 10 tiles of 256 pixels.
+    for (share, who, tiles, segments) in [
+        (4.5, enc, 4, false),
+        (6.5, enc, 10, true),
+        (16.5, enc, 10, true),
+        (25.5, enc, 20, true),
+        (6.5, floats, 6, false),
+        (16.5, floats, 10, false),
+    ] {
+        let j = s.submit(spec(160, 64, 16, "o.png"), now);
+        // One thread renders `share` tiles in the lease target.
+        s.sizer.seed(j, target / (share * 256.0));
+        let l = s.lease(who, now).unwrap().unwrap();
+        assert_eq!(
+            (l.job, l.tiles, l.png_segments),
+            (j, tiles, segments),
+            "a share of {share} tiles"
+        );
+        let rows = if tiles >= 10 { 16 * tiles / 10 } else { 16 };
+        assert_eq!(l.rect.h, rows, "a share of {share} tiles");
+        s.cancel(j, now).unwrap();
+    }
+}
