@@ -890,12 +890,31 @@ impl Farm {
         rect: Rect,
         pixels: &[[f32; 3]],
     ) -> Result<bool, FarmError> {
+        self.write_output(job, out, 1, |sink, preview| {
+            sink.write_tile(rect, pixels)?;
+            preview.add_tile(rect, pixels);
+            Ok(())
+        })
+    }
+
+    /// Writes to `job`'s output with `write` (given the sink and the
+    /// preview: it adds to the preview what it wrote) and counts `tiles`
+    /// more tiles written; the output's last tile finishes it. A write error
+    /// drops the output and fails the job. False when the output is gone
+    /// (the job was cancelled meanwhile).
+    fn write_output(
+        &self,
+        job: JobId,
+        out: &Mutex<Output>,
+        tiles: u64,
+        write: impl FnOnce(&mut dyn TileSink, &mut Preview) -> Result<(), crate::sink::SinkError>,
+    ) -> Result<bool, FarmError> {
         let mut guard = lock(out);
         let o = &mut *guard;
         let Some(sink) = o.sink.as_mut() else {
             return Ok(false);
         };
-        if let Err(e) = sink.write_tile(rect, pixels) {
+        if let Err(e) = write(sink.as_mut(), &mut o.preview) {
             o.sink = None;
             drop(guard); // end_job takes the output's lock for its preview.
             let e = FarmError::io(format!("writing the output of job {job}"), e);
@@ -903,8 +922,7 @@ impl Farm {
             return Err(e);
         }
         o.max_rows_held = o.max_rows_held.max(sink.rows_held());
-        o.written += 1;
-        o.preview.add_tile(rect, pixels);
+        o.written += tiles;
         if o.written == o.total {
             let sink = o.sink.take().expect("checked above");
             let result = sink.finish();

@@ -519,36 +519,19 @@ impl Farm {
         sums: &[f32],
         tiles: u64,
     ) -> Result<bool, FarmError> {
-        let mut guard = lock(out);
-        let o = &mut *guard;
-        let Some(sink) = o.sink.as_mut() else {
-            return Ok(false);
-        };
         let mut n = 0;
-        for (i, seg) in (first..).zip(segments) {
-            if let Err(e) = sink.write_segment(i, seg) {
-                o.sink = None;
-                drop(guard); // end_job takes the output's lock for its preview.
-                let e = FarmError::io(format!("writing the output of job {job}"), e);
-                self.end_job(job, Err(e.to_string()));
-                return Err(e);
+        let taken = self.write_output(job, out, tiles, |sink, preview| {
+            for (i, seg) in (first..).zip(segments) {
+                sink.write_segment(i, seg)?;
+                n += 1;
             }
-            n += 1;
+            preview.add_sums(rect, sums, tiles);
+            Ok(())
+        })?;
+        if taken {
+            self.metrics.add_png_segments(n);
         }
-        self.metrics.add_png_segments(n);
-        o.max_rows_held = o.max_rows_held.max(sink.rows_held());
-        o.written += tiles;
-        o.preview.add_sums(rect, sums, tiles);
-        if o.written == o.total {
-            let sink = o.sink.take().expect("checked above");
-            let result = sink.finish();
-            drop(guard);
-            self.end_job(
-                job,
-                result.map_err(|e| format!("finishing the output: {e}")),
-            );
-        }
-        Ok(true)
+        Ok(taken)
     }
 }
 
