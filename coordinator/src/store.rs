@@ -389,21 +389,8 @@ impl Store {
                 continue;
             }
             let offset = append(&inner.dir, &mut inner.files, job, pixels)?;
-            tx.prepare_cached(
-                "INSERT INTO tile_refs (job, tile, rays, offset, len, crc)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-            )
-            .and_then(|mut q| {
-                q.execute(params![
-                    job as i64,
-                    tile,
-                    rays as i64,
-                    offset as i64,
-                    pixels.len() as i64,
-                    crc32fast::hash(pixels)
-                ])
-            })
-            .map_err(db_err)?;
+            let at = (offset, pixels.len(), crc32fast::hash(pixels));
+            insert_ref(&tx, job, tile, rays, at, KIND_FLOATS)?;
         }
         tx.commit().map_err(db_err)
     }
@@ -425,24 +412,9 @@ impl Store {
         let inner = &mut *guard;
         let tx = inner.conn.transaction().map_err(db_err)?;
         let offset = append(&inner.dir, &mut inner.files, job, bytes)?;
-        let crc = crc32fast::hash(bytes);
+        let at = (offset, bytes.len(), crc32fast::hash(bytes));
         for &(tile, rays) in tiles {
-            tx.prepare_cached(
-                "INSERT OR IGNORE INTO tile_refs (job, tile, rays, offset, len, crc, kind)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
-            )
-            .and_then(|mut q| {
-                q.execute(params![
-                    job as i64,
-                    tile,
-                    rays as i64,
-                    offset as i64,
-                    bytes.len() as i64,
-                    crc,
-                    KIND_SEGMENTS
-                ])
-            })
-            .map_err(db_err)?;
+            insert_ref(&tx, job, tile, rays, at, KIND_SEGMENTS)?;
         }
         tx.commit().map_err(db_err)
     }
@@ -722,6 +694,37 @@ impl Store {
 
 /// Appends `bytes` to `job`'s tile file (opened once and kept in `files`
 /// with its length) and returns where they start.
+/// Records that `tile` of `job` is done, its bytes at `at` (offset, length,
+/// CRC-32) in the job's file, of `kind`; a tile recorded already keeps its
+/// first row. A cached statement: parsing the SQL for every tile costs
+/// about as much as running it.
+fn insert_ref(
+    tx: &rusqlite::Transaction,
+    job: JobId,
+    tile: u32,
+    rays: u64,
+    (offset, len, crc): (u64, usize, u32),
+    kind: u8,
+) -> Result<(), FarmError> {
+    tx.prepare_cached(
+        "INSERT OR IGNORE INTO tile_refs (job, tile, rays, offset, len, crc, kind)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+    )
+    .and_then(|mut q| {
+        q.execute(params![
+            job as i64,
+            tile,
+            rays as i64,
+            offset as i64,
+            len as i64,
+            crc,
+            kind
+        ])
+    })
+    .map_err(db_err)?;
+    Ok(())
+}
+
 fn append(
     dir: &Path,
     files: &mut HashMap<JobId, (File, u64)>,
