@@ -137,6 +137,27 @@ fn lease_all(f: &Farm, worker: u64) -> Vec<Lease> {
     std::iter::from_fn(|| f.lease(worker).unwrap()).collect()
 }
 
+/// A farm in `data` with one job of `w` × `h` in tiles of `tile` to
+/// "out.png", a segment worker, and every lease the worker gets (a band
+/// each).
+struct Started {
+    f: Farm,
+    job: u64,
+    wk: u64,
+    leases: Vec<Lease>,
+}
+
+fn start(data: &Path, durable: bool, (w, h, tile): (u32, u32, u32)) -> Started {
+    let f = farm(data, durable);
+    let job = f
+        .submit(spec(w, h, tile, "out.png"), SubmitOptions::default())
+        .unwrap()
+        .id;
+    let wk = segment_worker(&f);
+    let leases = lease_all(&f, wk);
+    Started { f, job, wk, leases }
+}
+
 // 540 × 1100 with 544-pixel tiles: three bands (544, 544 and 12 rows), each
 // a lease of whole segments; the preview's scale is 3, so cells straddle
 // the band edges (544 = 3 × 181 + 1).
@@ -157,11 +178,8 @@ fn a_frame_taken_as_segments_and_floats_is_the_float_file_and_preview() {
     ];
     let mut previews = Vec::new();
     for (n, (as_segments, order)) in plans.iter().enumerate() {
-        let f = farm(&dir.path().join(format!("farm{n}")), n % 2 == 0);
-        let job = f.submit(spec(W, H, TILE, "out.png"), SubmitOptions::default());
-        let job = job.unwrap().id;
-        let wk = segment_worker(&f);
-        let leases = lease_all(&f, wk);
+        let data = dir.path().join(format!("farm{n}"));
+        let Started { f, job, wk, leases } = start(&data, n % 2 == 0, (W, H, TILE));
         assert_eq!(leases.len(), 3);
         assert_eq!(f.preview_scale(job), 3);
         let mut segments = 0;
@@ -204,13 +222,7 @@ fn a_restart_replays_stored_segments_and_floats_to_the_same_file() {
     let expected = reference(dir.path(), W, H);
     let data = dir.path().join("farm");
     let job = {
-        let f = farm(&data, true);
-        let job = f
-            .submit(spec(W, H, TILE, "out.png"), SubmitOptions::default())
-            .unwrap()
-            .id;
-        let wk = segment_worker(&f);
-        let leases = lease_all(&f, wk);
+        let Started { f, job, wk, leases } = start(&data, true, (W, H, TILE));
         // The last band as segments, the first as floats; the middle one
         // is still out when the coordinator dies.
         assert_eq!(
@@ -241,13 +253,7 @@ fn a_damaged_stored_segment_is_forgotten_and_rendered_again() {
     let expected = reference(dir.path(), W, H);
     let data = dir.path().join("farm");
     let job = {
-        let f = farm(&data, true);
-        let job = f
-            .submit(spec(W, H, TILE, "out.png"), SubmitOptions::default())
-            .unwrap()
-            .id;
-        let wk = segment_worker(&f);
-        let leases = lease_all(&f, wk);
+        let Started { f, job, wk, leases } = start(&data, true, (W, H, TILE));
         assert_eq!(put_floats(&f, &leases[0], wk), TileOutcome::Accepted);
         assert_eq!(
             put_segments(&f, &leases[1], W, H, wk),
@@ -285,11 +291,7 @@ fn a_damaged_stored_segment_is_forgotten_and_rendered_again() {
 /// four segments, and 36 rows, three), a segment worker and its leases.
 fn small() -> (tempfile::TempDir, Farm, u64, Vec<Lease>) {
     let dir = tempfile::tempdir().unwrap();
-    let f = farm(dir.path(), true);
-    f.submit(spec(40, 100, 64, "out.png"), SubmitOptions::default())
-        .unwrap();
-    let wk = segment_worker(&f);
-    let leases = lease_all(&f, wk);
+    let Started { f, wk, leases, .. } = start(dir.path(), true, (40, 100, 64));
     assert_eq!(leases.len(), 2);
     (dir, f, wk, leases)
 }
