@@ -105,20 +105,9 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
         "{}",
         dir.logs()
     );
-    rt.block_on(async {
-        let mut s = jobs(&c, None)
-            .await
-            .download_output(pb::JobId { id: 1, frame: None })
-            .await
-            .unwrap()
-            .into_inner();
-        let mut bytes = Vec::new();
-        while let Some(chunk) = s.message().await.unwrap() {
-            bytes.extend_from_slice(&chunk.data);
-        }
-        std::fs::write(&again, &bytes).unwrap();
-    });
-    assert!(std::fs::read(&again).unwrap() == expected);
+    let bytes = rt.block_on(download(&c, 1, None));
+    std::fs::write(&again, &bytes).unwrap();
+    assert!(bytes == expected);
     drop(workers);
 }
 

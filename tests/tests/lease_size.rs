@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::farm::{jobs, upload, workers};
+use common::farm::{upload, workers};
 use common::*;
 use trevi_core::Rect;
 use trevi_proto::pb;
@@ -26,21 +26,6 @@ const SCENE: &str = r#"<scene version="1">
   </camera>
 </scene>
 "#;
-
-/// The finished output of job `id`, as `DownloadOutput` streams it.
-async fn download(c: &Coordinator, id: u64) -> Vec<u8> {
-    let mut s = jobs(c, None)
-        .await
-        .download_output(pb::JobId { id, frame: None })
-        .await
-        .unwrap()
-        .into_inner();
-    let mut out = Vec::new();
-    while let Some(chunk) = s.message().await.unwrap() {
-        out.extend_from_slice(&chunk.data);
-    }
-    out
-}
 
 /// Renders every lease of the farm's one job as a worker registered with
 /// `multi_tile` would: the lease's rectangle in one piece. Returns the
@@ -133,7 +118,7 @@ fn spans_of_tiles_give_the_bytes_of_single_tiles_and_only_to_workers_that_ask() 
     let status = farm::job(&rt, &c, id);
     assert_eq!(status.state, pb::JobState::Done as i32, "{status:?}");
     assert_eq!(status.tiles_done, 30);
-    let got = rt.block_on(download(&c, id));
+    let got = rt.block_on(download(&c, id, None));
     assert!(got == reference, "the frame rendered in spans differs");
     drop(c);
 
@@ -142,7 +127,7 @@ fn spans_of_tiles_give_the_bytes_of_single_tiles_and_only_to_workers_that_ask() 
     let c = coordinator_with(&dir2, "127.0.0.1:0", "coord", &[], &[]);
     let (spans, id) = rt.block_on(render_all(&c, false));
     assert_eq!(spans, vec![1; 30]);
-    assert!(rt.block_on(download(&c, id)) == reference);
+    assert!(rt.block_on(download(&c, id, None)) == reference);
 }
 
 #[test]
@@ -157,7 +142,7 @@ fn a_real_worker_renders_spans_byte_identically() {
     let status = farm::submit_and_wait(&dir, &rt, &c, &scene, &["--tile", "16"], 120);
     assert_eq!(status.tiles_done, 30);
     assert!(
-        rt.block_on(download(&c, status.id)) == reference,
+        rt.block_on(download(&c, status.id, None)) == reference,
         "the farm's frame differs from the embedded render\n{}",
         dir.logs()
     );

@@ -127,19 +127,7 @@ fn a_busy_machine_hands_its_tiles_to_another_worker_and_comes_back_when_quiet() 
     let s = wait_state(&dir, &rt, &c, id, pb::JobState::Done, 180);
     assert_eq!(s.tiles_done, total);
     assert!(done_by_spare < total, "{}", dir.logs());
-    let got = rt.block_on(async {
-        let mut s = common::farm::jobs(&c, None)
-            .await
-            .download_output(pb::JobId { id, frame: None })
-            .await
-            .unwrap()
-            .into_inner();
-        let mut bytes = Vec::new();
-        while let Some(m) = s.message().await.unwrap() {
-            bytes.extend_from_slice(&m.data);
-        }
-        bytes
-    });
+    let got = rt.block_on(download(&c, id, None));
     assert!(
         got == want,
         "the farm's image differs from the local render"

@@ -25,6 +25,22 @@ pub async fn jobs(c: &Coordinator, token: Option<&str>) -> JobsClient<AuthChanne
     JobsClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())
 }
 
+/// The finished output of job `id` (frame `frame` of a sequence), as the
+/// coordinator's `DownloadOutput` streams it.
+pub async fn download(c: &Coordinator, id: u64, frame: Option<u32>) -> Vec<u8> {
+    let mut s = jobs(c, None)
+        .await
+        .download_output(pb::JobId { id, frame })
+        .await
+        .unwrap_or_else(|e| panic!("downloading the output of job {id}: {e}"))
+        .into_inner();
+    let mut out = Vec::new();
+    while let Some(chunk) = s.message().await.unwrap() {
+        out.extend_from_slice(&chunk.data);
+    }
+    out
+}
+
 /// The Workers service, sending `token`.
 pub async fn workers(c: &Coordinator, token: Option<&str>) -> WorkersClient<AuthChannel> {
     WorkersClient::with_interceptor(channel(c).await, Bearer::new(token).unwrap())

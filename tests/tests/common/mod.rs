@@ -13,8 +13,8 @@ pub mod http;
 pub use fake_worker::FakeWorker;
 #[allow(unused_imports)]
 pub use farm::{
-    bundles, cancel, channel, detach, job, jobs, submit_and_wait, submit_job, try_job, upload,
-    wait_state, workers,
+    bundles, cancel, channel, detach, download, job, jobs, submit_and_wait, submit_job, try_job,
+    upload, wait_state, workers,
 };
 
 use std::io::{BufRead, BufReader};
