@@ -10,6 +10,7 @@
 #   CHEAP_NS=4734 EXPENSIVE_NS=31010 bench/scale.sh ...   # costs given, not measured
 #   MODES="multi segments" bench/scale.sh ...   # some modes only (default: single multi segments)
 #   SEG_SIZE=8192 bench/scale.sh ...   # the segments mode's frame edge (default 8192)
+#   WINDOW_MIB=256 bench/scale.sh ...  # the coordinator's --window-mib (default: its own, 32)
 #
 # 1. `farm_bench cost` measures ns per pixel of examples/cornell.xml: camera
 #    `corner` (Whitted: shadows, reflection, refraction; the cheap scene) and
@@ -56,7 +57,7 @@ start_coordinator() {
     # The previous coordinator's port must not be read as this one's.
     rm -rf "$work/data" "$work/coord.out"
     taskset -c 0 $R/trevi-coordinator --listen 127.0.0.1:0 --data-dir "$work/data" \
-        --max-jobs-per-submitter 100000 >"$work/coord.out" 2>"$work/coord.err" &
+        --max-jobs-per-submitter 100000 ${WINDOW_MIB:+--window-mib "$WINDOW_MIB"} >"$work/coord.out" 2>"$work/coord.err" &
     CP=$!
     for _ in $(seq 100); do
         PORT=$(sed -n 's/listening on .*:\([0-9]*\)/\1/p' "$work/coord.out" 2>/dev/null || true)
