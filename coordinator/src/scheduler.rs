@@ -317,6 +317,11 @@ fn whole_segments(y0: u32, y1: u32, height: u32) -> bool {
     y0 % SEGMENT_ROWS == 0 && (y1 % SEGMENT_ROWS == 0 || y1 == height)
 }
 
+/// The earlier of `bound` (if any) and `deadline`.
+fn earliest(bound: Option<Instant>, deadline: Instant) -> Instant {
+    bound.map_or(deadline, |d| d.min(deadline))
+}
+
 /// Two jobs render the same shot: the same bundle and camera (frames of a
 /// sequence, the same scene again), so one's measured cost is the other's
 /// first estimate.
@@ -395,6 +400,11 @@ pub struct Scheduler {
     /// Unfinished jobs in the order they get workers.
     queue: BTreeSet<(Reverse<i32>, JobId)>,
     leases: HashMap<LeaseId, LeaseEntry>,
+    /// No lease's deadline is earlier (`None`: no lease), so that expiry
+    /// scans the leases only when one may have run out: a farm of a
+    /// thousand workers holds over a million tiles' leases, and every
+    /// lease call checks for expired ones.
+    earliest_deadline: Option<Instant>,
     workers: Workers,
     counters: Counters,
     next_job: JobId,
@@ -416,6 +426,7 @@ impl Scheduler {
             jobs: HashMap::new(),
             queue: BTreeSet::new(),
             leases: HashMap::new(),
+            earliest_deadline: None,
             workers: Workers::new(worker_id_base),
             counters: Counters::default(),
             next_job: 1,
@@ -594,7 +605,8 @@ impl Scheduler {
         self.touch(worker, now)?;
         // Asking for work: no longer paused.
         self.workers.set_paused(worker, None);
-        self.expire(now);
+        // Expired tiles first; the rest of `expire` is the reaper's.
+        self.expire_leases(now);
         let max_fail = self.cfg.max_worker_failures.max(1);
         let limit = self.workers.memory_limit(worker);
         let mut too_small = false;
@@ -687,6 +699,8 @@ impl Scheduler {
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
             }
+            let deadline = now + self.cfg.lease_ttl;
+            self.earliest_deadline = Some(earliest(self.earliest_deadline, deadline));
             for (i, &tile) in span.iter().enumerate() {
                 self.leases.insert(
                     lease_id + i as u64,
@@ -694,7 +708,7 @@ impl Scheduler {
                         job: id,
                         tile,
                         worker,
-                        deadline: now + self.cfg.lease_ttl,
+                        deadline,
                         granted: now,
                         span_pixels: rect.pixel_count() as u64,
                     },
@@ -729,29 +743,28 @@ impl Scheduler {
         self.touch(worker, now)?;
         let ttl = self.cfg.lease_ttl;
         let mut dropped = Vec::new();
+        let mut renewed = false;
         for &l in leases {
             match self.leases.get_mut(&l) {
-                Some(e) if e.worker == worker && e.deadline >= now => e.deadline = now + ttl,
+                Some(e) if e.worker == worker && e.deadline >= now => {
+                    e.deadline = now + ttl;
+                    renewed = true;
+                }
                 _ => dropped.push(l),
             }
+        }
+        if renewed {
+            // Later than the renewed deadlines unless the clock went back.
+            self.earliest_deadline = Some(earliest(self.earliest_deadline, now + ttl));
         }
         Ok(dropped)
     }
 
     /// Re-queues the tiles of leases past their deadline; returns how many.
+    /// Also forgets long-silent workers and fails the jobs no live worker
+    /// can take (what the farm's reaper runs a few times a lease lifetime).
     pub fn expire(&mut self, now: Instant) -> usize {
-        let expired: Vec<LeaseId> = self
-            .leases
-            .iter()
-            .filter(|(_, e)| e.deadline < now)
-            .map(|(&id, _)| id)
-            .collect();
-        for &id in &expired {
-            let worker = self.leases[&id].worker;
-            let cause = format!("lease expired (worker {worker} went silent)");
-            self.release(id, &cause, Release::Lost);
-        }
-        self.counters.lease_expiries += expired.len() as u64;
+        let expired = self.expire_leases(now);
         // Workers silent for ten lease lifetimes are forgotten; one that
         // comes back is told to register again.
         let forget = (self.cfg.lease_ttl * 10).max(Duration::from_secs(60));
@@ -760,6 +773,31 @@ impl Scheduler {
         self.sizer.retain_workers(|w| workers.threads(w).is_some());
         self.fail_stranded_jobs(now);
         self.fail_jobs_too_big(now);
+        expired
+    }
+
+    /// Re-queues the tiles of leases past their deadline; returns how many.
+    /// Scans the leases only when the earliest deadline has passed.
+    fn expire_leases(&mut self, now: Instant) -> usize {
+        if self.earliest_deadline.is_none_or(|d| d >= now) {
+            return 0;
+        }
+        let mut expired = Vec::new();
+        let mut first = None;
+        for (&id, e) in &self.leases {
+            if e.deadline < now {
+                expired.push(id);
+            } else {
+                first = Some(earliest(first, e.deadline));
+            }
+        }
+        self.earliest_deadline = first;
+        for &id in &expired {
+            let worker = self.leases[&id].worker;
+            let cause = format!("lease expired (worker {worker} went silent)");
+            self.release(id, &cause, Release::Lost);
+        }
+        self.counters.lease_expiries += expired.len() as u64;
         expired.len()
     }
 
@@ -1457,6 +1495,90 @@ mod tests {
         assert_eq!(rects, band_order_tiles(20, 10, 8));
         assert_eq!(s.lease(w, now).unwrap().unwrap().job, b);
         assert_eq!(s.info(a, now).unwrap().state, JobState::Running);
+    }
+
+    /// Expiry scans the leases only once the earliest deadline has passed;
+    /// that bound must never hide a lease past its deadline. A seeded
+    /// random run of leases, heartbeats (with the clock also set back) and
+    /// expiries against a model that checks every deadline each time.
+    #[test]
+    fn expiry_finds_every_lease_past_its_deadline_whatever_the_heartbeats() {
+        let t0 = Instant::now();
+        let ttl = Duration::from_secs(5);
+        let mut s = Scheduler::new(
+            Limits {
+                lease_ttl: ttl,
+                window_bytes: 1 << 30,
+                max_tile_losses: u32::MAX,
+                max_tile_failures: u32::MAX,
+                max_worker_failures: u32::MAX,
+                ..Limits::default()
+            },
+            100,
+        );
+        let workers = [s.register_worker(t0, None), s.register_worker(t0, None)];
+        s.submit(spec(0, 32, 32, 1), t0);
+        // The model: lease id -> (worker, deadline).
+        let mut model: HashMap<LeaseId, (WorkerId, Instant)> = HashMap::new();
+        let expire_model = |model: &mut HashMap<LeaseId, (WorkerId, Instant)>, now| {
+            let before = model.len();
+            model.retain(|_, (_, d)| *d >= now);
+            before - model.len()
+        };
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move |n: u64| {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            rng % n
+        };
+        let mut ms: u64 = 0;
+        let (mut expired_total, mut renewed_total) = (0, 0);
+        for _ in 0..3000 {
+            // Mostly forward, sometimes back (never before t0).
+            ms = (ms + next(1500)).saturating_sub(next(400));
+            let now = t0 + Duration::from_millis(ms);
+            let w = workers[next(2) as usize];
+            match next(3) {
+                0 => {
+                    expire_model(&mut model, now);
+                    if let Some(l) = s.lease(w, now).unwrap() {
+                        model.insert(l.id, (w, now + ttl));
+                    }
+                }
+                1 => {
+                    let mine: Vec<LeaseId> = model
+                        .iter()
+                        .filter(|(_, (o, _))| *o == w)
+                        .map(|(&id, _)| id)
+                        .collect();
+                    let mut dropped = s.heartbeat(w, &mine, now).unwrap();
+                    dropped.sort();
+                    let mut want = Vec::new();
+                    for id in mine {
+                        let e = model.get_mut(&id).unwrap();
+                        if e.1 >= now {
+                            e.1 = now + ttl;
+                            renewed_total += 1;
+                        } else {
+                            want.push(id);
+                        }
+                    }
+                    want.sort();
+                    assert_eq!(dropped, want, "at {ms} ms");
+                }
+                _ => {
+                    let n = expire_model(&mut model, now);
+                    expired_total += n;
+                    assert_eq!(s.expire(now), n, "at {ms} ms");
+                }
+            }
+        }
+        // The run did both things many times.
+        assert!(
+            expired_total > 100 && renewed_total > 100,
+            "{expired_total} {renewed_total}"
+        );
     }
 
     #[test]
