@@ -630,11 +630,15 @@ impl Scheduler {
             let Some(first) = job.window.next_tile(may_encode) else {
                 continue;
             };
+            // A job not measured yet gets single tiles (they measure it),
+            // so never a segment lease: rounded up to a whole band, a
+            // frame one or two tiles wide would go whole.
+            let measured = self.sizer.cost(id).is_some();
             let plan = span_plan(
                 &job.window,
                 &job.spec,
                 first,
-                may_encode,
+                may_encode && measured,
                 |cap| {
                     if !spans {
                         return 1;

@@ -270,8 +270,12 @@ fn png_segments_only_when_every_condition_holds() {
     let l = first_lease(&mut s, no_spans, spec(64, 64, 16, "o.png"), true);
     assert!(!l.png_segments);
     assert_eq!(l.tiles, 1);
-    // Not measured yet: one tile, as floats.
+    // Not measured yet: one tile, as floats, also when the frame is two
+    // tiles wide (one tile is half a band).
     let l = first_lease(&mut s, enc, spec(64, 64, 16, "o.png"), false);
+    assert!(!l.png_segments);
+    assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
+    let l = first_lease(&mut s, enc, spec(24, 20, 16, "o.png"), false);
     assert!(!l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
     // A partial band: the rest of it, as floats; then whole bands.
