@@ -63,6 +63,23 @@ pub struct TileResult {
     pub rays: u64,
 }
 
+/// The index of the first pixel (row by row) with a component that is not
+/// finite and non-negative, if any: what no render produces (radiance is
+/// linear and at least 0, and any finite value may be true, since a scene
+/// may have lights that bright). The coordinator checks float uploads with
+/// it, a worker its pixels before it encodes them. One branch-free pass in
+/// the usual case; only a bad tile is searched for its culprit. `-0.0` is a
+/// zero.
+pub fn first_invalid_pixel(pixels: &[[f32; 3]]) -> Option<usize> {
+    // NaN fails both comparisons, infinities the upper one.
+    let valid = |c: f32| (0.0..=f32::MAX).contains(&c);
+    let all_good = pixels.iter().flatten().fold(true, |ok, &c| ok & valid(c));
+    if all_good {
+        return None;
+    }
+    pixels.iter().position(|p| !p.iter().all(|&c| valid(c)))
+}
+
 /// Renders rectangle `rect` of camera `camera`'s frame on the current rayon
 /// pool (rows in parallel). Each pixel depends only on the scene and its
 /// coordinates, so the result is the same whatever the tiling or threads.
@@ -201,5 +218,24 @@ mod tests {
             render_tile_cancellable(&scene, 0, rect, &flag),
             Err(Cancelled)
         );
+    }
+
+    #[test]
+    fn the_first_invalid_pixel_is_the_first_not_finite_or_negative() {
+        let ok = [[0.0, -0.0, 1.0], [f32::MAX, 0.5, 2.0]];
+        assert_eq!(first_invalid_pixel(&ok), None);
+        assert_eq!(first_invalid_pixel(&[]), None);
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1e-30] {
+            for channel in 0..3 {
+                let mut px = vec![[0.25f32; 3]; 5];
+                px[3][channel] = bad;
+                px[4] = [bad; 3];
+                assert_eq!(
+                    first_invalid_pixel(&px),
+                    Some(3),
+                    "{bad} in channel {channel}"
+                );
+            }
+        }
     }
 }

@@ -72,8 +72,7 @@ impl EncodedRect {
 /// The first pixel of `rect` (row by row) that is not finite and
 /// non-negative in every channel, as an error.
 pub fn check_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), BadPixel> {
-    let bad = |c: f32| !(c.is_finite() && c >= 0.0);
-    match pixels.iter().position(|p| p.iter().any(|&c| bad(c))) {
+    match trevi_core::tile::first_invalid_pixel(pixels) {
         None => Ok(()),
         Some(i) => {
             let w = rect.w.max(1) as usize;

@@ -25,34 +25,16 @@ pub fn validate_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), FarmError>
             pixels.len()
         )));
     }
-    // One branch-free pass for the usual case: every value finite and not
-    // below 0 (NaN fails both comparisons; -0.0 passes). Only a bad tile
-    // pays for finding which pixel is wrong.
-    let all_good = pixels
-        .iter()
-        .flatten()
-        .fold(true, |ok, &c| ok & (0.0..=f32::MAX).contains(&c));
-    if all_good {
+    let Some(i) = trevi_core::tile::first_invalid_pixel(pixels) else {
         return Ok(());
-    }
-    if let Some(i) = pixels.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(FarmError::BadTile(format!(
-            "pixel ({}, {}) is not finite: {:?}",
-            rect.x + (i as u32 % rect.w),
-            rect.y + (i as u32 / rect.w),
-            pixels[i]
-        )));
-    }
-    // `-0.0 < 0.0` is false: a negative zero is a zero.
-    if let Some(i) = pixels.iter().position(|p| p.iter().any(|&c| c < 0.0)) {
-        return Err(FarmError::BadTile(format!(
-            "pixel ({}, {}) is negative: {:?} (radiance is never below 0)",
-            rect.x + (i as u32 % rect.w),
-            rect.y + (i as u32 / rect.w),
-            pixels[i]
-        )));
-    }
-    Ok(())
+    };
+    let (x, y) = (rect.x + (i as u32 % rect.w), rect.y + (i as u32 / rect.w));
+    let p = pixels[i];
+    Err(FarmError::BadTile(if p.iter().all(|c| c.is_finite()) {
+        format!("pixel ({x}, {y}) is negative: {p:?} (radiance is never below 0)")
+    } else {
+        format!("pixel ({x}, {y}) is not finite: {p:?}")
+    }))
 }
 
 impl Farm {
