@@ -388,16 +388,17 @@ impl Store {
             if known {
                 continue;
             }
-            let offset = append(&inner.dir, &mut inner.files, job, pixels)?;
+            let offset = append(&inner.dir, &mut inner.files, job, &[pixels])?;
             let at = (offset, pixels.len(), crc32fast::hash(pixels));
             insert_ref(&tx, job, tile, rays, at, KIND_FLOATS)?;
         }
         tx.commit().map_err(db_err)
     }
 
-    /// Stores the tiles of a span taken as encoded segments: `bytes` (the
-    /// segments, their index, Adler-32 and length, and the preview sums:
-    /// see `farm::segments`) appended once to the job's file, then a row
+    /// Stores the tiles of a span taken as encoded segments: `pieces`, one
+    /// record in order (the segments, their index, Adler-32 and length, and
+    /// the preview sums: see `farm::segments`), appended once to the job's
+    /// file, then a row
     /// for each of `tiles` (`(tile, rays)`) pointing at them, in one
     /// transaction, committed before the upload is acknowledged. A tile
     /// already stored keeps its row (the farm never sends one: it takes a
@@ -406,13 +407,16 @@ impl Store {
         &self,
         job: JobId,
         tiles: &[(u32, u64)],
-        bytes: &[u8],
+        pieces: &[&[u8]],
     ) -> Result<(), FarmError> {
+        let mut crc = crc32fast::Hasher::new();
+        pieces.iter().for_each(|p| crc.update(p));
+        let len = pieces.iter().map(|p| p.len()).sum();
         let mut guard = self.lock();
         let inner = &mut *guard;
         let tx = inner.conn.transaction().map_err(db_err)?;
-        let offset = append(&inner.dir, &mut inner.files, job, bytes)?;
-        let at = (offset, bytes.len(), crc32fast::hash(bytes));
+        let offset = append(&inner.dir, &mut inner.files, job, pieces)?;
+        let at = (offset, len, crc.finalize());
         for &(tile, rays) in tiles {
             insert_ref(&tx, job, tile, rays, at, KIND_SEGMENTS)?;
         }
@@ -729,7 +733,7 @@ fn append(
     dir: &Path,
     files: &mut HashMap<JobId, (File, u64)>,
     job: JobId,
-    bytes: &[u8],
+    pieces: &[&[u8]],
 ) -> Result<u64, FarmError> {
     let path = dir.join(format!("{job}.f32"));
     let io = |e: std::io::Error| FarmError::io(format!("tile file {}", path.display()), e);
@@ -749,8 +753,33 @@ fn append(
         }
     };
     let offset = *len;
-    file.write_all(bytes).map_err(io)?;
-    *len += bytes.len() as u64;
+    // One `writev` for the pieces where the kernel takes them all, so a
+    // span's segments need not be copied into one buffer first.
+    let mut slices: Vec<std::io::IoSlice> = pieces
+        .iter()
+        .filter(|p| !p.is_empty())
+        .map(|p| std::io::IoSlice::new(p))
+        .collect();
+    let mut rest = &mut slices[..];
+    while !rest.is_empty() {
+        match file.write_vectored(rest) {
+            Ok(0) => {
+                files.remove(&job);
+                return Err(io(std::io::ErrorKind::WriteZero.into()));
+            }
+            Ok(n) => {
+                *len += n as u64;
+                std::io::IoSlice::advance_slices(&mut rest, n);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => {
+                // Reopened next time, its length read again: what part of
+                // this write reached the file stays unreferenced.
+                files.remove(&job);
+                return Err(io(e));
+            }
+        }
+    }
     Ok(offset)
 }
 
@@ -954,7 +983,7 @@ mod tests {
             let s = Store::open(dir.path()).unwrap();
             s.insert_job(&job(1)).unwrap();
             s.put_tile(1, 0, 10, &[0; 48]).unwrap();
-            s.put_segment_span(1, &[(1, 11), (2, 12), (3, 13)], &[5; 70])
+            s.put_segment_span(1, &[(1, 11), (2, 12), (3, 13)], &[&[5; 30], &[5; 40]])
                 .unwrap();
             s.put_tile(1, 4, 14, &[4; 48]).unwrap();
         }
@@ -1004,7 +1033,7 @@ mod tests {
         let s = Store::open(dir.path()).unwrap();
         s.insert_job(&job(1)).unwrap();
         s.put_tile(1, 0, 1, &[1; 12]).unwrap();
-        s.put_segment_span(1, &[(1, 2)], &[2; 9]).unwrap();
+        s.put_segment_span(1, &[(1, 2)], &[&[2; 9]]).unwrap();
         assert_eq!(s.tile_list(1).unwrap(), vec![(0, 1), (1, 2)]);
     }
 
