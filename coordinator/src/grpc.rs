@@ -378,9 +378,44 @@ impl pb::jobs_server::Jobs for JobsService {
 /// `trevi.v1.Workers`.
 pub struct WorkersService {
     pub farm: Arc<Farm>,
+    /// One permit per tile upload being received
+    /// ([`Limits::max_tile_uploads`]).
+    ///
+    /// [`Limits::max_tile_uploads`]: crate::limits::Limits::max_tile_uploads
+    pub tile_uploads: Arc<Semaphore>,
 }
 
 impl WorkersService {
+    pub fn new(farm: Arc<Farm>) -> Self {
+        let n = farm.config().limits.max_tile_uploads;
+        WorkersService {
+            farm,
+            tile_uploads: Arc::new(Semaphore::new(n)),
+        }
+    }
+
+    /// The next message of a tile upload, or `DEADLINE_EXCEEDED` once the
+    /// worker has sent nothing for [`Limits::upload_idle`]: an upload
+    /// holds one of the few [`Limits::max_tile_uploads`] permits, so a
+    /// stalled one must not keep it.
+    ///
+    /// [`Limits::upload_idle`]: crate::limits::Limits::upload_idle
+    /// [`Limits::max_tile_uploads`]: crate::limits::Limits::max_tile_uploads
+    async fn next_part(
+        &self,
+        s: &mut Streaming<pb::TileUpload>,
+    ) -> Result<Option<pb::TileUpload>, Status> {
+        let idle = self.farm.config().limits.upload_idle;
+        match tokio::time::timeout(idle, s.message()).await {
+            Ok(m) => m,
+            Err(_) => Err(Status::deadline_exceeded(format!(
+                "the tile upload sent nothing for {} ms, the coordinator's limit \
+                 (--upload-idle-ms); dropped",
+                idle.as_millis()
+            ))),
+        }
+    }
+
     /// The rest of an upload of encoded segments (docs/farm.md, "Encoded
     /// segments"), `first` its first message after the header: segments in
     /// order, then one `preview`. Each part is checked as it comes, before
@@ -480,7 +515,7 @@ impl WorkersService {
                     .await
                 }
             }
-            next = s.message().await?;
+            next = self.next_part(&mut s).await?;
         }
         let Some(sums) = sums else {
             return refuse("an upload of segments ends with its preview sums".to_string()).await;
@@ -581,7 +616,7 @@ impl pb::workers_server::Workers for WorkersService {
         req: Request<Streaming<pb::TileUpload>>,
     ) -> Result<Response<pb::TileAck>, Status> {
         let mut s = req.into_inner();
-        let header = match s.message().await?.and_then(|m| m.part) {
+        let header = match self.next_part(&mut s).await?.and_then(|m| m.part) {
             Some(Part::Header(h)) => h,
             _ => {
                 return Err(Status::invalid_argument(
@@ -591,12 +626,20 @@ impl pb::workers_server::Workers for WorkersService {
         };
         self.farm.check_session(header.worker_id, &header.session)?;
         let rect = rect_from(header.rect).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        // Its turn: the rest of the upload waits, unread, within its
+        // stream window, until fewer than `max_tile_uploads` are received.
+        let _permit = self
+            .tile_uploads
+            .clone()
+            .acquire_owned()
+            .await
+            .map_err(|_| Status::unavailable("the coordinator is stopping"))?;
         // A rectangle that is not one of the job's tiles (or a span of
         // them, at most `max_lease_pixels` for floats and
         // `max_segment_lease_pixels` for segments) is refused before more
         // than the first part (itself within the message size limit) is
         // read, so a huge one cannot make us allocate.
-        let first = s.message().await?;
+        let first = self.next_part(&mut s).await?;
         let segments = matches!(
             first.as_ref().and_then(|m| m.part.as_ref()),
             Some(Part::Segment(_))
@@ -627,7 +670,7 @@ impl pb::workers_server::Workers for WorkersService {
                     ))
                 }
             }
-            next = s.message().await?;
+            next = self.next_part(&mut s).await?;
         }
         let pixels = match pixels_from_bytes(&bytes) {
             Ok(p) if !oversized => p,
@@ -717,7 +760,13 @@ pub async fn serve_with(
         bundles_server::BundlesServer, jobs_server::JobsServer, workers_server::WorkersServer,
     };
 
-    let mut server = tonic::transport::Server::builder();
+    // A stream may send `TILE_UPLOAD_WINDOW` before it is read: what an
+    // upload waiting for its turn holds (`Limits::max_tile_uploads`);
+    // waiting ones never fill the connection's window.
+    let mut server = tonic::transport::Server::builder()
+        .initial_stream_window_size(crate::limits::TILE_UPLOAD_WINDOW)
+        .initial_connection_window_size(crate::limits::CONNECTION_WINDOW)
+        .max_concurrent_streams(crate::limits::MAX_STREAMS_PER_CONNECTION);
     if let Some(tls) = opts.tls {
         server = server.tls_config(tls)?;
     }
@@ -766,7 +815,7 @@ pub async fn serve_with(
     let latency = crate::metrics::LatencyLayer {
         metrics: farm.metrics().clone(),
     };
-    let workers = WorkersServer::new(WorkersService { farm }).max_decoding_message_size(max_msg);
+    let workers = WorkersServer::new(WorkersService::new(farm)).max_decoding_message_size(max_msg);
     let result = server
         .layer(latency)
         .add_service(health_service)

@@ -24,8 +24,17 @@ pub struct Limits {
     pub max_jobs_per_submitter: usize,
     /// Bundle uploads in progress at once; one more is refused.
     pub max_uploads: usize,
-    /// How long an upload may go without a chunk before it is dropped.
+    /// How long an upload (a bundle's, or a worker's tile or segments) may
+    /// go without a message before it is dropped.
     pub upload_idle: Duration,
+    /// Tile uploads (floats or encoded segments) the coordinator receives
+    /// at once; more wait, unread, until one ends. Each holds at most one
+    /// lease's pixels (12 bytes a pixel of [`Limits::max_lease_pixels`], or
+    /// about 4.5 of [`Limits::max_segment_lease_pixels`]), so what uploads
+    /// hold is bounded by this count whatever the number of workers; a
+    /// waiting one holds at most its HTTP/2 stream window
+    /// ([`TILE_UPLOAD_WINDOW`]). See [`DEFAULT_MAX_TILE_UPLOADS`].
+    pub max_tile_uploads: usize,
 
     /// How long a lease lives without a heartbeat.
     pub lease_ttl: Duration,
@@ -108,6 +117,33 @@ pub struct Limits {
 /// is 12 MiB.
 pub const DEFAULT_MAX_SEGMENT_LEASE_PIXELS: u64 = 1 << 22;
 
+/// [`Limits::max_tile_uploads`] by default. Receiving is a copy, a check
+/// and two file writes a byte, so a few uploads at once keep every core
+/// busy; 1,000 workers uploading at once held 2.6 GiB on one core, which
+/// spent about a quarter of its time faulting in and zeroing fresh pages
+/// (docs/benchmarks.md, "Stage 4"). 32 uploads hold at most 32 × 18 MiB of segments at the
+/// encoder's worst, 32 × 12 MiB of floats.
+pub const DEFAULT_MAX_TILE_UPLOADS: usize = 32;
+
+/// The HTTP/2 stream window the coordinator grants (each stream may send
+/// this much before it is read): an upload waiting for one of
+/// [`Limits::max_tile_uploads`] holds at most this much of the
+/// coordinator's memory.
+pub const TILE_UPLOAD_WINDOW: u32 = 256 << 10;
+
+/// Most streams open at once on one HTTP/2 connection (a client opening
+/// more waits). Workers behind one proxy, or simulated ones, share a
+/// connection; see [`CONNECTION_WINDOW`].
+pub const MAX_STREAMS_PER_CONNECTION: u32 = 256;
+
+/// The HTTP/2 connection window: more than every stream of a connection
+/// can hold unread ([`MAX_STREAMS_PER_CONNECTION`] ×
+/// [`TILE_UPLOAD_WINDOW`]). Uploads waiting for their turn then never use
+/// up the window the upload being received (or a heartbeat) on the same
+/// connection needs, which would stop it for good: with hyper's default of
+/// 1 MiB, four waiting uploads on a connection did.
+pub const CONNECTION_WINDOW: u32 = MAX_STREAMS_PER_CONNECTION * TILE_UPLOAD_WINDOW + (1 << 20);
+
 /// Frames of one sequence in progress at once by default: a second frame
 /// lets idle workers start on it while the first one's last tiles are out.
 pub const DEFAULT_FRAMES_IN_PROGRESS: usize = 2;
@@ -131,6 +167,7 @@ impl Default for Limits {
             max_jobs_per_submitter: 1000,
             max_uploads: 4,
             upload_idle: Duration::from_secs(30),
+            max_tile_uploads: DEFAULT_MAX_TILE_UPLOADS,
 
             lease_ttl: Duration::from_secs(10),
             // A 16384-pixel-wide frame in 64-pixel tiles: two bands.

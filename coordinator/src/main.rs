@@ -142,7 +142,13 @@ struct Args {
     #[arg(long, env = "TREVI_MAX_UPLOADS", value_parser = at_least::<usize>(1),
           default_value_t = defaults().limits.max_uploads)]
     max_uploads: usize,
-    /// Drop a bundle upload that sends nothing for this long, in milliseconds.
+    /// Tile uploads from workers received at once; more wait their turn,
+    /// unread. Bounds what uploads hold whatever the number of workers.
+    #[arg(long, env = "TREVI_MAX_TILE_UPLOADS", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.max_tile_uploads)]
+    max_tile_uploads: usize,
+    /// Drop an upload (a bundle, or a worker's tile) that sends nothing for
+    /// this long, in milliseconds.
     #[arg(long, env = "TREVI_UPLOAD_IDLE_MS", value_parser = at_least::<u64>(1),
           default_value_t = defaults().limits.upload_idle.as_millis() as u64)]
     upload_idle_ms: u64,
@@ -185,6 +191,7 @@ impl Args {
                 max_jobs_per_submitter: self.max_jobs_per_submitter,
                 max_uploads: self.max_uploads,
                 upload_idle: Duration::from_millis(self.upload_idle_ms),
+                max_tile_uploads: self.max_tile_uploads,
                 lease_ttl: Duration::from_millis(self.lease_ttl_ms),
                 window_bytes: self.window_mib << 20,
                 max_tile_failures: self.max_tile_failures,
