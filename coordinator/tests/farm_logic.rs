@@ -1,6 +1,8 @@
 //! The coordinator's rules without a network: scheduling, validation and
 //! stitching through the real `FrameWriter`, with synthetic pixels.
 
+mod common;
+
 use std::path::Path;
 use std::time::Duration;
 use trevi_coordinator::scheduler::Lease;
@@ -41,14 +43,8 @@ fn farm(dir: &Path, ttl: Duration, window_bytes: u64) -> Farm {
 
 fn spec(w: u32, h: u32, tile: u32, name: &str, priority: i32) -> JobSpec {
     JobSpec {
-        frame: None,
-        bundle_hash: "0".repeat(64),
-        camera: "cam".into(),
         priority,
-        width: w,
-        height: h,
-        tile_size: tile,
-        output_name: name.into(),
+        ..common::spec(w, h, tile, name)
     }
 }
 

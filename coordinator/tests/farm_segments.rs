@@ -8,11 +8,14 @@
 //! tests upload segments for leases of whole bands: frames no wider than a
 //! tile, so that every lease is full-width rows from a multiple of 16.
 
+mod common;
+
+use common::spec;
 use std::path::Path;
 use trevi_coordinator::farm::{SegmentUpload, TileOutcome};
 use trevi_coordinator::preview::Preview;
 use trevi_coordinator::scheduler::Lease;
-use trevi_coordinator::{Farm, FarmConfig, FarmError, JobSpec, JobState, SubmitOptions};
+use trevi_coordinator::{Farm, FarmConfig, FarmError, JobState, SubmitOptions};
 use trevi_coordinator::{TileResult, WorkerOptions};
 use trevi_core::output::{
     encode_segment, max_segment_deflate_len, segment_rows, PngSegment, SEGMENT_ROWS, SYNC_FLUSH,
@@ -33,19 +36,6 @@ fn pixels(r: Rect) -> Vec<[f32; 3]> {
     (r.y..r.y + r.h)
         .flat_map(|y| (r.x..r.x + r.w).map(move |x| pixel(x, y)))
         .collect()
-}
-
-fn spec(w: u32, h: u32, tile: u32, name: &str) -> JobSpec {
-    JobSpec {
-        frame: None,
-        bundle_hash: "0".repeat(64),
-        camera: "cam".into(),
-        priority: 0,
-        width: w,
-        height: h,
-        tile_size: tile,
-        output_name: name.into(),
-    }
 }
 
 fn farm(dir: &Path, durable: bool) -> Farm {
@@ -462,21 +452,11 @@ fn the_deflate_bound_is_what_the_farm_states() {
 mod grpc {
     use super::*;
     use std::sync::Arc;
-    use tokio::net::TcpListener;
     use trevi_proto::pb::{self, tile_upload::Part, workers_client::WorkersClient};
 
     async fn serve(f: Farm) -> (Arc<Farm>, WorkersClient<tonic::transport::Channel>) {
         let f = Arc::new(f);
-        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = listener.local_addr().unwrap();
-        let farm = f.clone();
-        tokio::spawn(async move {
-            trevi_coordinator::grpc::serve(farm, listener, std::future::pending()).await
-        });
-        let client = WorkersClient::connect(format!("http://{addr}"))
-            .await
-            .unwrap();
-        (f, client)
+        (f.clone(), common::serve(f).await)
     }
 
     fn segment_msg(index: u32, s: &PngSegment) -> pb::TileUpload {

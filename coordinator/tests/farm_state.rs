@@ -3,6 +3,8 @@
 //! ended jobs are kept, paged listing, job ids never reused, and the end of a
 //! job recorded before anyone is told of it.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -15,16 +17,7 @@ use trevi_coordinator::{
 use trevi_core::Rect;
 
 fn spec(w: u32, h: u32, tile: u32) -> JobSpec {
-    JobSpec {
-        frame: None,
-        bundle_hash: "0".repeat(64),
-        camera: "cam".into(),
-        priority: 0,
-        width: w,
-        height: h,
-        tile_size: tile,
-        output_name: "out.png".into(),
-    }
+    common::spec(w, h, tile, "out.png")
 }
 
 fn config(dir: &Path, durable: bool, retention: Retention) -> FarmConfig {

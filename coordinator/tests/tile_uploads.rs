@@ -3,10 +3,11 @@
 //! received, without stopping it; and one that stalls is dropped after
 //! `Limits::upload_idle` and gives its turn to the next.
 
+mod common;
+
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::net::TcpListener;
-use trevi_coordinator::{Farm, FarmConfig, JobSpec, JobState, Limits, SubmitOptions};
+use trevi_coordinator::{Farm, FarmConfig, JobState, Limits, SubmitOptions};
 use trevi_proto::pb::{self, tile_upload::Part, workers_client::WorkersClient};
 
 type Client = WorkersClient<tonic::transport::Channel>;
@@ -23,28 +24,15 @@ async fn serve(
         ..FarmConfig::new(dir.path())
     })
     .unwrap();
-    let spec = JobSpec {
-        frame: None,
-        bundle_hash: "0".repeat(64),
-        camera: "cam".into(),
-        priority: 0,
-        width: w,
-        height: h,
-        tile_size: tile,
-        output_name: "out.exr".into(),
-    };
-    let job = f.submit(spec, SubmitOptions::default()).unwrap().id;
-    let f = Arc::new(f);
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let farm = f.clone();
-    tokio::spawn(async move {
-        trevi_coordinator::grpc::serve(farm, listener, std::future::pending()).await
-    });
-    let client = WorkersClient::connect(format!("http://{addr}"))
-        .await
+    let job = f
+        .submit(
+            common::spec(w, h, tile, "out.exr"),
+            SubmitOptions::default(),
+        )
         .unwrap()
-        .max_decoding_message_size(usize::MAX);
+        .id;
+    let f = Arc::new(f);
+    let client = common::serve(f.clone()).await;
     (dir, f, job, client)
 }
 
