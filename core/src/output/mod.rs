@@ -381,7 +381,7 @@ impl FrameWriter {
             });
         }
         let (width, height, next_row) = (self.width, self.height, self.next_row);
-        let Encoder::Png { rows, held, .. } = &mut self.encoder else {
+        let Encoder::Png { rows, held, sink } = &mut self.encoder else {
             return Err(OutputError::BadSegment {
                 index,
                 message: "the frame is an EXR file, which takes no PNG segments".to_string(),
@@ -403,10 +403,24 @@ impl FrameWriter {
                 height,
             });
         }
-        held.insert(index, segment.clone());
-        self.flush_complete_rows().inspect_err(|e| {
-            self.failure = Some(e.to_string());
-        })
+        // The next one due goes straight into the file; a later one is
+        // copied and held until the rows above it are written.
+        let written = if range.start == next_row {
+            sink.write_segment(segment).map(|()| Some(range.end))
+        } else {
+            held.insert(index, segment.clone());
+            Ok(None)
+        };
+        written
+            .and_then(|end| {
+                if let Some(end) = end {
+                    self.next_row = end;
+                }
+                self.flush_complete_rows()
+            })
+            .inspect_err(|e| {
+                self.failure = Some(e.to_string());
+            })
     }
 
     /// Adds a tile. `pixels` holds `rect.w * rect.h` linear RGB values, row by
