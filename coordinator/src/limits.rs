@@ -121,8 +121,8 @@ pub const DEFAULT_MAX_SEGMENT_LEASE_PIXELS: u64 = 1 << 22;
 /// and two file writes a byte, so a few uploads at once keep every core
 /// busy; 1,000 workers uploading at once held 2.6 GiB on one core, which
 /// spent about a quarter of its time faulting in and zeroing fresh pages
-/// (docs/benchmarks.md, "Stage 4"). 32 uploads hold at most 32 × 18 MiB of segments at the
-/// encoder's worst, 32 × 12 MiB of floats.
+/// (docs/benchmarks.md, "Stage 4"). 32 uploads hold at most 32 × 18 MiB
+/// of segments at the encoder's worst, 32 × 12 MiB of floats.
 pub const DEFAULT_MAX_TILE_UPLOADS: usize = 32;
 
 /// The HTTP/2 stream window the coordinator grants (each stream may send
