@@ -413,35 +413,33 @@ impl Store {
         job: JobId,
         tiles: &[(u32, u64, B)],
     ) -> Result<(), FarmError> {
-        let new: Vec<bool> = {
+        // Tiles already stored keep their row; only the others are written.
+        let mut fresh = Vec::with_capacity(tiles.len());
+        {
             let inner = self.lock();
             // Cached statements: parsing the SQL again for every tile costs
             // about as much as running it.
-            let mut q = inner
+            let mut known = inner
                 .conn
                 .prepare_cached("SELECT 1 FROM tile_refs WHERE job = ?1 AND tile = ?2")
                 .map_err(db_err)?;
-            tiles
-                .iter()
-                .map(|(tile, _, _)| {
-                    q.query_row(params![job as i64, tile], |_| Ok(()))
-                        .optional()
-                        .map(|known| known.is_none())
-                        .map_err(db_err)
-                })
-                .collect::<Result<_, _>>()?
-        };
-        let mut at = Vec::with_capacity(tiles.len());
-        for ((_, _, pixels), _) in tiles.iter().zip(&new).filter(|(_, &n)| n) {
+            for t in tiles {
+                let row = known.query_row(params![job as i64, t.0], |_| Ok(()));
+                if row.optional().map_err(db_err)?.is_none() {
+                    fresh.push(t);
+                }
+            }
+        }
+        let mut at = Vec::with_capacity(fresh.len());
+        for (_, _, pixels) in &fresh {
             let pixels = pixels.as_ref();
             let offset = self.append(job, &[pixels])?;
             at.push((offset, pixels.len(), crc32fast::hash(pixels)));
         }
         let mut guard = self.lock();
         let tx = guard.conn.transaction().map_err(db_err)?;
-        let stored = tiles.iter().zip(&new).filter(|(_, &n)| n);
-        for (((tile, rays, _), _), at) in stored.zip(at) {
-            insert_ref(&tx, job, *tile, *rays, at, KIND_FLOATS)?;
+        for (&(tile, rays, _), at) in fresh.into_iter().zip(at) {
+            insert_ref(&tx, job, tile, rays, at, KIND_FLOATS)?;
         }
         tx.commit().map_err(db_err)
     }
@@ -449,9 +447,8 @@ impl Store {
     /// Stores the tiles of a span taken as encoded segments: `pieces`, one
     /// record in order (the segments, their index, Adler-32 and length, and
     /// the preview sums: see `farm::segments`), appended once to the job's
-    /// file, then a row
-    /// for each of `tiles` (`(tile, rays)`) pointing at them, in one
-    /// transaction, committed before the upload is acknowledged. A tile
+    /// file, then a row for each of `tiles` (`(tile, rays)`) pointing at
+    /// them, in one transaction, committed before the upload is acknowledged. A tile
     /// already stored keeps its row (the farm never sends one: it takes a
     /// span only when none of its tiles is done).
     pub fn put_segment_span(

@@ -405,19 +405,15 @@ impl FrameWriter {
         }
         // The next one due goes straight into the file; a later one is
         // copied and held until the rows above it are written.
-        let written = if range.start == next_row {
-            sink.write_segment(segment).map(|()| Some(range.end))
+        let placed = if range.start == next_row {
+            sink.write_segment(segment)
+                .map(|()| self.next_row = range.end)
         } else {
             held.insert(index, segment.clone());
-            Ok(None)
+            Ok(())
         };
-        written
-            .and_then(|end| {
-                if let Some(end) = end {
-                    self.next_row = end;
-                }
-                self.flush_complete_rows()
-            })
+        placed
+            .and_then(|()| self.flush_complete_rows())
             .inspect_err(|e| {
                 self.failure = Some(e.to_string());
             })
