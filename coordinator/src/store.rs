@@ -14,9 +14,12 @@
 //! - every span of tiles taken as encoded PNG segments
 //!   ([`Store::put_segment_span`]): the segments, their index, Adler-32 and
 //!   length, and the preview sums, appended once to the same file (about
-//!   0.55 bytes a pixel instead of 12), with a row per tile (`kind` 1)
-//!   pointing at them; a restart replays them ([`Store::replay`]) and a
-//!   damaged one is forgotten with all its tiles.
+//!   0.55 bytes a pixel instead of 12), with one row (`kind` 1) for each
+//!   run of consecutive tiles it covers (`tile` the first, `tiles` how
+//!   many: a span of whole bands is one run), pointing at them; a restart
+//!   replays them ([`Store::replay`]) and a damaged one is forgotten with
+//!   all its tiles. A row per tile cost the coordinator a sixth of its time
+//!   on a farm of hundreds of workers (docs/benchmarks.md, "Stage 5").
 //!
 //! On start the coordinator reloads the jobs; for each unfinished one it
 //! starts the output file afresh and replays the stored tiles into it in band
@@ -113,14 +116,17 @@ pub struct SeqLink {
     pub frames_done: u32,
 }
 
-/// A stored tile's row: (tile, rays, offset, len, crc, kind) — where its
-/// pixels are in the job's file and their CRC-32; `kind` 1 when they are
-/// the encoded segments of a span of tiles (the same bytes for each).
-type TileRef = (u32, u64, u64, usize, u32, u8);
+/// A stored row: (first tile, tiles, rays, offset, len, crc, kind) — where
+/// its pixels are in the job's file and their CRC-32; `kind` 1 when they
+/// are the encoded segments of a span, of which the row's `tiles`
+/// consecutive tiles from the first are part (a span of rows written by an
+/// earlier version has a row of one tile for each of its tiles, all
+/// pointing at the same bytes).
+type TileRef = (u32, u32, u64, u64, usize, u32, u8);
 
 /// Row kind: the tile's own float pixels.
 const KIND_FLOATS: u8 = 0;
-/// Row kind: one tile of a span stored as encoded segments.
+/// Row kind: a run of tiles of a span stored as encoded segments.
 const KIND_SEGMENTS: u8 = 1;
 
 /// A stored result, as [`Store::replay`] hands it back.
@@ -257,6 +263,14 @@ impl Store {
         if !tile_cols.iter().any(|c| c == "kind") {
             conn.execute(
                 "ALTER TABLE tile_refs ADD COLUMN kind INTEGER NOT NULL DEFAULT 0",
+                [],
+            )
+            .map_err(db_err)?;
+        }
+        // Then a row for a run of a span's tiles (`tiles`, 1 before).
+        if !tile_cols.iter().any(|c| c == "tiles") {
+            conn.execute(
+                "ALTER TABLE tile_refs ADD COLUMN tiles INTEGER NOT NULL DEFAULT 1",
                 [],
             )
             .map_err(db_err)?;
@@ -419,9 +433,14 @@ impl Store {
             let inner = self.lock();
             // Cached statements: parsing the SQL again for every tile costs
             // about as much as running it.
+            // The row at or before the tile, if its run reaches the tile.
             let mut known = inner
                 .conn
-                .prepare_cached("SELECT 1 FROM tile_refs WHERE job = ?1 AND tile = ?2")
+                .prepare_cached(
+                    "SELECT 1 FROM (SELECT tile, tiles FROM tile_refs
+                         WHERE job = ?1 AND tile <= ?2 ORDER BY tile DESC LIMIT 1)
+                     WHERE tile + tiles > ?2",
+                )
                 .map_err(db_err)?;
             for t in tiles {
                 let row = known.query_row(params![job as i64, t.0], |_| Ok(()));
@@ -439,7 +458,7 @@ impl Store {
         let mut guard = self.lock();
         let tx = guard.conn.transaction().map_err(db_err)?;
         for (&(tile, rays, _), at) in fresh.into_iter().zip(at) {
-            insert_ref(&tx, job, tile, rays, at, KIND_FLOATS)?;
+            insert_ref(&tx, job, (tile, 1), rays, at, KIND_FLOATS)?;
         }
         tx.commit().map_err(db_err)
     }
@@ -447,10 +466,12 @@ impl Store {
     /// Stores the tiles of a span taken as encoded segments: `pieces`, one
     /// record in order (the segments, their index, Adler-32 and length, and
     /// the preview sums: see `farm::segments`), appended once to the job's
-    /// file, then a row for each of `tiles` (`(tile, rays)`) pointing at
-    /// them, in one transaction, committed before the upload is acknowledged. A tile
-    /// already stored keeps its row (the farm never sends one: it takes a
-    /// span only when none of its tiles is done).
+    /// file, then a row for each run of consecutive tiles among `tiles`
+    /// (`(tile, rays)`, in tile order; a span of whole bands is one run)
+    /// pointing at them, with the run's rays, in one transaction, committed
+    /// before the upload is acknowledged. A run whose first tile is stored
+    /// already keeps that row (the farm never sends one: it takes a span
+    /// only when none of its tiles is done).
     pub fn put_segment_span(
         &self,
         job: JobId,
@@ -464,8 +485,16 @@ impl Store {
         let at = (offset, len, crc.finalize());
         let mut guard = self.lock();
         let tx = guard.conn.transaction().map_err(db_err)?;
-        for &(tile, rays) in tiles {
-            insert_ref(&tx, job, tile, rays, at, KIND_SEGMENTS)?;
+        for run in tiles.chunk_by(|a, b| a.0.checked_add(1) == Some(b.0)) {
+            let rays = run.iter().fold(0u64, |a, t| a.saturating_add(t.1));
+            insert_ref(
+                &tx,
+                job,
+                (run[0].0, run.len() as u32),
+                rays,
+                at,
+                KIND_SEGMENTS,
+            )?;
         }
         tx.commit().map_err(db_err)
     }
@@ -482,19 +511,20 @@ impl Store {
     fn refs(conn: &Connection, job: JobId) -> Result<Vec<TileRef>, FarmError> {
         let mut q = conn
             .prepare(
-                "SELECT tile, rays, offset, len, crc, kind FROM tile_refs WHERE job = ?1
-                 ORDER BY tile",
+                "SELECT tile, tiles, rays, offset, len, crc, kind FROM tile_refs
+                 WHERE job = ?1 ORDER BY tile",
             )
             .map_err(db_err)?;
         let rows = q
             .query_map(params![job as i64], |r| {
                 Ok((
                     r.get::<_, u32>(0)?,
-                    r.get::<_, i64>(1)? as u64,
+                    r.get::<_, u32>(1)?,
                     r.get::<_, i64>(2)? as u64,
-                    r.get::<_, i64>(3)? as usize,
-                    r.get::<_, u32>(4)?,
-                    r.get::<_, u8>(5)?,
+                    r.get::<_, i64>(3)? as u64,
+                    r.get::<_, i64>(4)? as usize,
+                    r.get::<_, u32>(5)?,
+                    r.get::<_, u8>(6)?,
                 ))
             })
             .map_err(db_err)?;
@@ -614,20 +644,22 @@ impl Store {
             .collect()
     }
 
-    /// The stored tiles of a job: (tile index, rays), in tile order. A tile
-    /// whose pixels are missing or do not match their CRC is forgotten here,
-    /// so that it is rendered again.
+    /// The stored tiles of a job: (tile index, rays), in tile order; a run
+    /// of a span's tiles has its rays on its first tile (0 on the others).
+    /// A tile whose pixels are missing or do not match their CRC is
+    /// forgotten here, so that it is rendered again.
     pub fn tile_list(&self, job: JobId) -> Result<Vec<(u32, u64)>, FarmError> {
         let inner = self.lock();
         let mut good = Vec::new();
         // A span's tiles share their bytes: read and checked once.
         let mut checked: HashMap<(u64, usize, u32), bool> = HashMap::new();
-        for (tile, rays, offset, len, crc, _) in Self::refs(&inner.conn, job)? {
+        for (tile, tiles, rays, offset, len, crc, _) in Self::refs(&inner.conn, job)? {
             let intact = *checked
                 .entry((offset, len, crc))
                 .or_insert_with(|| Self::read_tile(&inner.dir, job, offset, len, crc).is_some());
             if intact {
                 good.push((tile, rays));
+                good.extend((1..tiles).map(|i| (tile.saturating_add(i), 0)));
             } else {
                 tracing::warn!(job, tile, "stored tile damaged; it will be rendered again");
                 inner
@@ -668,15 +700,15 @@ impl Store {
         // (first tile, tiles, offset, len, crc, kind), a span's rows merged.
         let mut results: Vec<(u32, u32, u64, usize, u32, u8)> = Vec::new();
         let mut span_at: HashMap<u64, usize> = HashMap::new();
-        for (tile, _, offset, len, crc, kind) in Self::refs(&inner.conn, job)? {
+        for (tile, tiles, _, offset, len, crc, kind) in Self::refs(&inner.conn, job)? {
             if kind == KIND_SEGMENTS {
                 if let Some(&i) = span_at.get(&offset) {
-                    results[i].1 += 1;
+                    results[i].1 += tiles;
                     continue;
                 }
                 span_at.insert(offset, results.len());
             }
-            results.push((tile, 1, offset, len, crc, kind));
+            results.push((tile, tiles, offset, len, crc, kind));
         }
         for (first, tiles, offset, len, crc, kind) in results {
             let bytes = Self::read_tile(&inner.dir, job, offset, len, crc).ok_or_else(|| {
@@ -743,28 +775,28 @@ impl Store {
     }
 }
 
-/// Appends `bytes` to `job`'s tile file (opened once and kept in `files`
-/// with its length) and returns where they start.
-/// Records that `tile` of `job` is done, its bytes at `at` (offset, length,
-/// CRC-32) in the job's file, of `kind`; a tile recorded already keeps its
-/// first row. A cached statement: parsing the SQL for every tile costs
-/// about as much as running it.
+/// Records that `tiles` consecutive tiles of `job` from `tile` are done,
+/// their bytes at `at` (offset, length, CRC-32) in the job's file, of
+/// `kind`; a row for the same first tile keeps the one recorded first. A
+/// cached statement: parsing the SQL for every row costs about as much as
+/// running it.
 fn insert_ref(
     tx: &rusqlite::Transaction,
     job: JobId,
-    tile: u32,
+    (tile, tiles): (u32, u32),
     rays: u64,
     (offset, len, crc): (u64, usize, u32),
     kind: u8,
 ) -> Result<(), FarmError> {
     tx.prepare_cached(
-        "INSERT OR IGNORE INTO tile_refs (job, tile, rays, offset, len, crc, kind)
-         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+        "INSERT OR IGNORE INTO tile_refs (job, tile, tiles, rays, offset, len, crc, kind)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
     )
     .and_then(|mut q| {
         q.execute(params![
             job as i64,
             tile,
+            tiles,
             rays as i64,
             offset as i64,
             len as i64,
@@ -986,9 +1018,10 @@ mod tests {
             s.put_tile(1, 4, 14, &[4; 48]).unwrap();
         }
         let s = Store::open(dir.path()).unwrap();
+        // The span is one row: its rays (11 + 12 + 13) on its first tile.
         assert_eq!(
             s.tile_list(1).unwrap(),
-            vec![(0, 10), (1, 11), (2, 12), (3, 13), (4, 14)]
+            vec![(0, 10), (1, 36), (2, 0), (3, 0), (4, 14)]
         );
         let mut seen = Vec::new();
         s.replay(1, |r| {
@@ -1014,6 +1047,90 @@ mod tests {
         std::fs::write(&path, bytes).unwrap();
         let s = Store::open(dir.path()).unwrap();
         assert_eq!(s.tile_list(1).unwrap(), vec![(0, 10), (4, 14)]);
+    }
+
+    #[test]
+    fn a_span_is_a_row_for_each_run_of_consecutive_tiles_and_covers_them_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Store::open(dir.path()).unwrap();
+        s.insert_job(&job(1)).unwrap();
+        // Two runs: 10..13 and 20..22.
+        let tiles: Vec<(u32, u64)> = [10, 11, 12, 20, 21].iter().map(|&t| (t, 1)).collect();
+        s.put_segment_span(1, &tiles, &[&[7; 20]]).unwrap();
+        let rows: i64 = s
+            .lock()
+            .conn
+            .query_row("SELECT COUNT(*) FROM tile_refs WHERE job = 1", [], |r| {
+                r.get(0)
+            })
+            .unwrap();
+        assert_eq!(rows, 2);
+        // A float tile inside a run is stored already; one beside it is not.
+        s.put_tiles(
+            1,
+            &[(11, 5, [1u8; 12]), (13, 6, [2u8; 12]), (22, 0, [3u8; 12])],
+        )
+        .unwrap();
+        assert_eq!(
+            s.tile_list(1).unwrap(),
+            vec![
+                (10, 3),
+                (11, 0),
+                (12, 0),
+                (13, 6),
+                (20, 2),
+                (21, 0),
+                (22, 0)
+            ]
+        );
+        let mut seen = Vec::new();
+        s.replay(1, |r| {
+            seen.push(match r {
+                Replayed::Floats { tile, .. } => (tile, 1),
+                Replayed::Segments { first, tiles, .. } => (first, tiles),
+            });
+            Ok(())
+        })
+        .unwrap();
+        // The span once, with all five tiles, and the two float tiles.
+        assert_eq!(seen, [(10, 5), (13, 1), (22, 1)]);
+    }
+
+    #[test]
+    fn a_span_stored_a_row_a_tile_by_an_earlier_version_replays_once() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let s = Store::open(dir.path()).unwrap();
+            s.insert_job(&job(1)).unwrap();
+            s.put_segment_span(1, &[(0, 1)], &[&[9; 30]]).unwrap();
+            // As the version before runs: the same bytes, a row per tile,
+            // no `tiles` column.
+            let c = &s.lock().conn;
+            c.execute_batch(
+                "INSERT INTO tile_refs (job, tile, rays, offset, len, crc, kind)
+                     SELECT job, 1, rays, offset, len, crc, kind FROM tile_refs;
+                 INSERT INTO tile_refs (job, tile, rays, offset, len, crc, kind)
+                     SELECT job, 2, rays, offset, len, crc, kind FROM tile_refs WHERE tile = 0;
+                 ALTER TABLE tile_refs DROP COLUMN tiles;",
+            )
+            .unwrap();
+        }
+        let s = Store::open(dir.path()).unwrap();
+        assert_eq!(s.tile_list(1).unwrap(), vec![(0, 1), (1, 1), (2, 1)]);
+        let mut seen = Vec::new();
+        s.replay(1, |r| {
+            if let Replayed::Segments {
+                first,
+                tiles,
+                bytes,
+            } = r
+            {
+                seen.push((first, tiles, bytes.len()));
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(seen, [(0, 3, 30)]);
     }
 
     #[test]
