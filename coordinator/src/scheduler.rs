@@ -1280,7 +1280,7 @@ impl Scheduler {
     pub fn hold(&mut self, job: JobId) {
         if let Some(j) = self.jobs.get(&job) {
             self.queue.remove(&(Reverse(j.spec.priority), job));
-            self.leases.retain(|_, e| e.job != job);
+            self.drop_leases(job);
         }
     }
 
@@ -1335,10 +1335,22 @@ impl Scheduler {
     fn retire(&mut self, job: JobId) {
         self.sizer.forget_job(job);
         self.memory.remove(job);
+        self.drop_leases(job);
         let j = self.jobs.get_mut(&job).expect("job exists");
         self.queue.remove(&(Reverse(j.spec.priority), job));
         j.retire();
-        self.leases.retain(|_, e| e.job != job);
+    }
+
+    /// Forgets the leases of `job`'s tiles. Its window names them: a lease
+    /// is kept only while its tile is out under it (done or re-queued, the
+    /// lease goes), so this never scans the farm's leases, over a million
+    /// on a farm of a thousand workers, for the job's few.
+    fn drop_leases(&mut self, job: JobId) {
+        if let Some(j) = self.jobs.get(&job) {
+            for l in j.window.leases() {
+                self.leases.remove(&l);
+            }
+        }
     }
 
     pub fn info(&self, job: JobId, now: Instant) -> Option<JobInfo> {
@@ -1654,6 +1666,40 @@ mod tests {
         assert_eq!(s.heartbeat(w, &[l.id], t0).unwrap(), vec![l.id]);
         assert_eq!(s.accept_tile(j, l.rect, 1, t0), Ok(Accepted::Ignored));
         assert_eq!(s.cancel(42, t0), Err(SchedError::UnknownJob(42)));
+    }
+
+    /// A retired job's leases are found from its window, not by scanning
+    /// every lease: with tiles done, re-queued after expiry and leased
+    /// again, cancelling one job must drop exactly its leases.
+    #[test]
+    fn a_cancelled_job_leaves_no_lease_and_the_others_keep_theirs() {
+        let (mut s, t0, w) = sched();
+        let a = s.submit(spec(0, 16, 16, 4), t0);
+        let first: Vec<Lease> = (0..6).map(|_| s.lease(w, t0).unwrap().unwrap()).collect();
+        for l in &first[..2] {
+            s.accept_tile(a, l.rect, 1, t0).unwrap();
+        }
+        let t1 = t0 + Duration::from_secs(6);
+        assert_eq!(s.expire(t1), 4);
+        // Another worker: the tiles `w` lost count against it.
+        let w2 = s.register_worker(t1, None);
+        let again: Vec<Lease> = (0..3).map(|_| s.lease(w2, t1).unwrap().unwrap()).collect();
+        assert!(again.iter().all(|l| l.job == a));
+        // A late result under an expired lease, for a tile leased again.
+        s.accept_tile(a, first[2].rect, 1, t1).unwrap();
+        let b = s.submit(spec(5, 8, 8, 4), t1);
+        let on_b: Vec<Lease> = (0..2).map(|_| s.lease(w2, t1).unwrap().unwrap()).collect();
+        assert!(on_b.iter().all(|l| l.job == b));
+        assert_eq!(s.lease_count(), 2 + 2);
+        s.cancel(a, t1).unwrap();
+        assert_eq!(s.lease_count(), 2);
+        for l in &on_b {
+            assert_eq!(
+                s.accept_tile(b, l.rect, 1, t1),
+                Ok(Accepted::New { last: false })
+            );
+        }
+        assert_eq!(s.lease_count(), 0);
     }
 
     #[test]

@@ -341,6 +341,14 @@ impl BandWindow {
         }
     }
 
+    /// The leases its tiles are out under, one for each leased tile.
+    pub(super) fn leases(&self) -> impl Iterator<Item = LeaseId> + '_ {
+        self.active.values().filter_map(|s| match *s {
+            TileState::Leased(l) => Some(l),
+            _ => None,
+        })
+    }
+
     /// Drops the bookkeeping only a running job needs.
     pub(super) fn retire(&mut self) {
         self.active = BTreeMap::new();
