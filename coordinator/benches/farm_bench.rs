@@ -10,7 +10,7 @@
 //! cargo bench -p trevi-coordinator --bench farm_bench -- scale --coordinator URL --pid PID \
 //!     --workers N [--cores 16] --cost-ns NS [--multi] [--secs 8] [--warmup 3] [--jobs K] \
 //!     [--width 2048] [--height 2048] [--tile 64] \
-//!     [--segments [--seg-bytes-per-pixel 0.55] [--lease-pixels P]]
+//!     [--segments [--seg-bytes-per-pixel 0.55 | --segments-from RENDER.png] [--lease-pixels P]]
 //! ```
 //!
 //! `ingest`: synthetic workers that replay ready tiles (noise, so the PNG
@@ -43,8 +43,10 @@
 //! does: its 16-row segments, encoded before the clock starts (one per
 //! segment index of the frame, from a smooth ramp with noise whose
 //! amplitude is chosen so that the segments come to about
-//! `--seg-bytes-per-pixel` bytes a pixel: 0.55 is the cheap scene's, see
-//! `encode`), and its preview sums (one cell per `preview_scale` square the
+//! `--seg-bytes-per-pixel` bytes a pixel: 0.55 is the cheap scene's at
+//! 480×360, see `encode`; or, with `--segments-from`, re-encoded from the
+//! rows of a real render, an 8-bit RGB PNG whose size becomes the frame's),
+//! and its preview sums (one cell per `preview_scale` square the
 //! rect overlaps). A lease without `png_segments` is uploaded as floats,
 //! as without the flag, so the mode runs against any coordinator; the
 //! report says how many leases came as segments. Frames kept queued
@@ -605,6 +607,8 @@ struct ScaleStats {
 /// A frame's PNG segments, encoded once, and the bytes a pixel they take.
 struct ReadySegments {
     segments: Vec<pb::EncodedSegment>,
+    width: u32,
+    height: u32,
     bytes_per_pixel: f64,
     noise: f32,
 }
@@ -683,8 +687,58 @@ fn ready_segments(w: u32, h: u32, target: f64) -> ReadySegments {
     let bytes: usize = segments.iter().map(|s| s.deflate.len()).sum();
     ReadySegments {
         segments,
+        width: w,
+        height: h,
         bytes_per_pixel: bytes as f64 / (f64::from(w) * f64::from(h)),
         noise,
+    }
+}
+
+/// Every segment of a real render (an 8-bit RGB PNG, such as trevi-submit
+/// writes) re-encoded from its rows with `encode_segment_srgb`, as the
+/// workers that rendered it would have sent them.
+fn segments_from_png(path: &str) -> ReadySegments {
+    use rayon::prelude::*;
+    use trevi_core::output::{encode_segment_srgb, segment_count, segment_rows};
+    let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .unwrap_or_else(|e| panic!("{path}: {e}"));
+    let info = reader.info();
+    let (w, h) = (info.width, info.height);
+    assert_eq!(
+        (info.color_type, info.bit_depth),
+        (png::ColorType::Rgb, png::BitDepth::Eight),
+        "{path}: not 8-bit RGB"
+    );
+    let mut pixels = vec![0u8; 3 * w as usize * h as usize];
+    reader
+        .next_frame(&mut pixels)
+        .unwrap_or_else(|e| panic!("{path}: {e}"));
+    let stride = 3 * w as usize;
+    let segments: Vec<pb::EncodedSegment> = (0..segment_count(h))
+        .into_par_iter()
+        .map(|i| {
+            let r = segment_rows(h, i);
+            let rows: Vec<&[u8]> = pixels[r.start as usize * stride..r.end as usize * stride]
+                .chunks_exact(stride)
+                .collect();
+            let s = encode_segment_srgb(w, &rows);
+            pb::EncodedSegment {
+                index: i,
+                deflate: s.deflate,
+                adler32: s.adler32,
+                filtered_len: s.filtered_len,
+            }
+        })
+        .collect();
+    let bytes: usize = segments.iter().map(|s| s.deflate.len()).sum();
+    ReadySegments {
+        segments,
+        width: w,
+        height: h,
+        bytes_per_pixel: bytes as f64 / (f64::from(w) * f64::from(h)),
+        noise: 0.0,
     }
 }
 
@@ -718,14 +772,23 @@ fn scale(args: &[String]) {
         .expect("--cost-ns (see the cost mode)")
         .parse::<f64>()
         .expect("a number");
-    let segments = args.iter().any(|a| a == "--segments");
+    let segments = args
+        .iter()
+        .any(|a| a == "--segments" || a == "--segments-from");
     let multi = segments || args.iter().any(|a| a == "--multi");
     let secs = num(args, "--secs", 8);
     let warmup = num(args, "--warmup", 3);
-    let (w, h) = (
-        num(args, "--width", 2048) as u32,
-        num(args, "--height", 2048) as u32,
-    );
+    // A real render's segments fix the frame's size; the ramp's are made
+    // for the size given.
+    let t0 = Instant::now();
+    let from_png = arg(args, "--segments-from").map(|p| segments_from_png(&p));
+    let (w, h) = match &from_png {
+        Some(r) => (r.width, r.height),
+        None => (
+            num(args, "--width", 2048) as u32,
+            num(args, "--height", 2048) as u32,
+        ),
+    };
     let tile = num(args, "--tile", 64) as u32;
     // Frames kept queued: given, 4 for floats, or enough for N workers
     // holding two leases of about a second each (see the module's doc).
@@ -744,8 +807,7 @@ fn scale(args: &[String]) {
     let ready: Arc<Vec<u8>> = Arc::new(smooth_tile(1, w, tile));
     let encoded = segments.then(|| {
         let target = arg(args, "--seg-bytes-per-pixel").map_or(0.55, |v| v.parse().expect("a number"));
-        let t0 = Instant::now();
-        let r = ready_segments(w, h, target);
+        let r = from_png.unwrap_or_else(|| ready_segments(w, h, target));
         eprintln!(
             "scale: {} segments of {w}x{h} encoded in {:.1} s: {:.3} bytes/pixel (noise {:.4}), {jobs_kept} frames kept queued",
             r.segments.len(),
