@@ -63,7 +63,8 @@ struct Args {
     /// Render these frames of the camera's sequence, `first-last` or one
     /// frame (default: the scene's `frames=`, if any). Each frame goes to
     /// its own file: the output's run of `#` replaced by the frame number.
-    /// On this machine only, for now.
+    /// On a farm the range is one job (`status`, `cancel`, `fetch` take its
+    /// id).
     #[arg(long, value_parser = sequence::parse_frames)]
     frames: Option<trevi_core::scene::animation::Frames>,
     /// Worker threads on this machine (default: every core).
