@@ -41,7 +41,7 @@ use window::{BandWindow, TileState};
 use crate::limits::Limits;
 use crate::workers::{WorkerInfo, Workers};
 use std::cmp::Reverse;
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 use std::time::{Duration, Instant};
 use trevi_core::output::{Format, SEGMENT_ROWS};
@@ -399,7 +399,12 @@ pub struct Scheduler {
     jobs: HashMap<JobId, Job>,
     /// Unfinished jobs in the order they get workers.
     queue: BTreeSet<(Reverse<i32>, JobId)>,
-    leases: HashMap<LeaseId, LeaseEntry>,
+    /// A tile's lease by id. Ordered, not hashed: a span's tiles have
+    /// consecutive ids and its upload looks them up one after the other,
+    /// which in a B-tree stays in the leaf just read; in a hash table of a
+    /// million entries each was a cache miss (8 % of the coordinator at
+    /// N = 300, docs/benchmarks.md "Stage 5").
+    leases: BTreeMap<LeaseId, LeaseEntry>,
     /// No lease's deadline is earlier (`None`: no lease), so that expiry
     /// scans the leases only when one may have run out: a farm of a
     /// thousand workers holds over a million tiles' leases, and every
@@ -425,7 +430,7 @@ impl Scheduler {
             cfg,
             jobs: HashMap::new(),
             queue: BTreeSet::new(),
-            leases: HashMap::new(),
+            leases: BTreeMap::new(),
             earliest_deadline: None,
             workers: Workers::new(worker_id_base),
             counters: Counters::default(),
