@@ -279,7 +279,10 @@ struct LeaseEntry {
     worker: WorkerId,
     deadline: Instant,
     /// When it was granted, and the pixels of the span it came in: a
-    /// result measures the job's cost (see [`lease_size`]).
+    /// result measures the job's cost (see [`lease_size`]). The pixels are
+    /// set on the span's first tile only (0 on the others): a span's result
+    /// is one measurement, not one for each of its tiles, which would
+    /// replace the smoothed cost with the last span's.
     granted: Instant,
     span_pixels: u64,
 }
@@ -719,7 +722,7 @@ impl Scheduler {
                         worker,
                         deadline,
                         granted: now,
-                        span_pixels: rect.pixel_count() as u64,
+                        span_pixels: if i == 0 { rect.pixel_count() as u64 } else { 0 },
                     },
                 );
             }

@@ -322,6 +322,48 @@ mod tests {
         }
     }
 
+    /// A span's result measures the job once, however many tiles it has:
+    /// the cost moves a quarter of the way to it, as for one tile.
+    #[test]
+    fn a_span_s_result_is_one_measurement_of_the_cost() {
+        use crate::scheduler::JobSpec;
+        use std::time::Instant;
+        let now = Instant::now();
+        let (mut s, w) = scheduler_with_span_worker(now, "w", 4);
+        // 10 tiles of 10×10 a band, ten bands.
+        let job = s.submit(
+            JobSpec {
+                frame: None,
+                bundle_hash: "h".into(),
+                camera: "c".into(),
+                priority: 0,
+                width: 100,
+                height: 100,
+                tile_size: 10,
+                output_name: "o.exr".into(),
+            },
+            now,
+        );
+        // The first tile: 4 threads × 1 ms / 100 pixels = 4e-5.
+        let first = s.lease(w, now).unwrap().unwrap();
+        let t = now + Duration::from_millis(1);
+        s.accept_tile(job, first.rect, 1, t).unwrap();
+        let c0 = s.measured_cost(job).unwrap();
+        assert!((c0 - 4e-5).abs() < 1e-12, "{c0}");
+        // A span whose result takes twice as long a pixel.
+        let span = s.lease(w, t).unwrap().unwrap();
+        assert!(span.tiles > 1, "{span:?}");
+        let px = span.rect.pixel_count() as f64;
+        let took = Duration::from_secs_f64(2.0 * c0 * px / 4.0);
+        let t2 = t + took;
+        for p in s.span_tiles(job, span.rect).unwrap() {
+            s.accept_tile(job, p, 1, t2).unwrap();
+        }
+        let c = s.measured_cost(job).unwrap();
+        let want = c0 + SMOOTHING * (2.0 * c0 - c0);
+        assert!((c - want).abs() < 1e-9 * want, "{c} vs {want}");
+    }
+
     #[test]
     fn the_render_time_is_the_workers_within_the_lease() {
         let ms = Duration::from_millis;
