@@ -637,7 +637,6 @@ fn ramp_rows(w: u32, y0: u32, y1: u32, h: u32, noise: f32) -> Vec<[f32; 3]> {
 /// [`ramp_rows`] with the noise that brings them to about `target` bytes a
 /// pixel (bisected on three of them).
 fn ready_segments(w: u32, h: u32, target: f64) -> ReadySegments {
-    use rayon::prelude::*;
     use trevi_core::output::{encode_segment, segment_count, segment_rows};
     // Calibrated on three segments spread over the frame (the ramp makes
     // them differ).
@@ -671,11 +670,25 @@ fn ready_segments(w: u32, h: u32, target: f64) -> ReadySegments {
         }
     }
     let noise = 0.5 * (lo + hi);
+    encode_all(w, h, noise, |rows| {
+        encode_segment(w, &ramp_rows(w, rows.start, rows.end, h, noise))
+    })
+}
+
+/// Every segment of a `w`×`h` frame, `encode` making segment `i` from its
+/// rows, in parallel; `noise` is recorded as the ramp's.
+fn encode_all(
+    w: u32,
+    h: u32,
+    noise: f32,
+    encode: impl Fn(std::ops::Range<u32>) -> trevi_core::output::PngSegment + Sync,
+) -> ReadySegments {
+    use rayon::prelude::*;
+    use trevi_core::output::{segment_count, segment_rows};
     let segments: Vec<pb::EncodedSegment> = (0..segment_count(h))
         .into_par_iter()
         .map(|i| {
-            let rows = segment_rows(h, i);
-            let s = encode_segment(w, &ramp_rows(w, rows.start, rows.end, h, noise));
+            let s = encode(segment_rows(h, i));
             pb::EncodedSegment {
                 index: i,
                 deflate: s.deflate,
@@ -698,8 +711,7 @@ fn ready_segments(w: u32, h: u32, target: f64) -> ReadySegments {
 /// writes) re-encoded from its rows with `encode_segment_srgb`, as the
 /// workers that rendered it would have sent them.
 fn segments_from_png(path: &str) -> ReadySegments {
-    use rayon::prelude::*;
-    use trevi_core::output::{encode_segment_srgb, segment_count, segment_rows};
+    use trevi_core::output::encode_segment_srgb;
     let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{path}: {e}"));
     let mut reader = png::Decoder::new(std::io::BufReader::new(file))
         .read_info()
@@ -716,30 +728,12 @@ fn segments_from_png(path: &str) -> ReadySegments {
         .next_frame(&mut pixels)
         .unwrap_or_else(|e| panic!("{path}: {e}"));
     let stride = 3 * w as usize;
-    let segments: Vec<pb::EncodedSegment> = (0..segment_count(h))
-        .into_par_iter()
-        .map(|i| {
-            let r = segment_rows(h, i);
-            let rows: Vec<&[u8]> = pixels[r.start as usize * stride..r.end as usize * stride]
-                .chunks_exact(stride)
-                .collect();
-            let s = encode_segment_srgb(w, &rows);
-            pb::EncodedSegment {
-                index: i,
-                deflate: s.deflate,
-                adler32: s.adler32,
-                filtered_len: s.filtered_len,
-            }
-        })
-        .collect();
-    let bytes: usize = segments.iter().map(|s| s.deflate.len()).sum();
-    ReadySegments {
-        segments,
-        width: w,
-        height: h,
-        bytes_per_pixel: bytes as f64 / (f64::from(w) * f64::from(h)),
-        noise: 0.0,
-    }
+    encode_all(w, h, 0.0, |r| {
+        let rows: Vec<&[u8]> = pixels[r.start as usize * stride..r.end as usize * stride]
+            .chunks_exact(stride)
+            .collect();
+        encode_segment_srgb(w, &rows)
+    })
 }
 
 /// Plausible preview sums for `rect` in cells of `scale` (half-grey

@@ -201,6 +201,20 @@ mod tests {
         (s, w)
     }
 
+    /// A job 100 pixels wide of 10×10 tiles (bundle "h", camera "c").
+    fn job_spec(height: u32, output: &str) -> crate::scheduler::JobSpec {
+        crate::scheduler::JobSpec {
+            frame: None,
+            bundle_hash: "h".into(),
+            camera: "c".into(),
+            priority: 0,
+            width: 100,
+            height,
+            tile_size: 10,
+            output_name: output.into(),
+        }
+    }
+
     #[test]
     fn an_unmeasured_job_gets_one_tile() {
         assert_eq!(tiles_per_lease(None, 16, 4096, S, 1 << 20), 1);
@@ -260,7 +274,7 @@ mod tests {
 
     #[test]
     fn a_measured_job_leases_spans_of_one_band_each_tile_under_its_own_lease() {
-        use crate::scheduler::{Accepted, JobSpec};
+        use crate::scheduler::Accepted;
         use std::time::Instant;
         use trevi_core::tile::Rect;
         let now = Instant::now();
@@ -268,19 +282,7 @@ mod tests {
         let old = s.register_worker(now, None);
         s.describe_worker(old, "old", 4);
         // 10 tiles of 10×10 a band, two bands.
-        let job = s.submit(
-            JobSpec {
-                frame: None,
-                bundle_hash: "h".into(),
-                camera: "c".into(),
-                priority: 0,
-                width: 100,
-                height: 20,
-                tile_size: 10,
-                output_name: "o.png".into(),
-            },
-            now,
-        );
+        let job = s.submit(job_spec(20, "o.png"), now);
         // Not measured yet: one tile.
         let first = s.lease(w, now).unwrap().unwrap();
         assert_eq!((first.tiles, first.rect), (1, Rect::new(0, 0, 10, 10)));
@@ -326,24 +328,11 @@ mod tests {
     /// the cost moves a quarter of the way to it, as for one tile.
     #[test]
     fn a_span_s_result_is_one_measurement_of_the_cost() {
-        use crate::scheduler::JobSpec;
         use std::time::Instant;
         let now = Instant::now();
         let (mut s, w) = scheduler_with_span_worker(now, "w", 4);
         // 10 tiles of 10×10 a band, ten bands.
-        let job = s.submit(
-            JobSpec {
-                frame: None,
-                bundle_hash: "h".into(),
-                camera: "c".into(),
-                priority: 0,
-                width: 100,
-                height: 100,
-                tile_size: 10,
-                output_name: "o.exr".into(),
-            },
-            now,
-        );
+        let job = s.submit(job_spec(100, "o.exr"), now);
         // The first tile: 4 threads × 1 ms / 100 pixels = 4e-5.
         let first = s.lease(w, now).unwrap().unwrap();
         let t = now + Duration::from_millis(1);
@@ -473,14 +462,9 @@ mod tests {
     /// A 100×20 frame in tiles of 10 of bundle `hash`, camera `camera`.
     fn spec(hash: &str, camera: &str) -> crate::scheduler::JobSpec {
         crate::scheduler::JobSpec {
-            frame: None,
             bundle_hash: hash.into(),
             camera: camera.into(),
-            priority: 0,
-            width: 100,
-            height: 20,
-            tile_size: 10,
-            output_name: "o.png".into(),
+            ..job_spec(20, "o.png")
         }
     }
 
