@@ -106,6 +106,24 @@ pub struct JobSpec {
     pub frame: Option<u32>,
 }
 
+/// For the scheduler's tests: a still of `width` × `height` in tiles of
+/// `tile`, written to `output` (its extension picks the format), of bundle
+/// "h" and camera "c", priority 0. Tests that need other fields override
+/// them with `..test_spec(…)`.
+#[cfg(test)]
+pub(crate) fn test_spec(width: u32, height: u32, tile: u32, output: &str) -> JobSpec {
+    JobSpec {
+        bundle_hash: "h".into(),
+        camera: "c".into(),
+        priority: 0,
+        width,
+        height,
+        tile_size: tile,
+        output_name: output.into(),
+        frame: None,
+    }
+}
+
 /// A snapshot of a job, for status and progress.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JobInfo {
@@ -1466,14 +1484,8 @@ mod tests {
 
     fn spec(priority: i32, w: u32, h: u32, tile: u32) -> JobSpec {
         JobSpec {
-            frame: None,
-            bundle_hash: "h".into(),
-            camera: "cam".into(),
             priority,
-            width: w,
-            height: h,
-            tile_size: tile,
-            output_name: "out.png".into(),
+            ..test_spec(w, h, tile, "out.png")
         }
     }
 

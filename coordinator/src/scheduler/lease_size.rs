@@ -178,6 +178,7 @@ impl LeaseSizer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scheduler::test_spec;
 
     const S: Duration = Duration::from_secs(1);
 
@@ -199,20 +200,6 @@ mod tests {
         s.describe_worker(w, name, threads);
         s.allow_spans(w);
         (s, w)
-    }
-
-    /// A job 100 pixels wide of 10×10 tiles (bundle "h", camera "c").
-    fn job_spec(height: u32, output: &str) -> crate::scheduler::JobSpec {
-        crate::scheduler::JobSpec {
-            frame: None,
-            bundle_hash: "h".into(),
-            camera: "c".into(),
-            priority: 0,
-            width: 100,
-            height,
-            tile_size: 10,
-            output_name: output.into(),
-        }
     }
 
     #[test]
@@ -282,7 +269,7 @@ mod tests {
         let old = s.register_worker(now, None);
         s.describe_worker(old, "old", 4);
         // 10 tiles of 10×10 a band, two bands.
-        let job = s.submit(job_spec(20, "o.png"), now);
+        let job = s.submit(test_spec(100, 20, 10, "o.png"), now);
         // Not measured yet: one tile.
         let first = s.lease(w, now).unwrap().unwrap();
         assert_eq!((first.tiles, first.rect), (1, Rect::new(0, 0, 10, 10)));
@@ -332,7 +319,7 @@ mod tests {
         let now = Instant::now();
         let (mut s, w) = scheduler_with_span_worker(now, "w", 4);
         // 10 tiles of 10×10 a band, ten bands.
-        let job = s.submit(job_spec(100, "o.exr"), now);
+        let job = s.submit(test_spec(100, 100, 10, "o.exr"), now);
         // The first tile: 4 threads × 1 ms / 100 pixels = 4e-5.
         let first = s.lease(w, now).unwrap().unwrap();
         let t = now + Duration::from_millis(1);
@@ -371,25 +358,12 @@ mod tests {
     /// queueing.
     #[test]
     fn a_slow_coordinator_does_not_shrink_leases_of_workers_that_report() {
-        use crate::scheduler::JobSpec;
         use std::time::Instant;
         let run = |report: bool| {
             let now = Instant::now();
             let (mut s, w) = scheduler_with_span_worker(now, "w", 16);
             // 64 tiles of 64×64 a band.
-            let job = s.submit(
-                JobSpec {
-                    frame: None,
-                    bundle_hash: "h".into(),
-                    camera: "c".into(),
-                    priority: 0,
-                    width: 4096,
-                    height: 4096,
-                    tile_size: 64,
-                    output_name: "o.png".into(),
-                },
-                now,
-            );
+            let job = s.submit(test_spec(4096, 4096, 64, "o.png"), now);
             // Every lease renders in 2 ms a tile on 16 threads (0.032
             // core-seconds a tile; a second of 16 threads is 500 tiles, a
             // band has 64), and its result waits 50 ms a tile in the
@@ -464,7 +438,7 @@ mod tests {
         crate::scheduler::JobSpec {
             bundle_hash: hash.into(),
             camera: camera.into(),
-            ..job_spec(20, "o.png")
+            ..test_spec(100, 20, 10, "o.png")
         }
     }
 

@@ -162,13 +162,7 @@ mod tests {
     fn spec(hash: &str) -> JobSpec {
         JobSpec {
             bundle_hash: hash.into(),
-            camera: "cam".into(),
-            priority: 0,
-            width: 64,
-            height: 32,
-            tile_size: 16,
-            output_name: "out.png".into(),
-            frame: None,
+            ..crate::scheduler::test_spec(64, 32, 16, "out.png")
         }
     }
 

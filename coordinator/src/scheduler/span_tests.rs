@@ -5,19 +5,6 @@
 use super::*;
 use std::time::{Duration, Instant};
 
-fn spec(width: u32, height: u32, tile: u32, output: &str) -> JobSpec {
-    JobSpec {
-        frame: None,
-        bundle_hash: "h".into(),
-        camera: "c".into(),
-        priority: 0,
-        width,
-        height,
-        tile_size: tile,
-        output_name: output.into(),
-    }
-}
-
 fn sched(limits: Limits) -> Scheduler {
     Scheduler::new(
         Limits {
@@ -61,7 +48,7 @@ fn a_span_continues_only_into_wholly_pending_bands_row_major_with_consecutive_id
     let w = worker(&mut s, now, 4, true, false);
     let old = worker(&mut s, now, 4, false, false);
     // 4 × 4 tiles of 10 pixels.
-    let j = s.submit(spec(40, 40, 10, "o.exr"), now);
+    let j = s.submit(test_spec(40, 40, 10, "o.exr"), now);
     s.sizer.seed(j, CHEAP);
     // Band 0 is partly taken: the span is the rest of it, one band.
     let single = s.lease(old, now).unwrap().unwrap();
@@ -120,7 +107,7 @@ fn a_span_of_bands_stays_within_the_sizers_share_and_the_pixel_cap() {
         ..Limits::default()
     });
     let w = worker(&mut s, now, 1, true, false);
-    let j = s.submit(spec(40, 100, 10, "o.png"), now);
+    let j = s.submit(test_spec(40, 100, 10, "o.png"), now);
     s.sizer.seed(j, CHEAP);
     let l = s.lease(w, now).unwrap().unwrap();
     assert_eq!((l.tiles, l.rect), (8, Rect::new(0, 0, 40, 20)), "two bands");
@@ -128,7 +115,7 @@ fn a_span_of_bands_stays_within_the_sizers_share_and_the_pixel_cap() {
     // a band more would be 12.
     let mut s = sched(Limits::default());
     let w = worker(&mut s, now, 1, true, false);
-    let j = s.submit(spec(40, 100, 10, "o.exr"), now);
+    let j = s.submit(test_spec(40, 100, 10, "o.exr"), now);
     s.sizer.seed(j, 1.0 / 1100.0);
     let l = s.lease(w, now).unwrap().unwrap();
     assert_eq!((l.tiles, l.rect), (8, Rect::new(0, 0, 40, 20)));
@@ -147,7 +134,7 @@ fn span_tiles_takes_whole_bands_and_refuses_near_misses() {
         ..Limits::default()
     });
     // 4 × 4 tiles of 10, the last band 5 rows high.
-    let exr = s.submit(spec(40, 35, 10, "o.exr"), now);
+    let exr = s.submit(test_spec(40, 35, 10, "o.exr"), now);
     let ok = |s: &Scheduler, r: Rect| s.span_tiles(exr, r);
     assert_eq!(
         ok(&s, Rect::new(0, 0, 40, 30)).unwrap(),
@@ -178,11 +165,11 @@ fn span_tiles_takes_whole_bands_and_refuses_near_misses() {
         assert!(ok(&s, bad).is_err(), "{bad:?}");
     }
     // Over the float cap: 1200 pixels pass, 1600 do not.
-    let exr2 = s.submit(spec(40, 80, 10, "o.exr"), now);
+    let exr2 = s.submit(test_spec(40, 80, 10, "o.exr"), now);
     assert!(s.span_tiles(exr2, Rect::new(0, 0, 40, 30)).is_ok());
     assert!(s.span_tiles(exr2, Rect::new(0, 0, 40, 40)).is_err());
     // A PNG frame's whole segments go up to the segment cap.
-    let png = s.submit(spec(64, 80, 16, "o.png"), now);
+    let png = s.submit(test_spec(64, 80, 16, "o.png"), now);
     let whole = Rect::new(0, 0, 64, 64);
     assert_eq!(s.span_tiles(png, whole).unwrap().len(), 16);
     assert_eq!(s.span_tiles_as(png, whole, true).unwrap().len(), 16);
@@ -192,11 +179,11 @@ fn span_tiles_takes_whole_bands_and_refuses_near_misses() {
     );
     assert!(s.span_tiles_as(png, Rect::new(0, 0, 64, 80), true).is_err());
     // The same rectangle of an EXR frame is floats: the float cap.
-    let exr3 = s.submit(spec(64, 80, 16, "o.exr"), now);
+    let exr3 = s.submit(test_spec(64, 80, 16, "o.exr"), now);
     assert!(s.span_tiles(exr3, whole).is_err());
     assert!(s.span_tiles_as(exr3, whole, true).is_err());
     // Segments must be whole: with 24-row tiles, one band is not.
-    let t24 = s.submit(spec(48, 80, 24, "o.png"), now);
+    let t24 = s.submit(test_spec(48, 80, 24, "o.png"), now);
     assert!(s.span_tiles_as(t24, Rect::new(0, 0, 48, 24), true).is_err());
     assert!(s.span_tiles_as(t24, Rect::new(0, 0, 48, 24), false).is_ok());
     assert_eq!(
@@ -221,7 +208,7 @@ fn span_tiles_takes_whole_bands_and_refuses_near_misses() {
         max_lease_pixels: 1 << 30,
         ..Limits::default()
     });
-    let tiny = s.submit(spec(1024, 1024, 2, "o.exr"), now);
+    let tiny = s.submit(test_spec(1024, 1024, 2, "o.exr"), now);
     assert_eq!(
         s.span_tiles(tiny, Rect::new(0, 0, 1024, 256))
             .unwrap()
@@ -252,34 +239,34 @@ fn png_segments_only_when_every_condition_holds() {
     let enc = worker(&mut s, now, 16, true, true);
     let floats = worker(&mut s, now, 16, true, false);
     let no_spans = worker(&mut s, now, 16, false, true);
-    let l = first_lease(&mut s, enc, spec(64, 64, 16, "o.png"), true);
+    let l = first_lease(&mut s, enc, test_spec(64, 64, 16, "o.png"), true);
     assert!(l.png_segments);
     assert_eq!((l.tiles, l.rect), (16, Rect::new(0, 0, 64, 64)));
     // Down to the bottom, 8 rows short of a segment; any case of "png".
-    let l = first_lease(&mut s, enc, spec(64, 40, 16, "frame.PNG"), true);
+    let l = first_lease(&mut s, enc, test_spec(64, 40, 16, "frame.PNG"), true);
     assert!(l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 64, 40));
     // EXR: the same bands, as floats.
-    let l = first_lease(&mut s, enc, spec(64, 64, 16, "o.exr"), true);
+    let l = first_lease(&mut s, enc, test_spec(64, 64, 16, "o.exr"), true);
     assert!(!l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 64, 64));
     // A worker without the encoder, or without spans.
-    let l = first_lease(&mut s, floats, spec(64, 64, 16, "o.png"), true);
+    let l = first_lease(&mut s, floats, test_spec(64, 64, 16, "o.png"), true);
     assert!(!l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 64, 64));
-    let l = first_lease(&mut s, no_spans, spec(64, 64, 16, "o.png"), true);
+    let l = first_lease(&mut s, no_spans, test_spec(64, 64, 16, "o.png"), true);
     assert!(!l.png_segments);
     assert_eq!(l.tiles, 1);
     // Not measured yet: one tile, as floats, also when the frame is two
     // tiles wide (one tile is half a band).
-    let l = first_lease(&mut s, enc, spec(64, 64, 16, "o.png"), false);
+    let l = first_lease(&mut s, enc, test_spec(64, 64, 16, "o.png"), false);
     assert!(!l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
-    let l = first_lease(&mut s, enc, spec(24, 20, 16, "o.png"), false);
+    let l = first_lease(&mut s, enc, test_spec(24, 20, 16, "o.png"), false);
     assert!(!l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
     // A partial band: the rest of it, as floats; then whole bands.
-    let j = s.submit(spec(64, 64, 16, "o.png"), now);
+    let j = s.submit(test_spec(64, 64, 16, "o.png"), now);
     s.sizer.seed(j, CHEAP);
     assert_eq!(s.lease(no_spans, now).unwrap().unwrap().tiles, 1);
     let part = s.lease(enc, now).unwrap().unwrap();
@@ -299,27 +286,27 @@ fn png_segments_only_when_every_condition_holds() {
         ..Limits::default()
     });
     let enc = worker(&mut s, now, 16, true, true);
-    let l = first_lease(&mut s, enc, spec(48, 80, 24, "o.png"), true);
+    let l = first_lease(&mut s, enc, test_spec(48, 80, 24, "o.png"), true);
     assert!(!l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 48, 24));
     // Room for two or three bands: two, rows 0-48, whole segments (three
     // would end at row 72, in a segment).
     for bands in [2, 3] {
         s.cfg.max_segment_lease_pixels = bands * band;
-        let l = first_lease(&mut s, enc, spec(48, 80, 24, "o.png"), true);
+        let l = first_lease(&mut s, enc, test_spec(48, 80, 24, "o.png"), true);
         assert!(l.png_segments, "{bands}");
         assert_eq!(l.rect, Rect::new(0, 0, 48, 48));
     }
     // Four: the whole frame, to its bottom.
     s.cfg.max_segment_lease_pixels = 4 * band;
-    let l = first_lease(&mut s, enc, spec(48, 80, 24, "o.png"), true);
+    let l = first_lease(&mut s, enc, test_spec(48, 80, 24, "o.png"), true);
     assert!(l.png_segments);
     assert_eq!(l.rect, Rect::new(0, 0, 48, 80));
     // Each lease's rectangle is one `span_tiles_as` takes as the kind of
     // upload the lease asks for. Three bands a lease: rows 0-48 and 48-80
     // (to the bottom), both segments.
     s.cfg.max_segment_lease_pixels = 3 * band;
-    let j = s.submit(spec(48, 80, 24, "o.png"), now);
+    let j = s.submit(test_spec(48, 80, 24, "o.png"), now);
     s.sizer.seed(j, CHEAP);
     let a = s.lease(enc, now).unwrap().unwrap();
     let b = s.lease(enc, now).unwrap().unwrap();
@@ -339,7 +326,7 @@ fn png_segments_only_when_every_condition_holds() {
     // One band a lease: every band as floats (rows 0, 24, 48 and 72 start
     // them; only 0 and 48 start a segment, and no band is whole segments).
     s.cfg.max_segment_lease_pixels = band;
-    let j = s.submit(spec(48, 80, 24, "o.png"), now);
+    let j = s.submit(test_spec(48, 80, 24, "o.png"), now);
     s.sizer.seed(j, CHEAP);
     for y in [0, 24, 48, 72] {
         let l = s.lease(enc, now).unwrap().unwrap();
@@ -355,7 +342,7 @@ fn expiry_heartbeats_and_returns_of_a_multi_band_span_cover_every_tile() {
     let t0 = Instant::now();
     let mut s = sched(Limits::default());
     let w = worker(&mut s, t0, 4, true, true);
-    let j = s.submit(spec(64, 64, 16, "o.png"), t0);
+    let j = s.submit(test_spec(64, 64, 16, "o.png"), t0);
     s.sizer.seed(j, CHEAP);
     let span = s.lease(w, t0).unwrap().unwrap();
     assert!(span.png_segments);
@@ -411,7 +398,7 @@ fn a_segment_lease_is_about_a_second_of_a_16_thread_worker_on_the_cheap_scene() 
     let enc = worker(&mut s, now, 16, true, true);
     let floats = worker(&mut s, now, 16, true, false);
     // 1920 wide in 64-pixel tiles: 30 tiles and 122,880 pixels a band.
-    let j = s.submit(spec(1920, 4096, 64, "o.png"), now);
+    let j = s.submit(test_spec(1920, 4096, 64, "o.png"), now);
     s.sizer.seed(j, cost);
     let l = s.lease(enc, now).unwrap().unwrap();
     assert!(l.png_segments);
@@ -451,7 +438,7 @@ fn a_segment_lease_takes_a_whole_band_from_half_a_band_of_share() {
         (6.5, floats, 6, false),
         (16.5, floats, 10, false),
     ] {
-        let j = s.submit(spec(160, 64, 16, "o.png"), now);
+        let j = s.submit(test_spec(160, 64, 16, "o.png"), now);
         // One thread renders `share` tiles in the lease target.
         s.sizer.seed(j, target / (share * 256.0));
         let l = s.lease(who, now).unwrap().unwrap();

@@ -372,16 +372,7 @@ mod tests {
     use std::time::{Duration, Instant};
 
     fn spec(w: u32, h: u32, tile: u32) -> JobSpec {
-        JobSpec {
-            frame: None,
-            bundle_hash: "0".repeat(64),
-            camera: "cam".into(),
-            priority: 0,
-            width: w,
-            height: h,
-            tile_size: tile,
-            output_name: "out.png".into(),
-        }
+        crate::scheduler::test_spec(w, h, tile, "out.png")
     }
 
     #[test]
