@@ -49,6 +49,7 @@
 //! `jobs/<id>` directory exists.
 
 use crate::error::FarmError;
+use crate::scheduler::lease_size::MAX_SPAN_TILES;
 use crate::scheduler::{JobId, JobSpec, JobState};
 use rusqlite::{params, Connection, OptionalExtension};
 use std::collections::HashMap;
@@ -500,8 +501,14 @@ impl Store {
     }
 
     /// The bytes of a stored tile, if its file still holds them intact.
+    /// Nothing is allocated for a row pointing past the file's end (a
+    /// damaged row's length could ask for any amount).
     fn read_tile(dir: &Path, job: JobId, offset: u64, len: usize, crc: u32) -> Option<Vec<u8>> {
         let f = File::open(dir.join(format!("{job}.f32"))).ok()?;
+        let end = offset.checked_add(len as u64)?;
+        if end > f.metadata().ok()?.len() {
+            return None;
+        }
         let mut buf = vec![0u8; len];
         f.read_exact_at(&mut buf, offset).ok()?;
         (crc32fast::hash(&buf) == crc).then_some(buf)
@@ -647,16 +654,19 @@ impl Store {
     /// The stored tiles of a job: (tile index, rays), in tile order; a run
     /// of a span's tiles has its rays on its first tile (0 on the others).
     /// A tile whose pixels are missing or do not match their CRC is
-    /// forgotten here, so that it is rendered again.
+    /// forgotten here, so that it is rendered again; so is a row of more
+    /// tiles than a lease can hold ([`MAX_SPAN_TILES`]: a damaged row,
+    /// which would otherwise make this list as long as it says).
     pub fn tile_list(&self, job: JobId) -> Result<Vec<(u32, u64)>, FarmError> {
         let inner = self.lock();
         let mut good = Vec::new();
         // A span's tiles share their bytes: read and checked once.
         let mut checked: HashMap<(u64, usize, u32), bool> = HashMap::new();
         for (tile, tiles, rays, offset, len, crc, _) in Self::refs(&inner.conn, job)? {
-            let intact = *checked
-                .entry((offset, len, crc))
-                .or_insert_with(|| Self::read_tile(&inner.dir, job, offset, len, crc).is_some());
+            let intact = (1..=MAX_SPAN_TILES).contains(&tiles)
+                && *checked.entry((offset, len, crc)).or_insert_with(|| {
+                    Self::read_tile(&inner.dir, job, offset, len, crc).is_some()
+                });
             if intact {
                 good.push((tile, rays));
                 good.extend((1..tiles).map(|i| (tile.saturating_add(i), 0)));
@@ -1094,6 +1104,31 @@ mod tests {
         .unwrap();
         // The span once, with all five tiles, and the two float tiles.
         assert_eq!(seen, [(10, 5), (13, 1), (22, 1)]);
+    }
+
+    /// Damaged rows that would make the store allocate what they say: a
+    /// run of 2^30 tiles, a length of 2^40 bytes. Both are forgotten; the
+    /// intact row stays.
+    #[test]
+    fn rows_claiming_huge_runs_or_lengths_are_forgotten_not_allocated() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Store::open(dir.path()).unwrap();
+        s.insert_job(&job(1)).unwrap();
+        s.put_segment_span(1, &[(0, 1), (1, 1)], &[&[3; 30]])
+            .unwrap();
+        s.put_segment_span(1, &[(5, 1)], &[&[4; 30]]).unwrap();
+        s.put_tile(1, 9, 2, &[9; 12]).unwrap();
+        {
+            let c = &s.lock().conn;
+            c.execute("UPDATE tile_refs SET tiles = 1073741824 WHERE tile = 0", [])
+                .unwrap();
+            c.execute(
+                "UPDATE tile_refs SET len = 1099511627776 WHERE tile = 5",
+                [],
+            )
+            .unwrap();
+        }
+        assert_eq!(s.tile_list(1).unwrap(), vec![(9, 2)]);
     }
 
     #[test]
