@@ -28,10 +28,12 @@
 
 pub mod lease_size;
 pub mod memory;
+mod whole_span;
 mod window;
 
 use lease_size::{LeaseSizer, MAX_SPAN_TILES};
 use memory::MemoryGate;
+pub use whole_span::SpanCheck;
 pub use window::{
     band_bytes, encoded_rows_bound, encoder_bytes, segment_band_bytes, ENCODER_ROWS,
     SEGMENT_FRAMING_BYTES, TILE_BOOKKEEPING_BYTES,

@@ -259,12 +259,17 @@ impl Workers {
 
     /// Counts a tile `worker` finished with `rays` rays.
     pub fn credit(&mut self, worker: WorkerId, rays: u64, now: Instant) {
+        self.credit_tiles(worker, 1, rays, now);
+    }
+
+    /// [`Workers::credit`] for `tiles` tiles at once (a span taken whole).
+    pub fn credit_tiles(&mut self, worker: WorkerId, tiles: u64, rays: u64, now: Instant) {
         let sec = self.sec(now);
         if let Some(w) = self.entries.get_mut(&worker) {
-            w.tiles_done += 1;
+            w.tiles_done += tiles;
             // Ray counts come from workers: a huge one saturates, never wraps.
             w.rays = w.rays.saturating_add(rays);
-            w.rate.add(sec, 1, rays);
+            w.rate.add(sec, tiles, rays);
         }
     }
 

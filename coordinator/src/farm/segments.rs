@@ -13,7 +13,7 @@
 use super::{lock, Farm, TileOutcome};
 use crate::error::FarmError;
 use crate::preview::Preview;
-use crate::scheduler::{Accepted, JobId, LeaseId, WorkerId};
+use crate::scheduler::{JobId, LeaseId, WorkerId};
 use std::path::Path;
 use std::time::{Duration, Instant};
 use trevi_core::output::{
@@ -423,10 +423,8 @@ impl Farm {
         let valid = check_upload(&plan, &up);
         let now = Instant::now();
         let mut st = lock(&self.state);
-        for (i, &part) in parts.iter().enumerate() {
-            st.sched
-                .check_lease(job, part, up.lease + i as u64, up.worker)?;
-        }
+        // Every lease checked, and the tiles found, in one pass.
+        let span = st.sched.check_span(job, parts, up.lease, up.worker)?;
         let valid = valid.and_then(|()| match up.worker {
             Some(w) if !st.segment_workers.contains(&w) => Err(format!(
                 "worker {w} did not register with this coordinator's PNG encoder \"{}\"",
@@ -438,24 +436,14 @@ impl Farm {
             drop(st);
             return Err(self.reject_segments(up.lease, job, parts, up.worker, m));
         }
-        let mut idx = Vec::with_capacity(parts.len());
-        let mut any_done = false;
-        for &part in parts {
-            let i = st
-                .sched
-                .tile_index(job, part)
-                .ok_or_else(|| FarmError::BadTile(format!("{part:?} is not a tile")))?;
-            any_done |= st.sched.tile_done(job, i) != Some(false);
-            idx.push(i);
-        }
-        let over = st.sched.info(job, now).is_none_or(|i| i.state.is_final());
         let out = st.outputs.get(&job).cloned();
-        let (Some(out), false, false) = (out, any_done, over) else {
+        let (Some(out), true) = (out, span.open) else {
             // Not taken: give back what this worker still holds of it.
             if let Some(w) = up.worker {
-                for (i, &t) in idx.iter().enumerate() {
+                for (i, &t) in span.tiles.iter().enumerate() {
                     if st.sched.tile_done(job, t) == Some(false) {
-                        let _ = st.sched.return_lease(w, up.lease + i as u64, None, now);
+                        let id = up.lease.wrapping_add(i as u64);
+                        let _ = st.sched.return_lease(w, id, None, now);
                     }
                 }
             }
@@ -463,23 +451,8 @@ impl Farm {
             self.work.notify_waiters();
             return Ok(TileOutcome::Ignored);
         };
-        // Rays shared by pixels, as for a span of float tiles.
-        let whole = up.rect.pixel_count().max(1) as u128;
-        let mut rays_left = up.rays;
-        let mut stored = Vec::with_capacity(parts.len());
-        for (k, (&part, &i)) in parts.iter().zip(&idx).enumerate() {
-            let rays = if k + 1 == parts.len() {
-                rays_left
-            } else {
-                let share = (u128::from(up.rays) * part.pixel_count() as u128 / whole) as u64;
-                rays_left -= share.min(rays_left);
-                share
-            };
-            // Checked not done under this same lock: each is new.
-            if let Accepted::New { .. } = st.sched.accept_rendered(job, part, rays, render, now)? {
-                stored.push((i, rays));
-            }
-        }
+        // Checked open under this same lock: every tile is new.
+        let (stored, _) = st.sched.take_span(job, &span.tiles, up.rays, render, now)?;
         st.publish(job);
         drop(st);
         self.work.notify_waiters();
@@ -525,15 +498,13 @@ impl Farm {
         why: String,
     ) -> FarmError {
         let mut st = lock(&self.state);
-        for (i, &part) in parts.iter().enumerate() {
-            if let Err(e) = st.sched.check_lease(job, part, lease + i as u64, worker) {
-                return e.into();
-            }
+        if let Err(e) = st.sched.check_span(job, parts, lease, worker) {
+            return e.into();
         }
         let e = FarmError::BadTile(why);
         for i in 0..parts.len() as u64 {
             st.sched
-                .reject_tile(lease + i, &format!("invalid result: {e}"));
+                .reject_tile(lease.wrapping_add(i), &format!("invalid result: {e}"));
         }
         let failed = st.sched.take_failed();
         drop(st);

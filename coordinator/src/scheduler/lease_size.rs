@@ -72,7 +72,7 @@ use std::time::Duration;
 pub const MAX_SPAN_TILES: u32 = 1 << 16;
 
 /// Weight of a new measurement in a job's smoothed cost.
-const SMOOTHING: f64 = 0.25;
+pub(super) const SMOOTHING: f64 = 0.25;
 
 /// How many tiles of `tile_pixels` pixels a lease for a worker of `threads`
 /// threads gets when its job costs `cost` core-seconds per pixel (`None`:
