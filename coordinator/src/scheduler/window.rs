@@ -22,7 +22,7 @@
 //! [`segment_band_bytes`]: segment_band_bytes
 
 use super::{JobSpec, LeaseId};
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use trevi_core::output::SEGMENT_ROWS;
 use trevi_core::tile::Rect;
 
@@ -107,8 +107,12 @@ pub(super) struct BandWindow {
     first_undone: u32,
     /// Every tile from this one on is pending and was never leased.
     next_fresh: u32,
-    /// States of tiles `first_undone..next_fresh`.
-    active: BTreeMap<u32, TileState>,
+    /// States of tiles `first_undone..next_fresh`, in order: a tile's
+    /// state is at `idx - first_undone` (a deque, not a map: every tile of
+    /// a span of hundreds is looked up, leased and done in turn, and a
+    /// map's search for each was a tenth of the farm's work under its
+    /// lock; docs/benchmarks.md, "Stage 6").
+    active: VecDeque<TileState>,
     /// Pending tiles before `next_fresh` (re-queued), smallest first.
     requeued: BTreeSet<u32>,
     /// The held bands (from the first one not complete to the last one
@@ -136,7 +140,7 @@ impl BandWindow {
             segment_band: segment_band_bytes(spec),
             first_undone: 0,
             next_fresh: 0,
-            active: BTreeMap::new(),
+            active: VecDeque::new(),
             requeued: BTreeSet::new(),
             held: BTreeMap::new(),
             held_bytes: 0,
@@ -179,7 +183,9 @@ impl BandWindow {
         } else if idx >= self.next_fresh {
             TileState::Pending
         } else {
-            self.active[&idx]
+            // Retired windows keep no states: their tiles count as done.
+            let at = (idx - self.first_undone) as usize;
+            self.active.get(at).copied().unwrap_or(TileState::Done)
         }
     }
 
@@ -229,7 +235,7 @@ impl BandWindow {
         let start = start as u32;
         let end = start + self.cols;
         start >= self.first_undone
-            && (start..end.min(self.next_fresh)).all(|i| self.active[&i] == TileState::Pending)
+            && (start..end.min(self.next_fresh)).all(|i| self.tile_state(i) == TileState::Pending)
     }
 
     /// How many whole bands, from band `band` on, may go out in one lease
@@ -261,11 +267,12 @@ impl BandWindow {
     pub(super) fn set_leased(&mut self, idx: u32, lease: LeaseId, segments: bool) {
         if idx == self.next_fresh {
             self.next_fresh += 1;
+            self.active.push_back(TileState::Leased(lease));
         } else {
             debug_assert!(self.requeued.contains(&idx), "tile {idx} is not pending");
             self.requeued.remove(&idx);
+            self.set_state(idx, TileState::Leased(lease));
         }
-        self.active.insert(idx, TileState::Leased(lease));
         let cost = self.band_cost(segments);
         let held = self.held.entry(idx / self.cols).or_insert(0);
         if cost > *held {
@@ -287,21 +294,34 @@ impl BandWindow {
         self.room
     }
 
+    /// Sets the state of tile `idx`, one of `first_undone..next_fresh`.
+    fn set_state(&mut self, idx: u32, state: TileState) {
+        let at = idx.checked_sub(self.first_undone).map(|i| i as usize);
+        match at.and_then(|i| self.active.get_mut(i)) {
+            Some(s) => *s = state,
+            None => debug_assert!(false, "tile {idx} is not in flight"),
+        }
+    }
+
     /// Puts a handed-out tile back, ahead of the fresh ones.
     pub(super) fn requeue(&mut self, idx: u32) {
-        self.active.insert(idx, TileState::Pending);
+        debug_assert!((self.first_undone..self.next_fresh).contains(&idx));
+        self.set_state(idx, TileState::Pending);
         self.requeued.insert(idx);
     }
 
     /// Marks a tile done and moves `first_undone` past the done prefix;
     /// bands before it are no longer held.
     pub(super) fn set_done(&mut self, idx: u32) {
+        if !(self.first_undone..self.next_fresh).contains(&idx) {
+            // Done already, or never handed out: the callers take neither.
+            debug_assert!(idx < self.first_undone, "tile {idx} was never leased");
+            return;
+        }
         self.requeued.remove(&idx);
-        self.active.insert(idx, TileState::Done);
-        while self.first_undone < self.next_fresh
-            && self.active.get(&self.first_undone) == Some(&TileState::Done)
-        {
-            self.active.remove(&self.first_undone);
+        self.set_state(idx, TileState::Done);
+        while self.active.front() == Some(&TileState::Done) {
+            self.active.pop_front();
             self.first_undone += 1;
         }
         let first = self.first_undone / self.cols;
@@ -329,9 +349,8 @@ impl BandWindow {
             .count() as u32;
         self.first_undone = prefix;
         self.next_fresh = last + 1;
-        for i in prefix..self.next_fresh {
-            self.requeue(i);
-        }
+        self.active = VecDeque::from(vec![TileState::Pending; (last + 1 - prefix) as usize]);
+        self.requeued = (prefix..self.next_fresh).collect();
         for band in prefix / self.cols..=last / self.cols {
             self.held.insert(band, self.float_band);
             self.held_bytes += self.float_band;
@@ -343,7 +362,7 @@ impl BandWindow {
 
     /// The leases its tiles are out under, one for each leased tile.
     pub(super) fn leases(&self) -> impl Iterator<Item = LeaseId> + '_ {
-        self.active.values().filter_map(|s| match *s {
+        self.active.iter().filter_map(|s| match *s {
             TileState::Leased(l) => Some(l),
             _ => None,
         })
@@ -351,7 +370,7 @@ impl BandWindow {
 
     /// Drops the bookkeeping only a running job needs.
     pub(super) fn retire(&mut self) {
-        self.active = BTreeMap::new();
+        self.active = VecDeque::new();
         self.requeued = BTreeSet::new();
         self.held = BTreeMap::new();
         self.held_bytes = 0;
