@@ -10,7 +10,8 @@
 //! cargo bench -p trevi-coordinator --bench farm_bench -- scale --coordinator URL --pid PID \
 //!     --workers N [--cores 16] --cost-ns NS [--multi] [--secs 8] [--warmup 3] [--jobs K] \
 //!     [--width 2048] [--height 2048] [--tile 64] \
-//!     [--segments [--seg-bytes-per-pixel 0.55 | --segments-from RENDER.png] [--lease-pixels P]]
+//!     [--segments [--seg-bytes-per-pixel 0.55 | --segments-from RENDER.png] [--lease-pixels P]] \
+//!     [--metrics HOST:PORT]
 //! ```
 //!
 //! `ingest`: synthetic workers that replay ready tiles (noise, so the PNG
@@ -35,7 +36,11 @@
 //! are kept queued (a finished one is replaced). After `--warmup` seconds,
 //! measures for `--secs`: tiles/s against what the modelled workers could
 //! render (the demand), lease latency p50/p99 (the `LeaseTile` calls that
-//! brought work), the coordinator's CPU and peak RSS from /proc.
+//! brought work), the coordinator's CPU and peak RSS from /proc. With
+//! `--metrics` (the coordinator's `--http` address), also how long its
+//! state lock was held over those seconds
+//! (`trevi_state_lock_held_seconds_total`): the serial part of its work,
+//! and so the most cores its ingest could use.
 //!
 //! `scale --segments`: the workers also announce the coordinator's PNG
 //! encoder (`RegisterRequest.png_encoder` = `PNG_ENCODER`, implying
@@ -132,6 +137,21 @@ fn cpu_seconds(pid: &str) -> Option<f64> {
     let f: Vec<&str> = rest.split_whitespace().collect();
     let ticks: u64 = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
     Some(ticks as f64 / 100.0)
+}
+
+/// `trevi_state_lock_held_seconds_total` from the coordinator's
+/// `/metrics` at `addr` (its `--http` address), by a plain HTTP/1.0 GET.
+fn lock_held_seconds(addr: &str) -> Option<f64> {
+    use std::io::{Read, Write};
+    let mut c = std::net::TcpStream::connect(addr).ok()?;
+    write!(c, "GET /metrics HTTP/1.0\r\nHost: {addr}\r\n\r\n").ok()?;
+    let mut page = String::new();
+    c.read_to_string(&mut page).ok()?;
+    page.lines()
+        .find_map(|l| l.strip_prefix("trevi_state_lock_held_seconds_total "))?
+        .trim()
+        .parse()
+        .ok()
 }
 
 /// A render-like tile: smooth gradients with a little noise.
@@ -760,6 +780,7 @@ fn scale(args: &[String]) {
     use std::sync::Mutex;
     let url = arg(args, "--coordinator").expect("--coordinator URL");
     let pid = arg(args, "--pid");
+    let metrics = arg(args, "--metrics");
     let workers = num(args, "--workers", 10) as usize;
     let cores = num(args, "--cores", 16) as u32;
     let cost_ns = arg(args, "--cost-ns")
@@ -1004,12 +1025,15 @@ fn scale(args: &[String]) {
         }
         tokio::time::sleep(Duration::from_secs(warmup)).await;
         let cpu0 = pid.as_deref().and_then(cpu_seconds);
+        let held0 = metrics.as_deref().and_then(lock_held_seconds);
         stats.lock().unwrap().measuring = true;
         let start = Instant::now();
         tokio::time::sleep(Duration::from_secs(secs)).await;
         let st = std::mem::take(&mut *stats.lock().unwrap());
         let elapsed = start.elapsed().as_secs_f64();
-        let cpu = match (cpu0, pid.as_deref().and_then(cpu_seconds)) {
+        let cpu1 = pid.as_deref().and_then(cpu_seconds);
+        let held1 = metrics.as_deref().and_then(lock_held_seconds);
+        let cpu = match (cpu0, cpu1) {
             (Some(a), Some(b)) => format!("{:.0} %", (b - a) / elapsed * 100.0),
             _ => "?".into(),
         };
@@ -1043,6 +1067,21 @@ fn scale(args: &[String]) {
             pct(0.5),
             pct(0.99),
         );
+        if let (Some(a), Some(b)) = (held0, held1) {
+            let held = (b - a) / elapsed;
+            let of_cpu = match (cpu0, cpu1) {
+                (Some(c0), Some(c1)) if c1 > c0 => {
+                    format!(", {:.1} % of its CPU", (b - a) / (c1 - c0) * 100.0)
+                }
+                _ => String::new(),
+            };
+            println!(
+                "lock: the coordinator's state lock was held {:.1} % of the time{of_cpu}: \
+                 its ingest could use at most {:.1} cores at this load",
+                held * 100.0,
+                1.0 / held.max(1e-9),
+            );
+        }
         if let Some(bpp) = seg_bpp {
             println!(
                 "segments: {jobs_kept} frames kept queued; {} of {} leases uploaded as segments \

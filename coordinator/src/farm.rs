@@ -20,6 +20,7 @@ mod restore;
 mod retention;
 pub mod segments;
 pub mod sequences;
+mod state_lock;
 mod upkeep;
 
 use checks::output_name;
@@ -227,7 +228,7 @@ impl State {
 /// The coordinator's state and rules.
 pub struct Farm {
     cfg: FarmConfig,
-    state: Mutex<State>,
+    state: state_lock::StateLock<State>,
     /// Woken when there may be new tiles to lease.
     work: Notify,
     bundles: BundleStore,
@@ -256,7 +257,7 @@ impl Farm {
             None
         };
         let farm = Farm {
-            state: Mutex::new(State {
+            state: state_lock::StateLock::new(State {
                 sched: Scheduler::new(cfg.limits, base),
                 outputs: HashMap::new(),
                 watchers: HashMap::new(),
@@ -312,7 +313,8 @@ impl Farm {
             .map(|j| j.spec.bundle_hash)
             .collect();
         keep.extend(
-            lock(&self.state)
+            self.state
+                .lock()
                 .seqs
                 .values()
                 .filter(|s| !s.state.is_final())
@@ -419,7 +421,7 @@ impl Farm {
             return Err(FarmError::BadScene("the frame is empty".into()));
         }
         self.check_memory(&spec)?;
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         Self::check_submitter(&st, who, self.cfg.limits.max_jobs_per_submitter)?;
         let info = self.submit_locked(&mut st, spec, make, who, None)?;
         drop(st);
@@ -510,7 +512,7 @@ impl Farm {
         } else {
             None
         };
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         let id = st.sched.register_worker(Instant::now(), session);
         st.sched.describe_worker(id, opts.name, opts.threads);
         if opts.multi_tile {
@@ -534,7 +536,8 @@ impl Farm {
         lease: LeaseId,
         bytes: u64,
     ) -> Result<(), FarmError> {
-        lock(&self.state)
+        self.state
+            .lock()
             .sched
             .decline_lease(worker, lease, bytes, Instant::now())?;
         tracing::info!(
@@ -550,7 +553,7 @@ impl Farm {
     /// Checks that `session` is the secret `worker` registered with: an
     /// unknown worker must register (again), a wrong secret is refused.
     pub fn check_session(&self, worker: WorkerId, session: &[u8]) -> Result<(), FarmError> {
-        match lock(&self.state).sched.session_is(worker, session) {
+        match self.state.lock().sched.session_is(worker, session) {
             None => Err(FarmError::UnknownWorker(worker)),
             Some(true) => Ok(()),
             Some(false) => Err(FarmError::NotYourLease(format!(
@@ -570,7 +573,7 @@ impl Farm {
         error: Option<&str>,
     ) -> Result<(), FarmError> {
         let failed = {
-            let mut st = lock(&self.state);
+            let mut st = self.state.lock();
             st.sched
                 .return_lease(worker, lease, error, Instant::now())?;
             st.sched.take_failed()
@@ -585,7 +588,7 @@ impl Farm {
     }
 
     pub fn lease(&self, worker: WorkerId) -> Result<Option<Lease>, FarmError> {
-        Ok(lock(&self.state).sched.lease(worker, Instant::now())?)
+        Ok(self.state.lock().sched.lease(worker, Instant::now())?)
     }
 
     /// Like [`Farm::lease`], waiting up to `wait` for a tile to become available.
@@ -610,14 +613,14 @@ impl Farm {
 
     /// Checks that `rect` is one of `job`'s tiles (before reading a result).
     pub fn check_tile(&self, job: JobId, rect: Rect) -> Result<(), FarmError> {
-        Ok(lock(&self.state).sched.check_tile(job, rect)?)
+        Ok(self.state.lock().sched.check_tile(job, rect)?)
     }
 
     /// Checks that `rect` is one of `job`'s tiles or a span of them (before
     /// reading a result); returns the tiles, left to right (see
     /// [`Scheduler::span_tiles`]).
     pub fn span_tiles(&self, job: JobId, rect: Rect) -> Result<Vec<Rect>, FarmError> {
-        Ok(lock(&self.state).sched.span_tiles(job, rect)?)
+        Ok(self.state.lock().sched.span_tiles(job, rect)?)
     }
 
     /// [`Farm::span_tiles`] with the cap of the upload's kind: encoded
@@ -628,7 +631,9 @@ impl Farm {
         rect: Rect,
         png_segments: bool,
     ) -> Result<Vec<Rect>, FarmError> {
-        Ok(lock(&self.state)
+        Ok(self
+            .state
+            .lock()
             .sched
             .span_tiles_as(job, rect, png_segments)?)
     }
@@ -725,7 +730,9 @@ impl Farm {
         worker: WorkerId,
         leases: &[LeaseId],
     ) -> Result<Vec<LeaseId>, FarmError> {
-        Ok(lock(&self.state)
+        Ok(self
+            .state
+            .lock()
             .sched
             .heartbeat(worker, leases, Instant::now())?)
     }
@@ -733,14 +740,14 @@ impl Farm {
     /// Records why `worker` takes no tiles for now (`None`: it works); see
     /// [`crate::workers::WorkerState::Paused`].
     pub fn set_paused(&self, worker: WorkerId, why: Option<&str>) {
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         st.sched.set_paused(worker, why);
     }
 
     /// Re-queues tiles whose leases ran out.
     pub fn expire(&self) -> usize {
         let (n, failed) = {
-            let mut st = lock(&self.state);
+            let mut st = self.state.lock();
             let n = st.sched.expire(Instant::now());
             (n, st.sched.take_failed())
         };
@@ -749,7 +756,9 @@ impl Farm {
             self.work.notify_waiters();
         }
         self.fail_jobs(failed);
-        let unrecorded: Vec<(JobId, Result<(), String>)> = lock(&self.state)
+        let unrecorded: Vec<(JobId, Result<(), String>)> = self
+            .state
+            .lock()
             .unrecorded
             .iter()
             .map(|(&j, r)| (j, r.clone()))
@@ -812,7 +821,7 @@ impl Farm {
             worker,
         } = r;
         let valid = validate_pixels(rect, pixels);
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         st.sched.check_lease(job, rect, lease, worker)?;
         let valid = valid.and_then(|()| Ok(st.sched.check_tile(job, rect)?));
         if let Err(e) = valid {
@@ -942,7 +951,7 @@ impl Farm {
     /// later, and a restart meanwhile resumes the job from its stored tiles.
     fn end_job(&self, job: JobId, mut result: Result<(), String>) {
         let image = self.final_preview(job);
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         let now = Instant::now();
         let Some(mut ending) = st.sched.finish_info(job, &result, now) else {
             return; // Over already (cancelled meanwhile).
@@ -1032,11 +1041,11 @@ impl Farm {
     /// The cancellation is recorded first: when the database does not take
     /// it, the job goes on and the caller gets the error.
     pub fn cancel(&self, job: JobId) -> Result<JobInfo, FarmError> {
-        if lock(&self.state).seqs.contains_key(&job) {
+        if self.state.lock().seqs.contains_key(&job) {
             return self.cancel_sequence(job);
         }
         let image = self.final_preview(job);
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         let now = Instant::now();
         if let Some(ending) = st.sched.cancel_info(job, now) {
             self.persist_end(&ending).map_err(|e| {
@@ -1071,25 +1080,27 @@ impl Farm {
     }
 
     pub fn info(&self, job: JobId) -> Result<JobInfo, FarmError> {
-        lock(&self.state)
+        self.state
+            .lock()
             .info(job, Instant::now())
             .ok_or(FarmError::UnknownJob(job))
     }
 
     pub fn list(&self) -> Vec<JobInfo> {
-        lock(&self.state).sched.list(Instant::now())
+        self.state.lock().sched.list(Instant::now())
     }
 
     /// Up to `limit` jobs by id from id `from` on, and where the next page
     /// starts (`None`: this was the last).
     /// Frames of sequences are not listed: their sequence is.
     pub fn list_from(&self, from: JobId, limit: usize) -> (Vec<JobInfo>, Option<JobId>) {
-        lock(&self.state).list_from(from, limit, Instant::now())
+        self.state.lock().list_from(from, limit, Instant::now())
     }
 
     /// Progress of a job: the current status, then every change.
     pub fn watch(&self, job: JobId) -> Result<watch::Receiver<JobInfo>, FarmError> {
-        lock(&self.state)
+        self.state
+            .lock()
             .watchers
             .get(&job)
             .map(|tx| tx.subscribe())
@@ -1098,7 +1109,7 @@ impl Farm {
 
     /// The finished output file of a job that is done.
     pub fn output_file(&self, job: JobId) -> Result<PathBuf, FarmError> {
-        if lock(&self.state).seqs.contains_key(&job) {
+        if self.state.lock().seqs.contains_key(&job) {
             return self.frame_file(job, None);
         }
         let info = self.info(job)?;
@@ -1113,10 +1124,10 @@ impl Farm {
 
     /// Moves an unfinished job to another priority (higher runs first).
     pub fn set_priority(&self, job: JobId, priority: i32) -> Result<JobInfo, FarmError> {
-        if lock(&self.state).seqs.contains_key(&job) {
+        if self.state.lock().seqs.contains_key(&job) {
             return self.set_sequence_priority(job, priority);
         }
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         // Checked, stored, then applied: a change the database did not
         // take is not made.
         match st.sched.info(job, Instant::now()) {
@@ -1140,24 +1151,25 @@ impl Farm {
 
     /// Unfinished jobs and their tiles waiting for a worker.
     pub fn queue_depth(&self) -> QueueDepth {
-        lock(&self.state).sched.queue_depth()
+        self.state.lock().sched.queue_depth()
     }
 
     /// Every known worker.
     pub fn workers(&self) -> Vec<WorkerInfo> {
-        lock(&self.state).sched.workers(Instant::now())
+        self.state.lock().sched.workers(Instant::now())
     }
 
     /// Counters, queue, jobs and workers at one instant.
     pub fn snapshot(&self) -> FarmSnapshot {
         let now = Instant::now();
-        let st = lock(&self.state);
+        let st = self.state.lock();
         FarmSnapshot {
             counters: st.sched.counters(),
             queue: st.sched.queue_depth(),
             jobs: st.list_from(0, usize::MAX, now).0,
             workers: st.sched.workers(now),
             rays_per_second: st.sched.rays_per_second(now),
+            state_lock_held: self.state.held(),
         }
     }
 
@@ -1168,7 +1180,7 @@ impl Farm {
 
     /// Most rows the job's output held at once (while it is running).
     pub fn max_rows_held(&self, job: JobId) -> Option<usize> {
-        let out = lock(&self.state).outputs.get(&job).cloned()?;
+        let out = self.state.lock().outputs.get(&job).cloned()?;
         let m = lock(&out).max_rows_held;
         Some(m)
     }

@@ -60,6 +60,9 @@ pub struct FarmSnapshot {
     pub jobs: Vec<JobInfo>,
     pub workers: Vec<WorkerInfo>,
     pub rays_per_second: f64,
+    /// How long the farm's state lock has been held since the start: the
+    /// serial part of the coordinator's work.
+    pub state_lock_held: Duration,
 }
 
 /// Figures the servers record as they go; shared by the farm (which the
@@ -168,6 +171,19 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
         family(&mut out, name, "counter", help);
         let _ = writeln!(out, "{name} {v}");
     }
+
+    family(
+        &mut out,
+        "trevi_state_lock_held_seconds_total",
+        "counter",
+        "Time the coordinator's state lock was held: the serial part of its work (ingest can \
+         use at most one core per second of this a second).",
+    );
+    let _ = writeln!(
+        out,
+        "trevi_state_lock_held_seconds_total {:.6}",
+        s.state_lock_held.as_secs_f64()
+    );
 
     family(
         &mut out,

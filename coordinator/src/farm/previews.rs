@@ -88,7 +88,7 @@ impl Farm {
     /// The job's preview as it stands, to keep once the job is over (made
     /// before the job is marked over, so whoever sees it over finds it).
     pub(super) fn final_preview(&self, job: JobId) -> Option<Arc<FinalPreview>> {
-        let out = lock(&self.state).outputs.get(&job).cloned()?;
+        let out = self.state.lock().outputs.get(&job).cloned()?;
         let image = FinalPreview::of(&lock(&out).preview);
         Some(Arc::new(image))
     }
@@ -97,7 +97,7 @@ impl Farm {
     /// ended (for the newest few finished jobs).
     pub fn preview(&self, job: JobId) -> Result<PreviewImage, FarmError> {
         let job = self.preview_job(job);
-        let st = lock(&self.state);
+        let st = self.state.lock();
         if let Some((_, image)) = st.final_previews.iter().find(|(j, _)| *j == job) {
             let image = image.clone();
             drop(st);

@@ -31,7 +31,7 @@ impl Farm {
                 }
             }
         }
-        lock(&self.state).sched.skip_ids_through(max);
+        self.state.lock().sched.skip_ids_through(max);
         Ok(())
     }
 
@@ -47,7 +47,7 @@ impl Farm {
         // A frame that completes while it is restored queues the next
         // frames: their ids must not be those of rows not restored yet.
         let max = store.max_job_id()?;
-        lock(&self.state).sched.skip_ids_through(max);
+        self.state.lock().sched.skip_ids_through(max);
         self.restore_sequences(&rows);
         for j in rows {
             if j.seq.frames.is_some() {
@@ -66,7 +66,7 @@ impl Farm {
                 done_tiles.iter().fold(0u64, |a, t| a.saturating_add(t.1))
             };
             let id = j.id;
-            let mut st = lock(&self.state);
+            let mut st = self.state.lock();
             st.sched.restore(
                 Restored {
                     id,
@@ -101,7 +101,7 @@ impl Farm {
                 Ok(out) => {
                     let complete = out.written == out.total;
                     let out = Arc::new(Mutex::new(out));
-                    lock(&self.state).outputs.insert(id, out.clone());
+                    self.state.lock().outputs.insert(id, out.clone());
                     if complete {
                         let sink = lock(&out).sink.take().expect("just made");
                         let result = sink.finish();
@@ -134,12 +134,12 @@ impl Farm {
             .map_err(|e| FarmError::io("cannot create the output", e))?;
         let mut preview = Preview::new(info.spec.width, info.spec.height);
         let mut written = 0;
-        let tile_rect = |idx: u32| {
-            lock(&self.state)
-                .sched
-                .tile_rect(job, idx)
-                .ok_or_else(|| FarmError::Damaged(format!("stored tile {idx} is not in the frame")))
-        };
+        let tile_rect =
+            |idx: u32| {
+                self.state.lock().sched.tile_rect(job, idx).ok_or_else(|| {
+                    FarmError::Damaged(format!("stored tile {idx} is not in the frame"))
+                })
+            };
         store.replay(job, |stored| match stored {
             Replayed::Floats { tile, bytes } => {
                 let rect = tile_rect(tile)?;

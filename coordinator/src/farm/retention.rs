@@ -2,7 +2,7 @@
 //! forgets the ones it no longer keeps: from the database, from memory and
 //! from the data directory.
 
-use super::{lock, Farm};
+use super::Farm;
 use crate::scheduler::JobId;
 use std::time::{Duration, Instant};
 
@@ -79,7 +79,9 @@ impl Farm {
     pub(super) fn prune(&self) {
         let r = self.cfg.retention;
         let now = Instant::now();
-        let doomed: Vec<JobId> = lock(&self.state)
+        let doomed: Vec<JobId> = self
+            .state
+            .lock()
             .ended()
             .into_iter()
             .enumerate()
@@ -100,7 +102,7 @@ impl Farm {
             }
         }
         {
-            let mut st = lock(&self.state);
+            let mut st = self.state.lock();
             for id in &doomed {
                 st.sched.remove(*id);
                 st.seqs.remove(id);

@@ -337,7 +337,9 @@ impl Farm {
     /// of full-width rows of a PNG frame; otherwise
     /// [`FarmError::BadTile`] saying why.
     pub fn segment_plan(&self, job: JobId, rect: Rect) -> Result<SegmentPlan, FarmError> {
-        let spec = lock(&self.state)
+        let spec = self
+            .state
+            .lock()
             .sched
             .info(job, Instant::now())
             .ok_or(FarmError::UnknownJob(job))?
@@ -367,7 +369,8 @@ impl Farm {
     /// The preview cell edge a lease of `job` asks its sums for
     /// (`Lease.preview_scale`); 0 for an unknown job.
     pub fn preview_scale(&self, job: JobId) -> u32 {
-        lock(&self.state)
+        self.state
+            .lock()
             .sched
             .info(job, Instant::now())
             .map_or(0, |i| Preview::new(i.spec.width, i.spec.height).scale)
@@ -422,7 +425,7 @@ impl Farm {
         }
         let valid = check_upload(&plan, &up);
         let now = Instant::now();
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         // Every lease checked, and the tiles found, in one pass.
         let span = st.sched.check_span(job, parts, up.lease, up.worker)?;
         let valid = valid.and_then(|()| match up.worker {
@@ -497,7 +500,7 @@ impl Farm {
         worker: Option<WorkerId>,
         why: String,
     ) -> FarmError {
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         if let Err(e) = st.sched.check_span(job, parts, lease, worker) {
             return e.into();
         }

@@ -20,7 +20,7 @@
 //! other frames in progress are cancelled); cancelling a sequence cancels
 //! its frames in progress; its priority is its frames'.
 
-use super::{lock, Farm, MakeSink, State};
+use super::{Farm, MakeSink, State};
 use crate::error::FarmError;
 #[cfg(doc)]
 use crate::limits::Limits;
@@ -213,7 +213,7 @@ impl Farm {
         spec.output_name = sequence_pattern(&spec.output_name);
         spec.frame = None;
         let now = Instant::now();
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         Self::check_submitter(&st, who, self.cfg.limits.max_jobs_per_submitter)?;
         let id = st.sched.reserve_id();
         if let Some(store) = &self.store {
@@ -259,7 +259,7 @@ impl Farm {
     /// done, or fails it when a frame failed.
     pub(super) fn advance(&self, seq: JobId) {
         loop {
-            let mut st = lock(&self.state);
+            let mut st = self.state.lock();
             let Some(s) = st.seqs.get(&seq) else {
                 return;
             };
@@ -340,7 +340,7 @@ impl Farm {
 
     /// Ends a sequence and records it.
     fn end_sequence(&self, seq: JobId, result: Result<(), String>) {
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         let now = Instant::now();
         let Some(s) = st.seqs.get_mut(&seq) else {
             return;
@@ -374,7 +374,7 @@ impl Farm {
     /// are removed; finished frames stay).
     pub(super) fn cancel_sequence(&self, seq: JobId) -> Result<JobInfo, FarmError> {
         let running: Vec<JobId> = {
-            let mut st = lock(&self.state);
+            let mut st = self.state.lock();
             let now = Instant::now();
             let Some(s) = st.seqs.get(&seq) else {
                 return Err(FarmError::UnknownJob(seq));
@@ -399,7 +399,7 @@ impl Farm {
         }
         tracing::info!(job = seq, "sequence cancelled");
         let info = self.info(seq);
-        lock(&self.state).publish(seq);
+        self.state.lock().publish(seq);
         info
     }
 
@@ -410,7 +410,7 @@ impl Farm {
         priority: i32,
     ) -> Result<JobInfo, FarmError> {
         let running: Vec<JobId> = {
-            let mut st = lock(&self.state);
+            let mut st = self.state.lock();
             let s = st.seqs.get(&seq).ok_or(FarmError::UnknownJob(seq))?;
             if s.state.is_final() {
                 return Err(FarmError::JobOver(seq));
@@ -437,7 +437,7 @@ impl Farm {
     /// done; without a frame, its last frame done.
     pub fn frame_file(&self, seq: JobId, frame: Option<u32>) -> Result<PathBuf, FarmError> {
         let (pattern, first, last) = {
-            let st = lock(&self.state);
+            let st = self.state.lock();
             let s = st.seqs.get(&seq).ok_or(FarmError::UnknownJob(seq))?;
             (s.spec.output_name.clone(), s.first, s.last)
         };
@@ -460,7 +460,7 @@ impl Farm {
     /// Whether a result for `frame` fits `job` (a frame of a sequence must
     /// say its frame; a still's result says none).
     pub fn check_frame(&self, job: JobId, frame: Option<u32>) -> Result<(), FarmError> {
-        let st = lock(&self.state);
+        let st = self.state.lock();
         let Some(info) = st.sched.info(job, Instant::now()) else {
             return Ok(()); // Unknown jobs are refused further on.
         };
@@ -476,7 +476,7 @@ impl Farm {
     /// The job whose preview stands for `job`: a sequence's earliest frame
     /// in progress; any other job itself.
     pub(super) fn preview_job(&self, job: JobId) -> JobId {
-        let st = lock(&self.state);
+        let st = self.state.lock();
         st.seqs
             .get(&job)
             .and_then(|s| s.running.values().next().copied())
@@ -489,7 +489,7 @@ impl Farm {
     /// that completes while it is restored moves its sequence on correctly.
     pub(super) fn restore_sequences(&self, rows: &[StoredJob]) {
         let (now, wall) = (Instant::now(), wall_ms());
-        let mut st = lock(&self.state);
+        let mut st = self.state.lock();
         for j in rows {
             let Some((first, last)) = j.seq.frames else {
                 continue;
@@ -559,7 +559,7 @@ impl Farm {
 
     /// Moves every unfinished sequence on after a restart.
     pub(super) fn resume_sequences(&self) {
-        let ids: Vec<JobId> = lock(&self.state).seqs.keys().copied().collect();
+        let ids: Vec<JobId> = self.state.lock().seqs.keys().copied().collect();
         for id in ids {
             self.advance(id);
         }

@@ -1,0 +1,107 @@
+//! The farm's one lock over its [`State`], timed. How long it is held is
+//! the part of the coordinator's work that cannot spread over cores: with
+//! `h` seconds held a second, ingest can use at most `1/h` cores however
+//! many it has (`trevi_state_lock_held_seconds_total`; docs/benchmarks.md,
+//! "Stage 6").
+
+use std::ops::{Deref, DerefMut};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+/// A value behind a mutex (the farm's [`super::State`]), with the time it
+/// has been held.
+pub(super) struct StateLock<T> {
+    state: Mutex<T>,
+    held_ns: AtomicU64,
+}
+
+/// The lock, held: derefs to the value; dropping it adds the time since it
+/// was taken (not the wait before) to the lock's total.
+pub(super) struct Held<'a, T> {
+    guard: MutexGuard<'a, T>,
+    since: Instant,
+    held_ns: &'a AtomicU64,
+}
+
+impl<T> StateLock<T> {
+    pub(super) fn new(state: T) -> Self {
+        StateLock {
+            state: Mutex::new(state),
+            held_ns: AtomicU64::new(0),
+        }
+    }
+
+    /// Takes the lock. A panic while holding it is a bug; the state is
+    /// served as it is rather than poisoning every later call.
+    pub(super) fn lock(&self) -> Held<'_, T> {
+        let guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        Held {
+            guard,
+            since: Instant::now(),
+            held_ns: &self.held_ns,
+        }
+    }
+
+    /// How long the lock has been held in all, since the start.
+    pub(super) fn held(&self) -> Duration {
+        Duration::from_nanos(self.held_ns.load(Ordering::Relaxed))
+    }
+}
+
+impl<T> Deref for Held<'_, T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        &self.guard
+    }
+}
+
+impl<T> DerefMut for Held<'_, T> {
+    fn deref_mut(&mut self) -> &mut T {
+        &mut self.guard
+    }
+}
+
+impl<T> Drop for Held<'_, T> {
+    fn drop(&mut self) {
+        let ns = u64::try_from(self.since.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.held_ns.fetch_add(ns, Ordering::Relaxed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The total is the time held, measured apart around each hold, and
+    /// leaves out the time spent waiting for the lock.
+    #[test]
+    fn the_total_is_the_time_held_not_the_wait() {
+        let lock = std::sync::Arc::new(StateLock::new(0u32));
+        assert_eq!(lock.held(), Duration::ZERO);
+        let outside = Instant::now();
+        {
+            let mut v = lock.lock();
+            *v += 1;
+            std::thread::sleep(Duration::from_millis(30));
+        }
+        let first = lock.held();
+        assert!(first >= Duration::from_millis(30), "{first:?}");
+        assert!(first <= outside.elapsed(), "{first:?}");
+        // Another thread waits about 200 ms for it while this one holds
+        // it 200 ms: about 200 ms more held (plus the other's instant),
+        // where counting the wait would make it about 400.
+        let held = lock.lock();
+        let other = {
+            let lock = lock.clone();
+            std::thread::spawn(move || *lock.lock() += 1)
+        };
+        std::thread::sleep(Duration::from_millis(200));
+        drop(held);
+        other.join().unwrap();
+        let added = lock.held() - first;
+        assert!(added >= Duration::from_millis(200), "{added:?}");
+        assert!(added < Duration::from_millis(350), "{added:?}");
+        assert_eq!(*lock.lock(), 2);
+    }
+}
