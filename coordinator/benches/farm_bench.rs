@@ -139,19 +139,26 @@ fn cpu_seconds(pid: &str) -> Option<f64> {
     Some(ticks as f64 / 100.0)
 }
 
-/// `trevi_state_lock_held_seconds_total` from the coordinator's
-/// `/metrics` at `addr` (its `--http` address), by a plain HTTP/1.0 GET.
-fn lock_held_seconds(addr: &str) -> Option<f64> {
+/// `trevi_state_lock_held_seconds_total` and
+/// `trevi_store_lock_held_seconds_total` from the coordinator's `/metrics`
+/// at `addr` (its `--http` address), by a plain HTTP/1.0 GET.
+fn lock_held_seconds(addr: &str) -> Option<[f64; 2]> {
     use std::io::{Read, Write};
     let mut c = std::net::TcpStream::connect(addr).ok()?;
     write!(c, "GET /metrics HTTP/1.0\r\nHost: {addr}\r\n\r\n").ok()?;
     let mut page = String::new();
     c.read_to_string(&mut page).ok()?;
-    page.lines()
-        .find_map(|l| l.strip_prefix("trevi_state_lock_held_seconds_total "))?
-        .trim()
-        .parse()
-        .ok()
+    let read = |name: &str| -> Option<f64> {
+        page.lines()
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix(' '))?
+            .trim()
+            .parse()
+            .ok()
+    };
+    Some([
+        read("trevi_state_lock_held_seconds_total")?,
+        read("trevi_store_lock_held_seconds_total")?,
+    ])
 }
 
 /// A render-like tile: smooth gradients with a little noise.
@@ -1068,18 +1075,21 @@ fn scale(args: &[String]) {
             pct(0.99),
         );
         if let (Some(a), Some(b)) = (held0, held1) {
-            let held = (b - a) / elapsed;
+            let [state, store] = [0, 1].map(|i| (b[i] - a[i]) / elapsed);
             let of_cpu = match (cpu0, cpu1) {
-                (Some(c0), Some(c1)) if c1 > c0 => {
-                    format!(", {:.1} % of its CPU", (b - a) / (c1 - c0) * 100.0)
-                }
+                (Some(c0), Some(c1)) if c1 > c0 => format!(
+                    " ({:.1} % and {:.1} % of its CPU)",
+                    state * elapsed / (c1 - c0) * 100.0,
+                    store * elapsed / (c1 - c0) * 100.0
+                ),
                 _ => String::new(),
             };
             println!(
-                "lock: the coordinator's state lock was held {:.1} % of the time{of_cpu}: \
-                 its ingest could use at most {:.1} cores at this load",
-                held * 100.0,
-                1.0 / held.max(1e-9),
+                "locks: the coordinator's state lock was held {:.1} % of the time, the store's \
+                 {:.1} %{of_cpu}: its ingest could use at most {:.1} cores at this load",
+                state * 100.0,
+                store * 100.0,
+                1.0 / state.max(store).max(1e-9),
             );
         }
         if let Some(bpp) = seg_bpp {

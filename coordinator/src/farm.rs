@@ -20,7 +20,6 @@ mod restore;
 mod retention;
 pub mod segments;
 pub mod sequences;
-mod state_lock;
 mod upkeep;
 
 use checks::output_name;
@@ -41,6 +40,7 @@ use crate::scheduler::{
 use crate::sink::TileSink;
 use crate::store::{SeqLink, Store, StoredJob};
 use crate::summaries::{SceneSummary, Summaries};
+use crate::timed_lock::TimedLock;
 use crate::workers::WorkerInfo;
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::PathBuf;
@@ -228,7 +228,7 @@ impl State {
 /// The coordinator's state and rules.
 pub struct Farm {
     cfg: FarmConfig,
-    state: state_lock::StateLock<State>,
+    state: TimedLock<State>,
     /// Woken when there may be new tiles to lease.
     work: Notify,
     bundles: BundleStore,
@@ -257,7 +257,7 @@ impl Farm {
             None
         };
         let farm = Farm {
-            state: state_lock::StateLock::new(State {
+            state: TimedLock::new(State {
                 sched: Scheduler::new(cfg.limits, base),
                 outputs: HashMap::new(),
                 watchers: HashMap::new(),
@@ -1170,6 +1170,7 @@ impl Farm {
             workers: st.sched.workers(now),
             rays_per_second: st.sched.rays_per_second(now),
             state_lock_held: self.state.held(),
+            store_lock_held: self.store.as_ref().map_or(Duration::ZERO, Store::lock_held),
         }
     }
 

@@ -19,6 +19,8 @@
 //!   descriptors) and raising the open-files limit at start-up.
 //! - [`tls`]: loading and checking the certificate and key of `--tls-cert`
 //!   and `--tls-key`.
+//! - [`timed_lock`]: the mutex of the farm's state and of the store, which
+//!   counts how long it is held (the serial part of the coordinator's work).
 //!
 //! Memory: tiles are leased in band order and at most a window of bands ahead
 //! of the first incomplete band, so the rows held by a job's writer are
@@ -39,6 +41,7 @@ pub mod scheduler;
 pub mod sink;
 pub mod store;
 pub mod summaries;
+pub mod timed_lock;
 pub mod tls;
 pub mod workers;
 

@@ -63,6 +63,8 @@ pub struct FarmSnapshot {
     /// How long the farm's state lock has been held since the start: the
     /// serial part of the coordinator's work.
     pub state_lock_held: Duration,
+    /// The same for the store's lock (its database).
+    pub store_lock_held: Duration,
 }
 
 /// Figures the servers record as they go; shared by the farm (which the
@@ -172,18 +174,22 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
         let _ = writeln!(out, "{name} {v}");
     }
 
-    family(
-        &mut out,
-        "trevi_state_lock_held_seconds_total",
-        "counter",
-        "Time the coordinator's state lock was held: the serial part of its work (ingest can \
-         use at most one core per second of this a second).",
-    );
-    let _ = writeln!(
-        out,
-        "trevi_state_lock_held_seconds_total {:.6}",
-        s.state_lock_held.as_secs_f64()
-    );
+    for (name, help, held) in [
+        (
+            "trevi_state_lock_held_seconds_total",
+            "Time the coordinator's state lock was held: serial work (ingest can use at most \
+             one core per second of this a second).",
+            s.state_lock_held,
+        ),
+        (
+            "trevi_store_lock_held_seconds_total",
+            "Time the store's lock (its database) was held: serial work, as for the state lock.",
+            s.store_lock_held,
+        ),
+    ] {
+        family(&mut out, name, "counter", help);
+        let _ = writeln!(out, "{name} {:.6}", held.as_secs_f64());
+    }
 
     family(
         &mut out,

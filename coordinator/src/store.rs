@@ -51,12 +51,13 @@
 use crate::error::FarmError;
 use crate::scheduler::lease_size::MAX_SPAN_TILES;
 use crate::scheduler::{JobId, JobSpec, JobState};
+use crate::timed_lock::{Held, TimedLock};
 use rusqlite::{params, Connection, OptionalExtension};
 use std::collections::HashMap;
 use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 /// A job as stored.
@@ -146,7 +147,7 @@ pub enum Replayed<'a> {
 
 /// The database and the jobs' tile files.
 pub struct Store {
-    inner: Mutex<Inner>,
+    inner: TimedLock<Inner>,
 }
 
 struct Inner {
@@ -292,7 +293,7 @@ impl Store {
         std::fs::create_dir_all(&tiles_dir)
             .map_err(|e| FarmError::io(format!("cannot create {}", tiles_dir.display()), e))?;
         let store = Store {
-            inner: Mutex::new(Inner {
+            inner: TimedLock::new(Inner {
                 conn,
                 dir: tiles_dir,
                 files: HashMap::new(),
@@ -302,8 +303,14 @@ impl Store {
         Ok(store)
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
-        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    fn lock(&self) -> Held<'_, Inner> {
+        self.inner.lock()
+    }
+
+    /// How long the store's lock (its database and the tile files' ends)
+    /// has been held since the start: `trevi_store_lock_held_seconds_total`.
+    pub fn lock_held(&self) -> std::time::Duration {
+        self.inner.held()
     }
 
     /// Writes `pieces`, one record in order, at the end of `job`'s tile

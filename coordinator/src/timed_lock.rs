@@ -1,32 +1,32 @@
-//! The farm's one lock over its [`State`], timed. How long it is held is
-//! the part of the coordinator's work that cannot spread over cores: with
-//! `h` seconds held a second, ingest can use at most `1/h` cores however
-//! many it has (`trevi_state_lock_held_seconds_total`; docs/benchmarks.md,
-//! "Stage 6").
+//! A mutex that counts how long it has been held: the coordinator's two
+//! shared locks, the farm's state and the store's database, are the part
+//! of its work that cannot spread over cores. With `h` seconds held a
+//! second, ingest can use at most `1/h` cores however many it has
+//! (`trevi_state_lock_held_seconds_total`,
+//! `trevi_store_lock_held_seconds_total`; docs/benchmarks.md, "Stage 6").
 
 use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-/// A value behind a mutex (the farm's [`super::State`]), with the time it
-/// has been held.
-pub(super) struct StateLock<T> {
+/// A value behind a mutex, with the time it has been held.
+pub struct TimedLock<T> {
     state: Mutex<T>,
     held_ns: AtomicU64,
 }
 
 /// The lock, held: derefs to the value; dropping it adds the time since it
 /// was taken (not the wait before) to the lock's total.
-pub(super) struct Held<'a, T> {
+pub struct Held<'a, T> {
     guard: MutexGuard<'a, T>,
     since: Instant,
     held_ns: &'a AtomicU64,
 }
 
-impl<T> StateLock<T> {
-    pub(super) fn new(state: T) -> Self {
-        StateLock {
+impl<T> TimedLock<T> {
+    pub fn new(state: T) -> Self {
+        TimedLock {
             state: Mutex::new(state),
             held_ns: AtomicU64::new(0),
         }
@@ -34,7 +34,7 @@ impl<T> StateLock<T> {
 
     /// Takes the lock. A panic while holding it is a bug; the state is
     /// served as it is rather than poisoning every later call.
-    pub(super) fn lock(&self) -> Held<'_, T> {
+    pub fn lock(&self) -> Held<'_, T> {
         let guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
         Held {
             guard,
@@ -44,7 +44,7 @@ impl<T> StateLock<T> {
     }
 
     /// How long the lock has been held in all, since the start.
-    pub(super) fn held(&self) -> Duration {
+    pub fn held(&self) -> Duration {
         Duration::from_nanos(self.held_ns.load(Ordering::Relaxed))
     }
 }
@@ -77,7 +77,7 @@ mod tests {
     /// leaves out the time spent waiting for the lock.
     #[test]
     fn the_total_is_the_time_held_not_the_wait() {
-        let lock = std::sync::Arc::new(StateLock::new(0u32));
+        let lock = std::sync::Arc::new(TimedLock::new(0u32));
         assert_eq!(lock.held(), Duration::ZERO);
         let outside = Instant::now();
         {
