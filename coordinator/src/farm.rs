@@ -688,7 +688,7 @@ impl Farm {
             };
             let one = self.admit(
                 TileResult {
-                    lease: r.lease + i as u64,
+                    lease: r.lease.wrapping_add(i as u64),
                     rect: part,
                     rays,
                     pixels: &pixels,

@@ -571,6 +571,23 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
         })
         .unwrap_err();
     assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
+    // A span under the last lease id there is: its second tile's id would
+    // be past u64::MAX. Refused, not an overflow.
+    let whole = Rect::new(0, 0, 32, 16);
+    let e = f
+        .put_span(
+            TileResult {
+                lease: u64::MAX,
+                job,
+                rect: whole,
+                rays: 1,
+                pixels: &pixels(whole),
+                worker: Some(b),
+            },
+            &[la.rect, lb.rect],
+        )
+        .unwrap_err();
+    assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
     // a bad result under a's lease from b does not re-queue a's tile.
     assert!(f
         .put_tile(TileResult {
