@@ -40,7 +40,8 @@
 //! `--metrics` (the coordinator's `--http` address), also how long its
 //! state lock was held over those seconds
 //! (`trevi_state_lock_held_seconds_total`): the serial part of its work,
-//! and so the most cores its ingest could use.
+//! and so the most cores its ingest could use, and how long the last
+//! `/metrics` scrape took.
 //!
 //! `scale --segments`: the workers also announce the coordinator's PNG
 //! encoder (`RegisterRequest.png_encoder` = `PNG_ENCODER`, implying
@@ -1039,7 +1040,9 @@ fn scale(args: &[String]) {
         let st = std::mem::take(&mut *stats.lock().unwrap());
         let elapsed = start.elapsed().as_secs_f64();
         let cpu1 = pid.as_deref().and_then(cpu_seconds);
+        let scrape = Instant::now();
         let held1 = metrics.as_deref().and_then(lock_held_seconds);
+        let scrape = scrape.elapsed();
         let cpu = match (cpu0, cpu1) {
             (Some(a), Some(b)) => format!("{:.0} %", (b - a) / elapsed * 100.0),
             _ => "?".into(),
@@ -1086,10 +1089,12 @@ fn scale(args: &[String]) {
             };
             println!(
                 "locks: the coordinator's state lock was held {:.1} % of the time, the store's \
-                 {:.1} %{of_cpu}: its ingest could use at most {:.1} cores at this load",
+                 {:.1} %{of_cpu}: its ingest could use at most {:.1} cores at this load; a \
+                 /metrics scrape under this load took {:.1} ms",
                 state * 100.0,
                 store * 100.0,
                 1.0 / state.max(store).max(1e-9),
+                scrape.as_secs_f64() * 1e3,
             );
         }
         if let Some(bpp) = seg_bpp {

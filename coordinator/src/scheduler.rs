@@ -1436,28 +1436,46 @@ impl Scheduler {
 
     /// Unfinished jobs and their tiles that wait for a worker.
     pub fn queue_depth(&self) -> QueueDepth {
-        let mut leased: HashMap<JobId, u64> = HashMap::new();
-        for e in self.leases.values() {
-            *leased.entry(e.job).or_default() += 1;
-        }
         let mut d = QueueDepth::default();
         for &(_, id) in &self.queue {
             let j = &self.jobs[&id];
             d.jobs += 1;
             d.tiles += (j.window.tiles_total() as u64)
                 .saturating_sub(j.done)
-                .saturating_sub(leased.get(&id).copied().unwrap_or(0));
+                .saturating_sub(u64::from(j.window.leased()));
         }
         d
     }
 
     /// Every known worker, by id, with what it holds and how fast it went
-    /// over the last few seconds.
+    /// over the last few seconds. What a worker holds is given as few
+    /// rects as cover exactly its leased tiles: a span of whole bands is
+    /// one rect, not one for each of its (hundreds of) tiles, which the
+    /// monitor would list and this would build under the farm's lock.
     pub fn workers(&self, now: Instant) -> Vec<WorkerInfo> {
         let mut held: HashMap<WorkerId, Vec<(JobId, Rect)>> = HashMap::new();
+        // Leases in id order: a span's tiles follow each other, row-major.
+        let mut last: Option<(WorkerId, JobId, &Job)> = None;
         for e in self.leases.values() {
-            let rect = self.jobs[&e.job].window.rect(e.tile);
-            held.entry(e.worker).or_default().push((e.job, rect));
+            let job = match last {
+                Some((w, id, job)) if w == e.worker && id == e.job => job,
+                _ => &self.jobs[&e.job],
+            };
+            last = Some((e.worker, e.job, job));
+            let rect = job.window.rect(e.tile);
+            let list = held.entry(e.worker).or_default();
+            match list.last_mut() {
+                // The next tile of the same band: the rect grows right.
+                Some((j, r))
+                    if *j == e.job && r.y == rect.y && r.h == rect.h && r.x + r.w == rect.x =>
+                {
+                    r.w += rect.w;
+                }
+                _ => list.push((e.job, rect)),
+            }
+        }
+        for list in held.values_mut() {
+            merge_stacked(list);
         }
         self.workers.list(held, self.cfg.lease_ttl, now)
     }
@@ -1474,6 +1492,24 @@ impl Scheduler {
             Err(SchedError::UnknownWorker(worker))
         }
     }
+}
+
+/// Merges rects of one job stacked exactly on top of each other (the same
+/// columns, the lower starting where the upper ends) into one, so that the
+/// rects still cover exactly the same pixels: the bands of a span become
+/// one rect.
+fn merge_stacked(list: &mut Vec<(JobId, Rect)>) {
+    list.sort_unstable_by_key(|&(j, r)| (j, r.x, r.w, r.y));
+    let mut out: Vec<(JobId, Rect)> = Vec::with_capacity(list.len());
+    for &(j, r) in list.iter() {
+        match out.last_mut() {
+            Some((oj, o)) if *oj == j && o.x == r.x && o.w == r.w && o.y + o.h == r.y => {
+                o.h += r.h;
+            }
+            _ => out.push((j, r)),
+        }
+    }
+    *list = out;
 }
 
 #[cfg(test)]

@@ -452,3 +452,48 @@ fn a_segment_lease_takes_a_whole_band_from_half_a_band_of_share() {
         s.cancel(j, now).unwrap();
     }
 }
+
+/// What the monitor and `/metrics` see of a worker's leases: as few rects
+/// as cover exactly its leased tiles (a span of whole bands is one), and
+/// exactly those, when some of a span's tiles came back.
+#[test]
+fn a_worker_s_leases_show_as_the_rects_they_cover_exactly() {
+    let now = Instant::now();
+    let mut s = sched(Limits::default());
+    let w = worker(&mut s, now, 4, true, false);
+    let old = worker(&mut s, now, 4, false, false);
+    // 4 × 4 tiles of 10 pixels.
+    let j = s.submit(test_spec(40, 40, 10, "o.exr"), now);
+    s.sizer.seed(j, CHEAP);
+    let single = s.lease(old, now).unwrap().unwrap();
+    let rest = s.lease(w, now).unwrap().unwrap();
+    let span = s.lease(w, now).unwrap().unwrap();
+    assert_eq!((rest.tiles, span.tiles), (3, 12));
+    let held = |s: &Scheduler, who| {
+        s.workers(now)
+            .into_iter()
+            .find(|i| i.id == who)
+            .unwrap()
+            .leases
+    };
+    assert_eq!(held(&s, old), vec![(j, single.rect)]);
+    assert_eq!(
+        held(&s, w),
+        vec![(j, rest.rect), (j, Rect::new(0, 10, 40, 30))]
+    );
+    // Band 2 and the second tile of band 1 come back.
+    for i in [1, 4, 5, 6, 7] {
+        s.return_lease(w, span.id + i, None, now).unwrap();
+    }
+    assert_eq!(
+        held(&s, w),
+        vec![
+            (j, rest.rect),
+            (j, Rect::new(0, 10, 10, 10)),
+            (j, Rect::new(20, 10, 20, 10)),
+            (j, Rect::new(0, 30, 40, 10)),
+        ]
+    );
+    // The queue counts the five tiles back as waiting.
+    assert_eq!(s.queue_depth().tiles, 5);
+}

@@ -113,6 +113,9 @@ pub(super) struct BandWindow {
     /// map's search for each was a tenth of the farm's work under its
     /// lock; docs/benchmarks.md, "Stage 6").
     active: VecDeque<TileState>,
+    /// How many of `active` are leased (the queue's depth without a scan
+    /// of the farm's leases).
+    leased: u32,
     /// Pending tiles before `next_fresh` (re-queued), smallest first.
     requeued: BTreeSet<u32>,
     /// The held bands (from the first one not complete to the last one
@@ -141,6 +144,7 @@ impl BandWindow {
             first_undone: 0,
             next_fresh: 0,
             active: VecDeque::new(),
+            leased: 0,
             requeued: BTreeSet::new(),
             held: BTreeMap::new(),
             held_bytes: 0,
@@ -268,6 +272,7 @@ impl BandWindow {
         if idx == self.next_fresh {
             self.next_fresh += 1;
             self.active.push_back(TileState::Leased(lease));
+            self.leased += 1;
         } else {
             debug_assert!(self.requeued.contains(&idx), "tile {idx} is not pending");
             self.requeued.remove(&idx);
@@ -298,7 +303,12 @@ impl BandWindow {
     fn set_state(&mut self, idx: u32, state: TileState) {
         let at = idx.checked_sub(self.first_undone).map(|i| i as usize);
         match at.and_then(|i| self.active.get_mut(i)) {
-            Some(s) => *s = state,
+            Some(s) => {
+                let was = matches!(*s, TileState::Leased(_));
+                let is = matches!(state, TileState::Leased(_));
+                self.leased = self.leased + u32::from(is) - u32::from(was);
+                *s = state;
+            }
             None => debug_assert!(false, "tile {idx} is not in flight"),
         }
     }
@@ -371,9 +381,15 @@ impl BandWindow {
     /// Drops the bookkeeping only a running job needs.
     pub(super) fn retire(&mut self) {
         self.active = VecDeque::new();
+        self.leased = 0;
         self.requeued = BTreeSet::new();
         self.held = BTreeMap::new();
         self.held_bytes = 0;
+    }
+
+    /// How many tiles are leased now.
+    pub(super) fn leased(&self) -> u32 {
+        self.leased
     }
 
     /// Tiles whose state is stored (for tests of the bound).
@@ -614,6 +630,9 @@ mod tests {
                 .map(|(_, &f)| if f { float_band } else { segment_band })
                 .sum();
             assert_eq!(held, s.jobs[&j].window.held_bytes(), "step {step}");
+            // The count of leased tiles is the farm's leases of the job.
+            let leases = s.leases.values().filter(|e| e.job == j).count();
+            assert_eq!(s.jobs[&j].window.leased() as usize, leases, "step {step}");
             let last = floats.keys().next_back().copied().unwrap_or(0);
             assert!(held <= room || last == first, "step {step}: {held}");
             most_ahead = most_ahead.max(last.saturating_sub(first) + 1);
