@@ -35,7 +35,8 @@ use crate::limits::Limits;
 use crate::metrics::{FarmSnapshot, Metrics};
 use crate::preview::Preview;
 use crate::scheduler::{
-    Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth, Scheduler, WorkerId,
+    ray_shares, Accepted, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth, Scheduler,
+    WorkerId,
 };
 use crate::sink::TileSink;
 use crate::store::{SeqLink, Store, StoredJob};
@@ -662,8 +663,8 @@ impl Farm {
         if let [only] = parts {
             return self.put_one(TileResult { rect: *only, ..r }, render);
         }
-        let whole = r.rect.pixel_count().max(1) as u128;
-        let mut rays_left = r.rays;
+        let pixels: Vec<u64> = parts.iter().map(|p| p.pixel_count() as u64).collect();
+        let shares = ray_shares(r.rays, &pixels);
         let mut outcome = Ok(TileOutcome::Accepted);
         let mut admitted = Vec::with_capacity(parts.len());
         for (i, &part) in parts.iter().enumerate() {
@@ -679,18 +680,11 @@ impl Farm {
                     pixels.extend_from_slice(&row[dx..dx + part.w as usize]);
                 }
             }
-            let rays = if i + 1 == parts.len() {
-                rays_left
-            } else {
-                let share = (u128::from(r.rays) * part.pixel_count() as u128 / whole) as u64;
-                rays_left -= share.min(rays_left);
-                share
-            };
             let one = self.admit(
                 TileResult {
                     lease: r.lease.wrapping_add(i as u64),
                     rect: part,
-                    rays,
+                    rays: shares[i],
                     pixels: &pixels,
                     ..r
                 },
@@ -701,7 +695,7 @@ impl Farm {
                     admitted.push(Admitted {
                         idx,
                         rect: part,
-                        rays,
+                        rays: shares[i],
                         pixels,
                         out,
                     });

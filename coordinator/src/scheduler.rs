@@ -126,6 +126,20 @@ pub(crate) fn test_spec(width: u32, height: u32, tile: u32, output: &str) -> Job
     }
 }
 
+/// A scheduler for tests: leases live 5 s, the window has room for any
+/// test frame, and `limits` gives the rest (`Limits::default()` for none).
+#[cfg(test)]
+pub(crate) fn test_scheduler(limits: Limits) -> Scheduler {
+    Scheduler::new(
+        Limits {
+            lease_ttl: Duration::from_secs(5),
+            window_bytes: 1 << 30,
+            ..limits
+        },
+        100,
+    )
+}
+
 /// A snapshot of a job, for status and progress.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JobInfo {
@@ -183,6 +197,27 @@ pub struct Lease {
     /// is at most [`Limits::max_segment_lease_pixels`]; any other is
     /// floats, as before.
     pub png_segments: bool,
+}
+
+/// A span's `rays` shared among its tiles by their pixels (`pixels`, one
+/// count a tile, in order): each share rounded down, the last tile the
+/// remainder, so the shares add up to `rays` exactly.
+pub fn ray_shares(rays: u64, pixels: &[u64]) -> Vec<u64> {
+    let whole = pixels.iter().map(|&p| u128::from(p)).sum::<u128>().max(1);
+    let mut left = rays;
+    pixels
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| {
+            if k + 1 == pixels.len() {
+                left
+            } else {
+                let share = ((u128::from(rays) * u128::from(p) / whole) as u64).min(left);
+                left -= share;
+                share
+            }
+        })
+        .collect()
 }
 
 /// What became of a result handed to [`Scheduler::accept_tile`].
@@ -1527,16 +1562,24 @@ mod tests {
         }
     }
 
+    /// Shares by pixels, against hand-computed closed forms: rounded
+    /// down, the remainder to the last tile, never more than there is,
+    /// and no overflow for the largest counts.
+    #[test]
+    fn rays_are_shared_by_pixels_and_add_up() {
+        assert_eq!(ray_shares(1000, &[100, 100, 200]), [250, 250, 500]);
+        assert_eq!(ray_shares(10, &[1, 1, 1]), [3, 3, 4]);
+        assert_eq!(ray_shares(7, &[5]), [7]);
+        assert_eq!(ray_shares(0, &[4, 4]), [0, 0]);
+        assert_eq!(ray_shares(5, &[0, 0]), [0, 5]);
+        assert!(ray_shares(5, &[]).is_empty());
+        let big = ray_shares(u64::MAX, &[u64::MAX, u64::MAX]);
+        assert_eq!(big, [u64::MAX / 2, u64::MAX - u64::MAX / 2]);
+    }
+
     fn sched() -> (Scheduler, Instant, WorkerId) {
         let now = Instant::now();
-        let mut s = Scheduler::new(
-            Limits {
-                lease_ttl: Duration::from_secs(5),
-                window_bytes: 1 << 30,
-                ..Limits::default()
-            },
-            100,
-        );
+        let mut s = test_scheduler(Limits::default());
         let w = s.register_worker(now, None);
         (s, now, w)
     }
@@ -1579,17 +1622,13 @@ mod tests {
     fn expiry_finds_every_lease_past_its_deadline_whatever_the_heartbeats() {
         let t0 = Instant::now();
         let ttl = Duration::from_secs(5);
-        let mut s = Scheduler::new(
-            Limits {
-                lease_ttl: ttl,
-                window_bytes: 1 << 30,
-                max_tile_losses: u32::MAX,
-                max_tile_failures: u32::MAX,
-                max_worker_failures: u32::MAX,
-                ..Limits::default()
-            },
-            100,
-        );
+        let mut s = test_scheduler(Limits {
+            max_tile_losses: u32::MAX,
+            max_tile_failures: u32::MAX,
+            max_worker_failures: u32::MAX,
+            ..Limits::default()
+        });
+        assert_eq!(s.cfg.lease_ttl, ttl);
         let workers = [s.register_worker(t0, None), s.register_worker(t0, None)];
         s.submit(spec(0, 32, 32, 1), t0);
         // The model: lease id -> (worker, deadline).

@@ -189,13 +189,7 @@ mod tests {
         name: &str,
         threads: u32,
     ) -> (crate::scheduler::Scheduler, WorkerId) {
-        let mut s = crate::scheduler::Scheduler::new(
-            crate::limits::Limits {
-                window_bytes: 1 << 30,
-                ..crate::limits::Limits::default()
-            },
-            100,
-        );
+        let mut s = crate::scheduler::test_scheduler(crate::limits::Limits::default());
         let w = s.register_worker(now, None);
         s.describe_worker(w, name, threads);
         s.allow_spans(w);

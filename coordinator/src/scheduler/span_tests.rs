@@ -5,17 +5,6 @@
 use super::*;
 use std::time::{Duration, Instant};
 
-fn sched(limits: Limits) -> Scheduler {
-    Scheduler::new(
-        Limits {
-            lease_ttl: Duration::from_secs(5),
-            window_bytes: 1 << 30,
-            ..limits
-        },
-        100,
-    )
-}
-
 /// A worker of `threads` threads that takes spans and encodes segments as
 /// asked.
 fn worker(s: &mut Scheduler, now: Instant, threads: u32, spans: bool, segments: bool) -> WorkerId {
@@ -41,15 +30,21 @@ fn row_major(bands: std::ops::Range<u32>, cols: u32, tile: u32) -> Vec<Rect> {
         .collect()
 }
 
+/// A measured, cheap EXR frame of 4 × 4 tiles of 10 pixels, and two
+/// workers of 4 threads: `w` takes spans, `old` does not.
+fn cheap_frame_and_two_workers(now: Instant) -> (Scheduler, JobId, WorkerId, WorkerId) {
+    let mut s = test_scheduler(Limits::default());
+    let w = worker(&mut s, now, 4, true, false);
+    let old = worker(&mut s, now, 4, false, false);
+    let j = s.submit(test_spec(40, 40, 10, "o.exr"), now);
+    s.sizer.seed(j, CHEAP);
+    (s, j, w, old)
+}
+
 #[test]
 fn a_span_continues_only_into_wholly_pending_bands_row_major_with_consecutive_ids() {
     let now = Instant::now();
-    let mut s = sched(Limits::default());
-    let w = worker(&mut s, now, 4, true, false);
-    let old = worker(&mut s, now, 4, false, false);
-    // 4 × 4 tiles of 10 pixels.
-    let j = s.submit(test_spec(40, 40, 10, "o.exr"), now);
-    s.sizer.seed(j, CHEAP);
+    let (mut s, j, w, old) = cheap_frame_and_two_workers(now);
     // Band 0 is partly taken: the span is the rest of it, one band.
     let single = s.lease(old, now).unwrap().unwrap();
     assert_eq!((single.tiles, single.rect), (1, Rect::new(0, 0, 10, 10)));
@@ -102,7 +97,7 @@ fn a_span_continues_only_into_wholly_pending_bands_row_major_with_consecutive_id
 fn a_span_of_bands_stays_within_the_sizers_share_and_the_pixel_cap() {
     let now = Instant::now();
     // 4 tiles of 10 a band: 400 pixels a band; at most 1000 pixels.
-    let mut s = sched(Limits {
+    let mut s = test_scheduler(Limits {
         max_lease_pixels: 1000,
         ..Limits::default()
     });
@@ -113,7 +108,7 @@ fn a_span_of_bands_stays_within_the_sizers_share_and_the_pixel_cap() {
     assert_eq!((l.tiles, l.rect), (8, Rect::new(0, 0, 40, 20)), "two bands");
     // A second of one thread is 11 tiles: two whole bands (8 tiles), as
     // a band more would be 12.
-    let mut s = sched(Limits::default());
+    let mut s = test_scheduler(Limits::default());
     let w = worker(&mut s, now, 1, true, false);
     let j = s.submit(test_spec(40, 100, 10, "o.exr"), now);
     s.sizer.seed(j, 1.0 / 1100.0);
@@ -128,7 +123,7 @@ fn a_span_of_bands_stays_within_the_sizers_share_and_the_pixel_cap() {
 #[test]
 fn span_tiles_takes_whole_bands_and_refuses_near_misses() {
     let now = Instant::now();
-    let mut s = sched(Limits {
+    let mut s = test_scheduler(Limits {
         max_lease_pixels: 1200,
         max_segment_lease_pixels: 4096,
         ..Limits::default()
@@ -204,7 +199,7 @@ fn span_tiles_takes_whole_bands_and_refuses_near_misses() {
         "not full width"
     );
     // Never more tiles than a worker heartbeats: 2^16 pass, more do not.
-    let mut s = sched(Limits {
+    let mut s = test_scheduler(Limits {
         max_lease_pixels: 1 << 30,
         ..Limits::default()
     });
@@ -235,7 +230,7 @@ fn first_lease(s: &mut Scheduler, who: WorkerId, spec: JobSpec, measured: bool) 
 #[test]
 fn png_segments_only_when_every_condition_holds() {
     let now = Instant::now();
-    let mut s = sched(Limits::default());
+    let mut s = test_scheduler(Limits::default());
     let enc = worker(&mut s, now, 16, true, true);
     let floats = worker(&mut s, now, 16, true, false);
     let no_spans = worker(&mut s, now, 16, false, true);
@@ -280,7 +275,7 @@ fn png_segments_only_when_every_condition_holds() {
     // 24-row tiles, 48 × 80: bands end at rows 24, 48, 72 and 80. With
     // room for one band a lease, the band is not whole segments: floats.
     let band = 48 * 24;
-    let mut s = sched(Limits {
+    let mut s = test_scheduler(Limits {
         max_lease_pixels: band,
         max_segment_lease_pixels: band,
         ..Limits::default()
@@ -340,7 +335,7 @@ fn png_segments_only_when_every_condition_holds() {
 #[test]
 fn expiry_heartbeats_and_returns_of_a_multi_band_span_cover_every_tile() {
     let t0 = Instant::now();
-    let mut s = sched(Limits::default());
+    let mut s = test_scheduler(Limits::default());
     let w = worker(&mut s, t0, 4, true, true);
     let j = s.submit(test_spec(64, 64, 16, "o.png"), t0);
     s.sizer.seed(j, CHEAP);
@@ -394,7 +389,7 @@ fn expiry_heartbeats_and_returns_of_a_multi_band_span_cover_every_tile() {
 fn a_segment_lease_is_about_a_second_of_a_16_thread_worker_on_the_cheap_scene() {
     let now = Instant::now();
     let cost = 4_734e-9;
-    let mut s = sched(Limits::default());
+    let mut s = test_scheduler(Limits::default());
     let enc = worker(&mut s, now, 16, true, true);
     let floats = worker(&mut s, now, 16, true, false);
     // 1920 wide in 64-pixel tiles: 30 tiles and 122,880 pixels a band.
@@ -425,7 +420,7 @@ fn a_segment_lease_is_about_a_second_of_a_16_thread_worker_on_the_cheap_scene() 
 #[test]
 fn a_segment_lease_takes_a_whole_band_from_half_a_band_of_share() {
     let now = Instant::now();
-    let mut s = sched(Limits::default());
+    let mut s = test_scheduler(Limits::default());
     let enc = worker(&mut s, now, 1, true, true);
     let floats = worker(&mut s, now, 1, true, false);
     let target = Limits::default().lease_target.as_secs_f64();
@@ -459,12 +454,7 @@ fn a_segment_lease_takes_a_whole_band_from_half_a_band_of_share() {
 #[test]
 fn a_worker_s_leases_show_as_the_rects_they_cover_exactly() {
     let now = Instant::now();
-    let mut s = sched(Limits::default());
-    let w = worker(&mut s, now, 4, true, false);
-    let old = worker(&mut s, now, 4, false, false);
-    // 4 × 4 tiles of 10 pixels.
-    let j = s.submit(test_spec(40, 40, 10, "o.exr"), now);
-    s.sizer.seed(j, CHEAP);
+    let (mut s, j, w, old) = cheap_frame_and_two_workers(now);
     let single = s.lease(old, now).unwrap().unwrap();
     let rest = s.lease(w, now).unwrap().unwrap();
     let span = s.lease(w, now).unwrap().unwrap();

@@ -6,7 +6,7 @@
 //! hundreds of tiles, and this is the part of ingest that runs under the
 //! farm's one lock (docs/benchmarks.md, "Stage 6").
 
-use super::{LeaseId, SchedError, Scheduler, TileState, WorkerId};
+use super::{ray_shares, LeaseId, SchedError, Scheduler, TileState, WorkerId};
 use crate::scheduler::JobId;
 use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
@@ -112,31 +112,14 @@ impl Scheduler {
             return Ok((Vec::new(), false));
         }
         let total = j.window.tiles_total();
-        let pixels = |t: u32| -> u128 {
-            if t < total {
-                j.window.rect(t).pixel_count() as u128
-            } else {
-                0
-            }
-        };
-        let whole: u128 = tiles.iter().map(|&t| pixels(t)).sum::<u128>().max(1);
-        let shares: Vec<u64> = {
-            let mut left = rays;
-            tiles
-                .iter()
-                .enumerate()
-                .map(|(k, &t)| {
-                    if k + 1 == tiles.len() {
-                        left
-                    } else {
-                        let share = (u128::from(rays) * pixels(t) / whole) as u64;
-                        let share = share.min(left);
-                        left -= share;
-                        share
-                    }
-                })
-                .collect()
-        };
+        let pixels: Vec<u64> = tiles
+            .iter()
+            .map(|&t| match t < total {
+                true => j.window.rect(t).pixel_count() as u64,
+                false => 0,
+            })
+            .collect();
+        let shares = ray_shares(rays, &pixels);
         let mut taken = Vec::with_capacity(tiles.len());
         // Credit goes to each run of tiles of one worker at once (a span
         // is one worker's: one run).
@@ -202,7 +185,7 @@ impl Scheduler {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{test_spec, Accepted, Limits};
+    use super::super::{test_scheduler, test_spec, Accepted, Limits};
     use super::*;
 
     /// A scheduler with a 4 × 4-tile PNG frame of 10-pixel tiles (measured,
@@ -210,14 +193,7 @@ mod tests {
     /// that takes spans; the worker holds that one lease.
     fn leased_frame() -> (Scheduler, JobId, WorkerId, super::super::Lease, Instant) {
         let now = Instant::now();
-        let mut s = Scheduler::new(
-            Limits {
-                lease_ttl: Duration::from_secs(5),
-                window_bytes: 1 << 30,
-                ..Limits::default()
-            },
-            100,
-        );
+        let mut s = test_scheduler(Limits::default());
         let w = s.register_worker(now, None);
         s.describe_worker(w, "w", 4);
         s.allow_spans(w);
