@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 /// A value behind a mutex, with the time it has been held.
 pub struct TimedLock<T> {
-    state: Mutex<T>,
+    value: Mutex<T>,
     held_ns: AtomicU64,
 }
 
@@ -25,9 +25,9 @@ pub struct Held<'a, T> {
 }
 
 impl<T> TimedLock<T> {
-    pub fn new(state: T) -> Self {
+    pub fn new(value: T) -> Self {
         TimedLock {
-            state: Mutex::new(state),
+            value: Mutex::new(value),
             held_ns: AtomicU64::new(0),
         }
     }
@@ -35,7 +35,7 @@ impl<T> TimedLock<T> {
     /// Takes the lock. A panic while holding it is a bug; the state is
     /// served as it is rather than poisoning every later call.
     pub fn lock(&self) -> Held<'_, T> {
-        let guard = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let guard = self.value.lock().unwrap_or_else(|p| p.into_inner());
         Held {
             guard,
             since: Instant::now(),

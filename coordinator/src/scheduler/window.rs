@@ -109,9 +109,9 @@ pub(super) struct BandWindow {
     next_fresh: u32,
     /// States of tiles `first_undone..next_fresh`, in order: a tile's
     /// state is at `idx - first_undone` (a deque, not a map: every tile of
-    /// a span of hundreds is looked up, leased and done in turn, and a
-    /// map's search for each was a tenth of the farm's work under its
-    /// lock; docs/benchmarks.md, "Stage 6").
+    /// a span of hundreds is looked up, leased and done in turn under the
+    /// farm's lock, and a deque needs no search; docs/benchmarks.md,
+    /// "Stage 6").
     active: VecDeque<TileState>,
     /// How many of `active` are leased (the queue's depth without a scan
     /// of the farm's leases).
@@ -360,6 +360,7 @@ impl BandWindow {
         self.first_undone = prefix;
         self.next_fresh = last + 1;
         self.active = VecDeque::from(vec![TileState::Pending; (last + 1 - prefix) as usize]);
+        self.leased = 0;
         self.requeued = (prefix..self.next_fresh).collect();
         for band in prefix / self.cols..=last / self.cols {
             self.held.insert(band, self.float_band);
