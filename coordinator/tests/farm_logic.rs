@@ -731,6 +731,11 @@ fn metrics_count_the_job_s_tiles_and_priority_changes_reorder_jobs() {
     assert_eq!(value("trevi_jobs{state=\"done\"}"), 2.0);
     assert_eq!(value("trevi_workers{state=\"idle\"}"), 1.0);
     assert_eq!(value("trevi_queue_depth_jobs"), 0.0);
+    // Both locks were held for that work (printed to the microsecond).
+    for lock in ["state", "store"] {
+        let held = value(&format!("trevi_{lock}_lock_held_seconds_total"));
+        assert!(held > 0.0 && held < 60.0, "{lock}: {held}");
+    }
     assert!(matches!(f.set_priority(a, 1), Err(FarmError::JobOver(_))));
 }
 
