@@ -17,8 +17,8 @@ use crate::scheduler::{JobId, LeaseId, WorkerId};
 use std::path::Path;
 use std::time::{Duration, Instant};
 use trevi_core::output::{
-    adler32, check_segment, segment_filtered_len, Format, PngSegment, FINAL_EMPTY_BLOCK,
-    SEGMENT_ROWS,
+    adler32, adler32_combine, check_segment, segment_filtered_len, Format, PngSegment,
+    FINAL_EMPTY_BLOCK, SEGMENT_ROWS,
 };
 use trevi_core::Rect;
 
@@ -84,58 +84,97 @@ pub fn sampled_segment(lease: LeaseId, count: u32) -> u32 {
 /// that each start with a filter type 0..=4 (the segment's first row 0 or
 /// 1: None or Sub, which do not read the row above). What it still cannot
 /// tell is whether the pixels are the right ones.
+///
+/// The bytes are inflated through a ring of [`INFLATE_RING`] bytes and
+/// checked as they come, not into one buffer the segment's size: a wide
+/// frame's segment inflates to hundreds of kilobytes, which zeroing and
+/// faulting in cost as much as inflating did (docs/benchmarks.md,
+/// "Stage 7").
 pub fn inflate_check(width: u32, index: u32, seg: &PngSegment) -> Result<(), String> {
     use miniz_oxide::inflate::core::{decompress, inflate_flags, DecompressorOxide};
     use miniz_oxide::inflate::TINFLStatus;
-    let expected = usize::try_from(seg.filtered_len)
-        .map_err(|_| format!("segment {index} claims {} bytes", seg.filtered_len))?;
-    let stream = [&seg.deflate[..], &FINAL_EMPTY_BLOCK[..]].concat();
-    // One byte more than claimed: a longer segment shows as filling it.
-    let mut out = vec![0u8; expected + 1];
+    let expected = seg.filtered_len;
+    let stride = 1 + 3 * u64::from(width);
+    let mut ring = vec![0u8; INFLATE_RING];
     let mut d = DecompressorOxide::new();
-    let (status, read, wrote) = decompress(
-        &mut d,
-        &stream,
-        &mut out,
-        0,
-        inflate_flags::TINFL_FLAG_USING_NON_WRAPPING_OUTPUT_BUF,
-    );
-    if status != TINFLStatus::Done || wrote > expected {
-        return Err(format!(
-            "segment {index} does not inflate to {expected} bytes ({status:?} after {wrote})"
-        ));
-    }
-    if read != stream.len() {
-        return Err(format!(
-            "segment {index} ends its deflate stream after {read} of its {} bytes",
-            seg.deflate.len()
-        ));
+    // What has come out so far: its length, its Adler-32, and where the
+    // next row's filter byte is.
+    let (mut wrote, mut adler, mut row_start) = (0u64, 1u32, 0u64);
+    let mut at = 0usize;
+    // The segment's bytes, then the empty final block that ends the stream
+    // for this check (the output file ends it once, after the last segment).
+    let pieces = [&seg.deflate[..], &FINAL_EMPTY_BLOCK[..]];
+    for (p, piece) in pieces.into_iter().enumerate() {
+        let last = p + 1 == pieces.len();
+        let flags = if last {
+            0
+        } else {
+            inflate_flags::TINFL_FLAG_HAS_MORE_INPUT
+        };
+        let mut input = piece;
+        loop {
+            let (status, read, out) = decompress(&mut d, input, &mut ring, at, flags);
+            input = &input[read..];
+            let chunk = &ring[at..at + out];
+            if wrote + out as u64 > expected {
+                return Err(format!(
+                    "segment {index} does not inflate to {expected} bytes \
+                     (more than that after {} bytes of its deflate data)",
+                    seg.deflate.len() - if last { 0 } else { input.len() }
+                ));
+            }
+            while row_start < wrote + out as u64 {
+                let row = row_start / stride;
+                let most = if row == 0 { 1 } else { 4 };
+                let filter = chunk[(row_start - wrote) as usize];
+                if filter > most {
+                    return Err(format!(
+                        "segment {index}'s row {row} has filter type {filter}, not 0..={most}"
+                    ));
+                }
+                row_start += stride;
+            }
+            adler = adler32_combine(adler, adler32(chunk), out as u64);
+            wrote += out as u64;
+            at = (at + out) & (INFLATE_RING - 1);
+            match status {
+                TINFLStatus::HasMoreOutput => continue,
+                TINFLStatus::NeedsMoreInput if !last && input.is_empty() => break,
+                TINFLStatus::Done if last && input.is_empty() => break,
+                TINFLStatus::Done => {
+                    return Err(format!(
+                        "segment {index} ends its deflate stream after {} of its {} bytes",
+                        seg.deflate.len() - input.len(),
+                        seg.deflate.len()
+                    ))
+                }
+                status => {
+                    return Err(format!(
+                        "segment {index} does not inflate to {expected} bytes \
+                         ({status:?} after {wrote})"
+                    ))
+                }
+            }
+        }
     }
     if wrote != expected {
         return Err(format!(
             "segment {index} inflates to {wrote} bytes, not the {expected} it claims"
         ));
     }
-    let out = &out[..expected];
-    let got = adler32(out);
-    if got != seg.adler32 {
+    if adler != seg.adler32 {
         return Err(format!(
-            "segment {index}'s bytes have Adler-32 {got:#010x}, not the {:#010x} it claims",
+            "segment {index}'s bytes have Adler-32 {adler:#010x}, not the {:#010x} it claims",
             seg.adler32
         ));
     }
-    let stride = 1 + 3 * width as usize;
-    for (row, bytes) in out.chunks(stride).enumerate() {
-        let most = if row == 0 { 1 } else { 4 };
-        if bytes[0] > most {
-            return Err(format!(
-                "segment {index}'s row {row} has filter type {}, not 0..={most}",
-                bytes[0]
-            ));
-        }
-    }
     Ok(())
 }
+
+/// The ring [`inflate_check`] inflates through: a power of two (which
+/// miniz_oxide's wrapping output needs) of at least deflate's 32 KiB
+/// window, small enough to stay in a core's L2 cache.
+const INFLATE_RING: usize = 1 << 16;
 
 /// Checks an upload against its plan: the segments' count and framing
 /// (every one), one of them inflated in full ([`sampled_segment`],
@@ -627,6 +666,71 @@ mod tests {
                 deflate,
             };
             assert_eq!(inflate_check(2, 3, &s).is_ok(), ok, "{types:?}");
+        }
+    }
+
+    /// `raw` as stored (uncompressed) deflate blocks, ended by a sync flush
+    /// as a segment is: any valid deflate is accepted.
+    fn stored_blocks(raw: &[u8]) -> Vec<u8> {
+        let mut deflate = Vec::new();
+        for block in raw.chunks(usize::from(u16::MAX)) {
+            let n = block.len() as u16;
+            deflate.push(0);
+            deflate.extend_from_slice(&n.to_le_bytes());
+            deflate.extend_from_slice(&(!n).to_le_bytes());
+            deflate.extend_from_slice(block);
+        }
+        deflate.push(0);
+        deflate.extend_from_slice(&trevi_core::output::SYNC_FLUSH);
+        deflate
+    }
+
+    #[test]
+    fn a_wide_segment_is_checked_all_the_way_through_the_ring() {
+        // An 8192-wide segment inflates to six times the ring: what is
+        // wrong far into it must still be found.
+        let width = 8192u32;
+        let stride = 1 + 3 * width as usize;
+        let raw: Vec<u8> = (0..16 * stride)
+            .map(|i| match (i / stride, i % stride) {
+                (0, 0) => 1,
+                (row, 0) => (row % 5) as u8,
+                (row, k) => (row * 31 + k * 7) as u8,
+            })
+            .collect();
+        assert!(raw.len() > 5 * INFLATE_RING);
+        let good = |raw: &[u8]| PngSegment {
+            adler32: adler32(raw),
+            filtered_len: raw.len() as u64,
+            deflate: stored_blocks(raw),
+        };
+        inflate_check(width, 0, &good(&raw)).unwrap();
+        // The encoder's own wide segment passes too.
+        let px: Vec<[f32; 3]> = (0..width * 16)
+            .map(|i| [(i % 251) as f32 / 251.0, 0.25, (i % 7) as f32 / 7.0])
+            .collect();
+        inflate_check(width, 0, &encode_segment(width, &px)).unwrap();
+        // A filter type out of range, before and after the ring wraps.
+        for row in [0usize, 3, 9, 15] {
+            let mut bad = raw.clone();
+            bad[row * stride] = if row == 0 { 2 } else { 5 };
+            let err = inflate_check(width, 0, &good(&bad)).unwrap_err();
+            assert!(err.contains(&format!("row {row} has filter type")), "{err}");
+        }
+        // One byte changed deep in, under the original's Adler-32.
+        let mut bad = good(&raw);
+        let mut changed = raw.clone();
+        changed[10 * stride + 5] ^= 0x40;
+        bad.deflate = stored_blocks(&changed);
+        let err = inflate_check(width, 0, &bad).unwrap_err();
+        assert!(err.contains("Adler-32"), "{err}");
+        // A row short or a byte long, the length claimed unchanged.
+        for len in [raw.len() - stride, raw.len() + 1] {
+            let mut bad = good(&raw);
+            let mut other = raw.clone();
+            other.resize(len, 0);
+            bad.deflate = stored_blocks(&other);
+            assert!(inflate_check(width, 0, &bad).is_err(), "{len}");
         }
     }
 
