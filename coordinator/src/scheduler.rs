@@ -27,11 +27,13 @@
 //!   without an error (it is stopping) re-queues the tile and counts nothing.
 
 pub mod lease_size;
+mod lease_table;
 pub mod memory;
 mod whole_span;
 mod window;
 
 use lease_size::{LeaseSizer, MAX_SPAN_TILES};
+use lease_table::{LeaseTable, NewSpan};
 use memory::MemoryGate;
 pub use whole_span::SpanCheck;
 pub use window::{
@@ -43,7 +45,7 @@ use window::{BandWindow, TileState};
 use crate::limits::Limits;
 use crate::workers::{WorkerInfo, Workers};
 use std::cmp::Reverse;
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use std::time::{Duration, Instant};
 use trevi_core::output::{Format, SEGMENT_ROWS};
@@ -328,20 +330,6 @@ impl Job {
     }
 }
 
-struct LeaseEntry {
-    job: JobId,
-    tile: u32,
-    worker: WorkerId,
-    deadline: Instant,
-    /// When it was granted, and the pixels of the span it came in: a
-    /// result measures the job's cost (see [`lease_size`]). The pixels are
-    /// set on the span's first tile only (0 on the others): a span's result
-    /// is one measurement, not one for each of its tiles, which would
-    /// replace the smoothed cost with the last span's.
-    granted: Instant,
-    span_pixels: u64,
-}
-
 /// Why a lease ends before its tile is done.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Release {
@@ -457,12 +445,8 @@ pub struct Scheduler {
     jobs: HashMap<JobId, Job>,
     /// Unfinished jobs in the order they get workers.
     queue: BTreeSet<(Reverse<i32>, JobId)>,
-    /// A tile's lease by id. Ordered, not hashed: a span's tiles have
-    /// consecutive ids and its upload looks them up one after the other,
-    /// which in a B-tree stays in the leaf just read; in a hash table of a
-    /// million entries each was a cache miss (8 % of the coordinator at
-    /// N = 300, docs/benchmarks.md "Stage 5").
-    leases: BTreeMap<LeaseId, LeaseEntry>,
+    /// The tiles' leases, one entry a span (see [`lease_table`]).
+    leases: LeaseTable,
     /// No lease's deadline is earlier (`None`: no lease), so that expiry
     /// scans the leases only when one may have run out: a farm of a
     /// thousand workers holds over a million tiles' leases, and every
@@ -488,7 +472,7 @@ impl Scheduler {
             cfg,
             jobs: HashMap::new(),
             queue: BTreeSet::new(),
-            leases: BTreeMap::new(),
+            leases: LeaseTable::default(),
             earliest_deadline: None,
             workers: Workers::new(worker_id_base),
             counters: Counters::default(),
@@ -768,19 +752,19 @@ impl Scheduler {
             }
             let deadline = now + self.cfg.lease_ttl;
             self.earliest_deadline = Some(earliest(self.earliest_deadline, deadline));
-            for (i, &tile) in span.iter().enumerate() {
-                self.leases.insert(
-                    lease_id + i as u64,
-                    LeaseEntry {
-                        job: id,
-                        tile,
-                        worker,
-                        deadline,
-                        granted: now,
-                        span_pixels: if i == 0 { rect.pixel_count() as u64 } else { 0 },
-                    },
-                );
-            }
+            // A span's tiles are consecutive: the table derives each
+            // one's lease from the first's.
+            debug_assert!(span.windows(2).all(|t| t[1] == t[0] + 1));
+            self.leases.insert_span(NewSpan {
+                first: lease_id,
+                job: id,
+                first_tile: span[0],
+                count: span.len() as u32,
+                worker,
+                deadline,
+                granted: now,
+                span_pixels: rect.pixel_count() as u64,
+            });
             return Ok(Some(Lease {
                 id: lease_id,
                 job: id,
@@ -812,12 +796,10 @@ impl Scheduler {
         let mut dropped = Vec::new();
         let mut renewed = false;
         for &l in leases {
-            match self.leases.get_mut(&l) {
-                Some(e) if e.worker == worker && e.deadline >= now => {
-                    e.deadline = now + ttl;
-                    renewed = true;
-                }
-                _ => dropped.push(l),
+            if self.leases.renew(l, worker, now, now + ttl) {
+                renewed = true;
+            } else {
+                dropped.push(l);
             }
         }
         if renewed {
@@ -849,18 +831,12 @@ impl Scheduler {
         if self.earliest_deadline.is_none_or(|d| d >= now) {
             return 0;
         }
-        let mut expired = Vec::new();
-        let mut first = None;
-        for (&id, e) in &self.leases {
-            if e.deadline < now {
-                expired.push(id);
-            } else {
-                first = Some(earliest(first, e.deadline));
-            }
-        }
+        let (expired, first) = self.leases.expired(now);
         self.earliest_deadline = first;
         for &id in &expired {
-            let worker = self.leases[&id].worker;
+            let Some(worker) = self.leases.get(id).map(|e| e.worker) else {
+                continue;
+            };
             let cause = format!("lease expired (worker {worker} went silent)");
             self.release(id, &cause, Release::Lost);
         }
@@ -896,7 +872,7 @@ impl Scheduler {
         bytes: u64,
         now: Instant,
     ) -> Result<(), SchedError> {
-        if let Some(e) = self.leases.get(&lease) {
+        if let Some(e) = self.leases.get(lease) {
             if e.worker == worker {
                 self.memory.set(e.job, bytes, now);
             }
@@ -921,7 +897,7 @@ impl Scheduler {
             let j = &self.jobs[&id];
             let benched = |w: &WorkerId| j.worker_failures.get(w).is_some_and(|&n| n >= max);
             if !live.iter().all(benched)
-                || self.leases.values().any(|e| e.job == id)
+                || self.leases.holds_job(id)
                 || self.failed.iter().any(|(f, _)| *f == id)
             {
                 continue;
@@ -948,7 +924,7 @@ impl Scheduler {
     /// A tile failing too often fails its job (see
     /// [`Scheduler::take_failed`]).
     fn release(&mut self, lease: LeaseId, cause: &str, why: Release) {
-        let Some(e) = self.leases.remove(&lease) else {
+        let Some(e) = self.leases.remove(lease) else {
             return;
         };
         let Some(job) = self.jobs.get_mut(&e.job) else {
@@ -1007,7 +983,7 @@ impl Scheduler {
         now: Instant,
     ) -> Result<(), SchedError> {
         self.touch(worker, now)?;
-        match self.leases.get(&lease) {
+        match self.leases.get(lease) {
             Some(e) if e.worker != worker => {
                 let (job, rect) = (e.job, self.jobs[&e.job].window.rect(e.tile));
                 Err(SchedError::NotYourLease(lease, worker, rect, job))
@@ -1054,7 +1030,7 @@ impl Scheduler {
         if j.window.tile_state(idx) == TileState::Done {
             return Ok(());
         }
-        let holder = match self.leases.get(&lease) {
+        let holder = match self.leases.get(lease) {
             Some(e) if e.job == job && e.tile == idx => Some(e.worker),
             _ => j
                 .past_leases
@@ -1214,7 +1190,7 @@ impl Scheduler {
             TileState::Done => None,
             // Never handed out: not a result of this coordinator's leases.
             TileState::Pending if j.window.is_fresh(idx) => None,
-            TileState::Leased(l) => Some(self.leases.remove(&l).map(|e| {
+            TileState::Leased(l) => Some(self.leases.remove(l).map(|e| {
                 let threads = self.workers.threads(e.worker).unwrap_or(1);
                 let took =
                     lease_size::render_time(now.saturating_duration_since(e.granted), render);
@@ -1411,7 +1387,7 @@ impl Scheduler {
     fn drop_leases(&mut self, job: JobId) {
         if let Some(j) = self.jobs.get(&job) {
             for l in j.window.leases() {
-                self.leases.remove(&l);
+                self.leases.remove(l);
             }
         }
     }
@@ -1491,7 +1467,7 @@ impl Scheduler {
         let mut held: HashMap<WorkerId, Vec<(JobId, Rect)>> = HashMap::new();
         // Leases in id order: a span's tiles follow each other, row-major.
         let mut last: Option<(WorkerId, JobId, &Job)> = None;
-        for e in self.leases.values() {
+        for (_, e) in self.leases.iter() {
             let job = match last {
                 Some((w, id, job)) if w == e.worker && id == e.job => job,
                 _ => &self.jobs[&e.job],

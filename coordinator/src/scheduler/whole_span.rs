@@ -45,10 +45,7 @@ impl Scheduler {
         // The live leases among the span's ids, in id order. An id past
         // u64::MAX (a hostile lease id) wraps, finds none, and is refused
         // below unless a past lease has it.
-        let mut held = self
-            .leases
-            .range(lease..lease.saturating_add(parts.len() as u64))
-            .peekable();
+        let mut held = self.leases.in_range(lease, parts.len() as u64).peekable();
         let mut tiles = Vec::with_capacity(parts.len());
         let mut open = true;
         for (i, &part) in parts.iter().enumerate() {
@@ -58,8 +55,8 @@ impl Scheduler {
                 .tile_index(part)
                 .ok_or(SchedError::NotATile(part, job))?;
             tiles.push(idx);
-            while held.next_if(|&(&k, _)| k < id).is_some() {}
-            let live = held.next_if(|&(&k, _)| k == id).map(|(_, e)| e);
+            while held.next_if(|&(k, _)| k < id).is_some() {}
+            let live = held.next_if(|&(k, _)| k == id).map(|(_, e)| e);
             if j.window.tile_state(idx) == TileState::Done {
                 open = false;
                 continue;
@@ -130,7 +127,7 @@ impl Scheduler {
                 continue;
             }
             let worker = match j.window.tile_state(idx) {
-                TileState::Leased(l) => self.leases.remove(&l).map(|e| {
+                TileState::Leased(l) => self.leases.remove(l).map(|e| {
                     if e.span_pixels > 0 {
                         let threads = self.workers.threads(e.worker).unwrap_or(1);
                         let took = super::lease_size::render_time(
@@ -245,7 +242,7 @@ mod tests {
         let (wa, wb) = (&a.workers(later)[0], &b.workers(later)[0]);
         assert_eq!((wa.tiles_done, wa.rays), (16, rays));
         assert_eq!((wb.tiles_done, wb.rays), (16, rays));
-        assert!(a.leases.is_empty() && b.leases.is_empty());
+        assert!(a.leases.len() == 0 && b.leases.len() == 0);
     }
 
     #[test]

@@ -632,7 +632,7 @@ mod tests {
                 .sum();
             assert_eq!(held, s.jobs[&j].window.held_bytes(), "step {step}");
             // The count of leased tiles is the farm's leases of the job.
-            let leases = s.leases.values().filter(|e| e.job == j).count();
+            let leases = s.leases.iter().filter(|(_, e)| e.job == j).count();
             assert_eq!(s.jobs[&j].window.leased() as usize, leases, "step {step}");
             let last = floats.keys().next_back().copied().unwrap_or(0);
             assert!(held <= room || last == first, "step {step}: {held}");
