@@ -1465,24 +1465,36 @@ impl Scheduler {
     /// monitor would list and this would build under the farm's lock.
     pub fn workers(&self, now: Instant) -> Vec<WorkerInfo> {
         let mut held: HashMap<WorkerId, Vec<(JobId, Rect)>> = HashMap::new();
-        // Leases in id order: a span's tiles follow each other, row-major.
-        let mut last: Option<(WorkerId, JobId, &Job)> = None;
-        for (_, e) in self.leases.iter() {
+        // Runs of consecutive tiles in lease id order: a span's tiles
+        // follow each other, row-major.
+        let mut last: Option<(JobId, &Job)> = None;
+        for run in self.leases.runs() {
             let job = match last {
-                Some((w, id, job)) if w == e.worker && id == e.job => job,
-                _ => &self.jobs[&e.job],
+                Some((id, job)) if id == run.job => job,
+                _ => &self.jobs[&run.job],
             };
-            last = Some((e.worker, e.job, job));
-            let rect = job.window.rect(e.tile);
-            let list = held.entry(e.worker).or_default();
-            match list.last_mut() {
-                // The next tile of the same band: the rect grows right.
-                Some((j, r))
-                    if *j == e.job && r.y == rect.y && r.h == rect.h && r.x + r.w == rect.x =>
-                {
-                    r.w += rect.w;
+            last = Some((run.job, job));
+            let list = held.entry(run.worker).or_default();
+            let cols = job.window.cols();
+            let (mut t, end) = (run.first_tile, run.first_tile + run.len);
+            while t < end {
+                // The run's tiles in `t`'s band: one rect.
+                let stop = end.min((t / cols + 1) * cols);
+                let (a, b) = (job.window.rect(t), job.window.rect(stop - 1));
+                let rect = Rect::new(a.x, a.y, b.x + b.w - a.x, a.h);
+                match list.last_mut() {
+                    // The next tiles of the same band: the rect grows right.
+                    Some((j, r))
+                        if *j == run.job
+                            && r.y == rect.y
+                            && r.h == rect.h
+                            && r.x + r.w == rect.x =>
+                    {
+                        r.w += rect.w;
+                    }
+                    _ => list.push((run.job, rect)),
                 }
-                _ => list.push((e.job, rect)),
+                t = stop;
             }
         }
         for list in held.values_mut() {

@@ -30,6 +30,16 @@ pub(super) struct LeaseEntry {
     pub span_pixels: u64,
 }
 
+/// Consecutive leases out of one span: tiles `first_tile..first_tile +
+/// len` of `job`, held by `worker` ([`LeaseTable::runs`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct LeaseRun {
+    pub job: JobId,
+    pub worker: WorkerId,
+    pub first_tile: u32,
+    pub len: u32,
+}
+
 /// A span's leases: ids `first..first + count` for tiles
 /// `first_tile..first_tile + count`.
 #[derive(Debug)]
@@ -185,10 +195,35 @@ impl LeaseTable {
     }
 
     /// Every lease out, in id order.
+    #[cfg(test)]
     pub fn iter(&self) -> impl Iterator<Item = (LeaseId, LeaseEntry)> + '_ {
         self.spans
             .iter()
             .flat_map(|(&first, span)| span.out_offsets().map(move |i| (first + i, span.entry(i))))
+    }
+
+    /// Every lease out, as runs of consecutive tiles, in id order: what a
+    /// worker holds without a step per tile (a whole span is one run).
+    pub fn runs(&self) -> impl Iterator<Item = LeaseRun> + '_ {
+        self.spans.values().flat_map(|span| {
+            let count = u64::from(span.count);
+            let mut i = 0u64;
+            std::iter::from_fn(move || {
+                while i < count && !span.is_out(i) {
+                    i += 1;
+                }
+                let start = i;
+                while i < count && span.is_out(i) {
+                    i += 1;
+                }
+                (i > start).then(|| LeaseRun {
+                    job: span.job,
+                    worker: span.worker,
+                    first_tile: span.first_tile + start as u32,
+                    len: (i - start) as u32,
+                })
+            })
+        })
     }
 
     /// Whether any lease of `job` is out.
@@ -339,6 +374,18 @@ mod tests {
             let all: Vec<(LeaseId, LeaseEntry)> = table.iter().collect();
             let want: Vec<(LeaseId, LeaseEntry)> = model.iter().map(|(&k, &v)| (k, v)).collect();
             assert_eq!(all, want, "step {step}");
+            // The runs, tile by tile, are the leases; no two runs of one
+            // span touch.
+            let by_runs: Vec<(u32, JobId, WorkerId)> = table
+                .runs()
+                .flat_map(|r| {
+                    (r.first_tile..r.first_tile + r.len).map(move |t| (t, r.job, r.worker))
+                })
+                .collect();
+            let want: Vec<(u32, JobId, WorkerId)> =
+                model.values().map(|e| (e.tile, e.job, e.worker)).collect();
+            assert_eq!(by_runs, want, "step {step}");
+            assert!(table.runs().all(|r| r.len > 0));
             let (from, n) = (990 + rnd(next - 980), rnd(300));
             let got: Vec<LeaseId> = table.in_range(from, n).map(|(id, _)| id).collect();
             let want: Vec<LeaseId> = model.range(from..from + n).map(|(&id, _)| id).collect();
