@@ -33,7 +33,7 @@ mod whole_span;
 mod window;
 
 use lease_size::{LeaseSizer, MAX_SPAN_TILES};
-use lease_table::{LeaseTable, NewSpan};
+use lease_table::{LeaseEntry, LeaseTable, NewSpan};
 use memory::MemoryGate;
 pub use whole_span::SpanCheck;
 pub use window::{
@@ -313,7 +313,50 @@ struct Job {
     past_leases: HashMap<LeaseId, (u32, WorkerId)>,
 }
 
+/// Whether a result for `rect` of `job` under `lease` may come from
+/// `worker` (anyone when `None`), `holder` being who holds the lease
+/// ([`Job::holder`]); the error says it is not `worker`'s.
+fn check_holder(
+    holder: Option<WorkerId>,
+    worker: Option<WorkerId>,
+    lease: LeaseId,
+    rect: Rect,
+    job: JobId,
+) -> Result<(), SchedError> {
+    match (holder, worker) {
+        (Some(h), Some(w)) if h == w => Ok(()),
+        (Some(_), None) => Ok(()),
+        _ => Err(SchedError::NotYourLease(
+            lease,
+            worker.unwrap_or_default(),
+            rect,
+            job,
+        )),
+    }
+}
+
 impl Job {
+    /// Who holds tile `idx` of this job (`job`) under lease `id`: the
+    /// worker of `live` (the lease table's entry for `id`) when it is that
+    /// tile's, else the worker of a lease that ran out or was refused while
+    /// the tile stayed undone (a late result under it still counts).
+    fn holder(
+        &self,
+        job: JobId,
+        idx: u32,
+        id: LeaseId,
+        live: Option<LeaseEntry>,
+    ) -> Option<WorkerId> {
+        match live {
+            Some(e) if e.job == job && e.tile == idx => Some(e.worker),
+            _ => self
+                .past_leases
+                .get(&id)
+                .filter(|(t, _)| *t == idx)
+                .map(|&(_, w)| w),
+        }
+    }
+
     /// Marks a tile done: it has no failures or past leases any more.
     fn set_done(&mut self, idx: u32) {
         self.window.set_done(idx);
@@ -448,9 +491,9 @@ pub struct Scheduler {
     /// The tiles' leases, one entry a span (see [`lease_table`]).
     leases: LeaseTable,
     /// No lease's deadline is earlier (`None`: no lease), so that expiry
-    /// scans the leases only when one may have run out: a farm of a
-    /// thousand workers holds over a million tiles' leases, and every
-    /// lease call checks for expired ones.
+    /// scans the lease table only when one may have run out: every lease
+    /// call checks for expired ones, and a farm of a thousand workers
+    /// holds thousands of spans.
     earliest_deadline: Option<Instant>,
     workers: Workers,
     counters: Counters,
@@ -1030,24 +1073,8 @@ impl Scheduler {
         if j.window.tile_state(idx) == TileState::Done {
             return Ok(());
         }
-        let holder = match self.leases.get(lease) {
-            Some(e) if e.job == job && e.tile == idx => Some(e.worker),
-            _ => j
-                .past_leases
-                .get(&lease)
-                .filter(|(t, _)| *t == idx)
-                .map(|&(_, w)| w),
-        };
-        match (holder, worker) {
-            (Some(h), Some(w)) if h == w => Ok(()),
-            (Some(_), None) => Ok(()),
-            _ => Err(SchedError::NotYourLease(
-                lease,
-                worker.unwrap_or_default(),
-                rect,
-                job,
-            )),
-        }
+        let holder = j.holder(job, idx, lease, self.leases.get(lease));
+        check_holder(holder, worker, lease, rect, job)
     }
 
     /// The tile index of `rect` in `job`, checking that it is one of its tiles.
@@ -1382,8 +1409,8 @@ impl Scheduler {
 
     /// Forgets the leases of `job`'s tiles. Its window names them: a lease
     /// is kept only while its tile is out under it (done or re-queued, the
-    /// lease goes), so this never scans the farm's leases, over a million
-    /// on a farm of a thousand workers, for the job's few.
+    /// lease goes), so this never scans the farm's lease table for the
+    /// job's few.
     fn drop_leases(&mut self, job: JobId) {
         if let Some(j) = self.jobs.get(&job) {
             for l in j.window.leases() {

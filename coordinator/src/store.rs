@@ -51,7 +51,7 @@
 use crate::error::FarmError;
 use crate::scheduler::lease_size::MAX_SPAN_TILES;
 use crate::scheduler::{JobId, JobSpec, JobState};
-use crate::timed_lock::{Held, TimedLock};
+use crate::timed_lock::TimedLock;
 use rusqlite::{params, Connection, OptionalExtension};
 use std::collections::HashMap;
 use std::fs::File;
@@ -303,10 +303,6 @@ impl Store {
         Ok(store)
     }
 
-    fn lock(&self) -> Held<'_, Inner> {
-        self.inner.lock()
-    }
-
     /// How long the store's lock (its database and the tile files' ends)
     /// has been held since the start: `trevi_store_lock_held_seconds_total`.
     pub fn lock_held(&self) -> std::time::Duration {
@@ -322,7 +318,7 @@ impl Store {
     fn append(&self, job: JobId, pieces: &[&[u8]]) -> Result<u64, FarmError> {
         let len: u64 = pieces.iter().map(|p| p.len() as u64).sum();
         let (file, offset, path) = {
-            let mut guard = self.lock();
+            let mut guard = self.inner.lock();
             let inner = &mut *guard;
             let path = inner.dir.join(format!("{job}.f32"));
             let io = |e| tile_file_error(&path, e);
@@ -359,7 +355,7 @@ impl Store {
     /// Deletes tile files no stored tile points into (their job ended, and
     /// the coordinator stopped before it removed the file).
     fn remove_stray_files(&self) -> Result<(), FarmError> {
-        let inner = self.lock();
+        let inner = self.inner.lock();
         let mut q = inner
             .conn
             .prepare("SELECT DISTINCT job FROM tile_refs")
@@ -382,7 +378,8 @@ impl Store {
 
     pub fn insert_job(&self, j: &StoredJob) -> Result<(), FarmError> {
         let s = &j.spec;
-        self.lock()
+        self.inner
+            .lock()
             .conn
             .execute(
                 "INSERT INTO jobs (id, bundle_hash, camera, priority, width, height, tile_size,
@@ -438,7 +435,7 @@ impl Store {
         // Tiles already stored keep their row; only the others are written.
         let mut fresh = Vec::with_capacity(tiles.len());
         {
-            let inner = self.lock();
+            let inner = self.inner.lock();
             // Cached statements: parsing the SQL again for every tile costs
             // about as much as running it.
             // The row at or before the tile, if its run reaches the tile.
@@ -463,7 +460,7 @@ impl Store {
             let offset = self.append(job, &[pixels])?;
             at.push((offset, pixels.len(), crc32fast::hash(pixels)));
         }
-        let mut guard = self.lock();
+        let mut guard = self.inner.lock();
         let tx = guard.conn.transaction().map_err(db_err)?;
         for (&(tile, rays, _), at) in fresh.into_iter().zip(at) {
             insert_ref(&tx, job, (tile, 1), rays, at, KIND_FLOATS)?;
@@ -491,7 +488,7 @@ impl Store {
         let len = pieces.iter().map(|p| p.len()).sum();
         let offset = self.append(job, pieces)?;
         let at = (offset, len, crc.finalize());
-        let mut guard = self.lock();
+        let mut guard = self.inner.lock();
         let tx = guard.conn.transaction().map_err(db_err)?;
         for run in tiles.chunk_by(|a, b| a.0.checked_add(1) == Some(b.0)) {
             let rays = run.iter().fold(0u64, |a, t| a.saturating_add(t.1));
@@ -547,7 +544,8 @@ impl Store {
 
     /// Changes a job's priority (the monitor's priority buttons).
     pub fn set_priority(&self, job: JobId, priority: i32) -> Result<(), FarmError> {
-        self.lock()
+        self.inner
+            .lock()
             .conn
             .execute(
                 "UPDATE jobs SET priority = ?2 WHERE id = ?1",
@@ -566,7 +564,7 @@ impl Store {
     /// transaction the sequence's count of finished frames (`(sequence,
     /// frames_done)`), so a restart never finds one without the other.
     pub fn finish_frame(&self, j: &StoredJob, seq: Option<(JobId, u32)>) -> Result<(), FarmError> {
-        let mut guard = self.lock();
+        let mut guard = self.inner.lock();
         let inner = &mut *guard;
         let tx = inner.conn.transaction().map_err(db_err)?;
         if let Some((seq, done)) = seq {
@@ -601,7 +599,7 @@ impl Store {
 
     /// Every job, by id.
     pub fn jobs(&self) -> Result<Vec<StoredJob>, FarmError> {
-        let inner = self.lock();
+        let inner = self.inner.lock();
         let mut q = inner
             .conn
             .prepare(
@@ -665,7 +663,7 @@ impl Store {
     /// tiles than a lease can hold ([`MAX_SPAN_TILES`]: a damaged row,
     /// which would otherwise make this list as long as it says).
     pub fn tile_list(&self, job: JobId) -> Result<Vec<(u32, u64)>, FarmError> {
-        let inner = self.lock();
+        let inner = self.inner.lock();
         let mut good = Vec::new();
         // A span's tiles share their bytes: read and checked once.
         let mut checked: HashMap<(u64, usize, u32), bool> = HashMap::new();
@@ -713,7 +711,7 @@ impl Store {
         job: JobId,
         mut f: impl FnMut(Replayed) -> Result<(), FarmError>,
     ) -> Result<(), FarmError> {
-        let inner = self.lock();
+        let inner = self.inner.lock();
         // (first tile, tiles, offset, len, crc, kind), a span's rows merged.
         let mut results: Vec<(u32, u32, u64, usize, u32, u8)> = Vec::new();
         let mut span_at: HashMap<u64, usize> = HashMap::new();
@@ -752,6 +750,7 @@ impl Store {
     /// Largest job id ever stored, including jobs pruned since.
     pub fn max_job_id(&self) -> Result<u64, FarmError> {
         let v: Option<i64> = self
+            .inner
             .lock()
             .conn
             .query_row(
@@ -772,7 +771,7 @@ impl Store {
         let Some(&max) = ids.iter().max() else {
             return Ok(());
         };
-        let mut guard = self.lock();
+        let mut guard = self.inner.lock();
         let tx = guard.conn.transaction().map_err(db_err)?;
         tx.execute(
             "INSERT INTO meta (key, value) VALUES ('max_job_id', ?1)
@@ -1075,6 +1074,7 @@ mod tests {
         let tiles: Vec<(u32, u64)> = [10, 11, 12, 20, 21].iter().map(|&t| (t, 1)).collect();
         s.put_segment_span(1, &tiles, &[&[7; 20]]).unwrap();
         let rows: i64 = s
+            .inner
             .lock()
             .conn
             .query_row("SELECT COUNT(*) FROM tile_refs WHERE job = 1", [], |r| {
@@ -1126,7 +1126,7 @@ mod tests {
         s.put_segment_span(1, &[(5, 1)], &[&[4; 30]]).unwrap();
         s.put_tile(1, 9, 2, &[9; 12]).unwrap();
         {
-            let c = &s.lock().conn;
+            let c = &s.inner.lock().conn;
             c.execute("UPDATE tile_refs SET tiles = 1073741824 WHERE tile = 0", [])
                 .unwrap();
             c.execute(
@@ -1147,7 +1147,7 @@ mod tests {
             s.put_segment_span(1, &[(0, 1)], &[&[9; 30]]).unwrap();
             // As the version before runs: the same bytes, a row per tile,
             // no `tiles` column.
-            let c = &s.lock().conn;
+            let c = &s.inner.lock().conn;
             c.execute_batch(
                 "INSERT INTO tile_refs (job, tile, rays, offset, len, crc, kind)
                      SELECT job, 1, rays, offset, len, crc, kind FROM tile_refs;
@@ -1283,7 +1283,8 @@ mod tests {
         let s = Store::open(dir.path()).unwrap();
         s.insert_job(&job(1)).unwrap();
         s.insert_job(&job(2)).unwrap();
-        s.lock()
+        s.inner
+            .lock()
             .conn
             .execute("UPDATE jobs SET state = 'paused' WHERE id = 2", [])
             .unwrap();

@@ -53,8 +53,6 @@ struct SpanLease {
     span_pixels: u64,
     /// Bit `i`: tile `first_tile + i` is still out under lease `first + i`.
     out: Box<[u64]>,
-    /// How many bits of `out` are set.
-    left: u32,
 }
 
 impl SpanLease {
@@ -99,10 +97,13 @@ pub(super) struct NewSpan {
 }
 
 impl LeaseTable {
-    /// Adds a span's `count` leases (at least one). Its ids must not
-    /// overlap a live span's: lease ids are never reused.
+    /// Adds a span's `count` leases (none when `count` is 0). Its ids must
+    /// not overlap a live span's: lease ids are never reused.
     pub fn insert_span(&mut self, s: NewSpan) {
-        let count = s.count.max(1);
+        let count = s.count;
+        if count == 0 {
+            return;
+        }
         let mut out = vec![0u64; count.div_ceil(64) as usize].into_boxed_slice();
         for i in 0..count {
             out[(i / 64) as usize] |= 1 << (i % 64);
@@ -118,7 +119,6 @@ impl LeaseTable {
                 granted: s.granted,
                 span_pixels: s.span_pixels,
                 out,
-                left: count,
             },
         );
     }
@@ -146,8 +146,7 @@ impl LeaseTable {
         }
         let entry = span.entry(i);
         span.out[(i / 64) as usize] &= !(1 << (i % 64));
-        span.left -= 1;
-        if span.left == 0 {
+        if span.out.iter().all(|&w| w == 0) {
             self.spans.remove(&first);
         }
         Some(entry)
@@ -249,7 +248,10 @@ impl LeaseTable {
     /// How many tile leases are out.
     #[cfg(test)]
     pub fn len(&self) -> usize {
-        self.spans.values().map(|s| s.left as usize).sum()
+        self.spans
+            .values()
+            .map(|s| s.out.iter().map(|w| w.count_ones() as usize).sum::<usize>())
+            .sum()
     }
 }
 
@@ -418,6 +420,18 @@ mod tests {
             assert_eq!(table.get(id), None);
             assert_eq!(table.remove(id), None);
         }
+        // A span of no tiles holds nothing.
+        table.insert_span(NewSpan {
+            first: 100,
+            job: 1,
+            first_tile: 9,
+            count: 0,
+            worker: 1,
+            deadline: t0,
+            granted: t0,
+            span_pixels: 0,
+        });
+        assert_eq!(table.get(100), None);
         assert_eq!(table.in_range(u64::MAX, 5).count(), 0);
         assert_eq!(table.in_range(6, 5).count(), 2);
         assert_eq!(table.len(), 3);

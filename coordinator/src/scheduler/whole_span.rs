@@ -6,7 +6,7 @@
 //! hundreds of tiles, and this is the part of ingest that runs under the
 //! farm's one lock (docs/benchmarks.md, "Stage 6").
 
-use super::{ray_shares, LeaseId, SchedError, Scheduler, TileState, WorkerId};
+use super::{check_holder, ray_shares, LeaseId, SchedError, Scheduler, TileState, WorkerId};
 use crate::scheduler::JobId;
 use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
@@ -61,26 +61,7 @@ impl Scheduler {
                 open = false;
                 continue;
             }
-            let holder = match live {
-                Some(e) if e.job == job && e.tile == idx => Some(e.worker),
-                _ => j
-                    .past_leases
-                    .get(&id)
-                    .filter(|(t, _)| *t == idx)
-                    .map(|&(_, w)| w),
-            };
-            match (holder, worker) {
-                (Some(h), Some(w)) if h == w => {}
-                (Some(_), None) => {}
-                _ => {
-                    return Err(SchedError::NotYourLease(
-                        id,
-                        worker.unwrap_or_default(),
-                        part,
-                        job,
-                    ))
-                }
-            }
+            check_holder(j.holder(job, idx, id, live), worker, id, part, job)?;
         }
         Ok(SpanCheck { tiles, open })
     }
