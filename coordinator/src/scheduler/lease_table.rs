@@ -104,9 +104,10 @@ impl LeaseTable {
         if count == 0 {
             return;
         }
-        let mut out = vec![0u64; count.div_ceil(64) as usize].into_boxed_slice();
-        for i in 0..count {
-            out[(i / 64) as usize] |= 1 << (i % 64);
+        // Every tile out: whole words of ones, the last word's tail clear.
+        let mut out = vec![u64::MAX; count.div_ceil(64) as usize].into_boxed_slice();
+        if count % 64 != 0 {
+            out[out.len() - 1] = (1 << (count % 64)) - 1;
         }
         self.spans.insert(
             s.first,
@@ -130,6 +131,13 @@ impl LeaseTable {
         (i < u64::from(span.count)).then_some((first, span, i))
     }
 
+    /// As [`Self::span_of`], to change the span.
+    fn span_of_mut(&mut self, id: LeaseId) -> Option<(LeaseId, &mut SpanLease, u64)> {
+        let (&first, span) = self.spans.range_mut(..=id).next_back()?;
+        let i = id - first;
+        (i < u64::from(span.count)).then_some((first, span, i))
+    }
+
     /// Lease `id`, if it is out.
     pub fn get(&self, id: LeaseId) -> Option<LeaseEntry> {
         let (_, span, i) = self.span_of(id)?;
@@ -139,8 +147,7 @@ impl LeaseTable {
     /// Ends lease `id` (its tile is done, re-queued or dropped) and gives
     /// what it was; `None` if it is not out.
     pub fn remove(&mut self, id: LeaseId) -> Option<LeaseEntry> {
-        let (first, _, i) = self.span_of(id)?;
-        let span = self.spans.get_mut(&first).expect("span_of found it");
+        let (first, span, i) = self.span_of_mut(id)?;
         if !span.is_out(i) {
             return None;
         }
@@ -162,17 +169,15 @@ impl LeaseTable {
         now: Instant,
         deadline: Instant,
     ) -> bool {
-        let Some((first, span, i)) = self.span_of(id) else {
-            return false;
-        };
-        if !span.is_out(i) || span.worker != worker || span.deadline < now {
-            return false;
+        match self.span_of_mut(id) {
+            Some((_, span, i))
+                if span.is_out(i) && span.worker == worker && span.deadline >= now =>
+            {
+                span.deadline = deadline;
+                true
+            }
+            _ => false,
         }
-        self.spans
-            .get_mut(&first)
-            .expect("span_of found it")
-            .deadline = deadline;
-        true
     }
 
     /// The leases out with ids in `from..from + n`, in id order. Ids past
