@@ -8,14 +8,14 @@
 #   bench/scale-goal.sh                          # coordinator on CPUs 0-3, simulator on the rest
 #   COORD_CPUS=0-7 SIM_CPUS=8-47 bench/scale-goal.sh
 #   WORKERS=300 bench/scale-goal.sh              # another N
-#   CHEAP_NS=4734 (the default) SECS=8 DATA_DIR=/dev/shm/trevi-goal
+#   CHEAP_NS=4734 (the default) SECS=8 DATA_DIR=/dev/shm   # where its data dir is made
 #
 # 1. Renders examples/cornell.xml (camera `corner`) at 8192×6144 with
 #    trevi-submit into target/scale-goal/c8k.png (written whole or not at
 #    all), once (two minutes on two
 #    cores; kept for later runs).
-# 2. Starts a coordinator pinned to COORD_CPUS with its data dir on
-#    DATA_DIR (tmpfs by default, as in Stage 7) and runs `farm_bench scale`
+# 2. Starts a coordinator pinned to COORD_CPUS with a fresh data dir made
+#    in DATA_DIR (tmpfs by default, as in Stage 7; removed at the end) and runs `farm_bench scale`
 #    pinned to SIM_CPUS against it.
 # 3. The simulator prints tiles/s against the modelled demand, the
 #    coordinator's CPU and peak RSS, the time its locks were held, its own
@@ -34,7 +34,6 @@ coord_cpus=${COORD_CPUS:-0-3}
 sim_cpus=${SIM_CPUS:-4-$((ncpu - 1))}
 workers=${WORKERS:-1000}
 cost=${CHEAP_NS:-4734}
-data=${DATA_DIR:-/dev/shm/trevi-goal}
 if [ "$ncpu" -lt 6 ] && [ -z "${COORD_CPUS:-}" ]; then
     echo "this machine has $ncpu CPUs; the goal wants 6 or more (or set COORD_CPUS and SIM_CPUS)" >&2
     exit 2
@@ -51,8 +50,8 @@ if [ ! -s "$render" ]; then
     target/release/trevi-submit target/scale-goal/cornell8k.xml --camera corner -o "$render" -q
 fi
 
-rm -rf "$data"
-mkdir -p "$data"
+# A directory of its own: a DATA_DIR given is never emptied.
+data=$(mktemp -d "${DATA_DIR:-/dev/shm}/trevi-goal.XXXXXX")
 out=$(mktemp)
 trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$data" "$out"' EXIT
 taskset -c "$coord_cpus" target/release/trevi-coordinator --listen 127.0.0.1:0 \
