@@ -1,7 +1,13 @@
 #!/usr/bin/env bash
 # Runs the parsers' fuzz targets with libFuzzer (docs/numerics.md, "Fuzzing").
 #
-#   fuzz/run.sh [SECONDS] [TARGET...]     # default: 60 s each of aisxml obj mtl ply bundle
+#   fuzz/run.sh [SECONDS] [TARGET...]     # default: 60 s each of every target
+#
+# Every input runs under libFuzzer's limits: RSS_MB (default 2048) of
+# resident memory for the process (-rss_limit_mb, also -malloc_limit_mb) and
+# TIMEOUT seconds (default 10) per input (-timeout). An input past either is
+# a failure with its input saved, like a crash: a parser's cost must be
+# bounded before the work (docs/farm.md, "Limits of each file format").
 #
 # Installs cargo-fuzz if it is missing. Works on a stable toolchain
 # (RUSTC_BOOTSTRAP=1, no sanitizer). Seeds each corpus with the project's own
@@ -12,7 +18,9 @@ cd "$(dirname "$0")"
 secs=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle)
+[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr)
+rss_mb=${RSS_MB:-2048}
+timeout=${TIMEOUT:-10}
 
 if ! cargo fuzz --version >/dev/null 2>&1; then
     echo "== cargo install cargo-fuzz --locked"
@@ -46,10 +54,16 @@ XML
 seed obj '*.obj'
 seed mtl '*.mtl'
 seed ply '*.ply'
+seed png '*.png'
+seed jpeg '*.jpg'
+seed exr '*.exr'
 mkdir -p corpus/bundle
 
 export RUSTC_BOOTSTRAP=1
 for t in "${targets[@]}"; do
-    echo "== $t: ${secs} s"
-    cargo fuzz run --sanitizer none "$t" "corpus/$t" -- -max_total_time="$secs"
+    echo "== $t: ${secs} s, -rss_limit_mb=$rss_mb -timeout=$timeout"
+    mkdir -p "corpus/$t"
+    cargo fuzz run --sanitizer none "$t" "corpus/$t" -- -max_total_time="$secs" \
+        -rss_limit_mb="$rss_mb" -malloc_limit_mb="$rss_mb" -timeout="$timeout" \
+        -print_final_stats=1
 done

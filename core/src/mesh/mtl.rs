@@ -8,7 +8,14 @@
 //! (`map_Ks`, `bump`, `Ke`, `Tf`, PBR extensions, nvdiffrec's `bsdf`, …) is
 //! skipped. Comments run from `#` to the end of the line. A malformed number
 //! or a statement before the first `newmtl` is an error at its line and
-//! column.
+//! column, and so is a colour component below 0, a number that is not
+//! finite in 32 bits, and a `map_Kd -s` whose scale is.
+//!
+//! Cost: one pass over the bytes. A statement Trevi reads may have at most
+//! [`MAX_MTL_ARGS`] arguments (a skipped one any number, never collected),
+//! and a file at most [`MAX_MTL_MATERIALS`] materials, so what the parse
+//! holds is linear in the file and small beside it; past either bound the
+//! error is at the token that passes it.
 
 use glam::{Vec2, Vec3};
 
@@ -42,6 +49,14 @@ pub struct MapKd {
     pub clamp: bool,
 }
 
+/// The most materials (`newmtl`) one `.mtl` file may define: what one
+/// mesh can use (its triangles name their surface in 16 bits), with room.
+pub const MAX_MTL_MATERIALS: usize = 65_536;
+
+/// The most arguments a statement Trevi reads may have (`map_Kd` with
+/// every option of the format has about 20).
+pub const MAX_MTL_ARGS: usize = 64;
+
 /// Arguments each skipped `map_` option takes (at most; numbers stop early).
 fn option_args(opt: &[u8]) -> usize {
     match opt {
@@ -63,36 +78,87 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Vec<Material>, SceneError> {
             .map_or(bytes.len(), |i| line_start + i);
         let line = &bytes[line_start..end];
         let line = &line[..line.iter().position(|&c| c == b'#').unwrap_or(line.len())];
-        let toks: Vec<(usize, &[u8])> = tokens(line, line_start).collect();
+        let mut toks = tokens(line, line_start);
         line_start = end + 1;
-        let Some(&(at, key)) = toks.first() else {
+        let Some((at, key)) = toks.next() else {
             continue;
         };
-        let args = &toks[1..];
+        let known = matches!(
+            key,
+            b"newmtl"
+                | b"Kd"
+                | b"Ka"
+                | b"Ks"
+                | b"Ns"
+                | b"d"
+                | b"Tr"
+                | b"Ni"
+                | b"illum"
+                | b"map_Kd"
+                | b"bsdf"
+        );
+        if !known {
+            continue;
+        }
+        let args: Vec<(usize, &[u8])> = toks.by_ref().take(MAX_MTL_ARGS).collect();
+        if let Some((extra, _)) = toks.next() {
+            return Err(f.error_at(
+                extra,
+                format!(
+                    "more than {MAX_MTL_ARGS} arguments after \"{}\"",
+                    show(key)
+                ),
+            ));
+        }
+        let args = &args[..];
         if key == b"newmtl" {
             let Some(&(_, name)) = args.first() else {
                 return Err(f.error_at(at, "expected a material name after \"newmtl\""));
             };
+            if out.len() == MAX_MTL_MATERIALS {
+                return Err(f.error_at(
+                    at,
+                    format!("more than {MAX_MTL_MATERIALS} materials in one file"),
+                ));
+            }
             out.push(Material {
                 name: String::from_utf8_lossy(name).into_owned(),
                 ..Material::default()
             });
             continue;
         }
-        let known = matches!(
-            key,
-            b"Kd" | b"Ka" | b"Ks" | b"Ns" | b"d" | b"Tr" | b"Ni" | b"illum" | b"map_Kd" | b"bsdf"
-        );
-        if !known {
-            continue;
-        }
         let Some(m) = out.last_mut() else {
             return Err(f.error_at(at, format!("\"{}\" before any \"newmtl\"", show(key))));
         };
         let number = |&(at, tok): &(usize, &[u8])| -> Result<f32, SceneError> {
-            parse_token::<f32>(tok)
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| f.error_at(at, format!("malformed number \"{}\"", show(tok))))
+            let x = parse_token::<f32>(tok)
+                .ok_or_else(|| f.error_at(at, format!("malformed number \"{}\"", show(tok))))?;
+            if !x.is_finite() {
+                return Err(f.error_at(
+                    at,
+                    format!(
+                        "number \"{}\" is not finite in 32 bits (out of range, or nan/inf)",
+                        show(tok)
+                    ),
+                ));
+            }
+            Ok(x)
+        };
+        // A colour component: finite and ≥ 0 (a negative one would make
+        // negative light).
+        let component = |a: &(usize, &[u8])| -> Result<f32, SceneError> {
+            let x = number(a)?;
+            if x < 0.0 {
+                return Err(f.error_at(
+                    a.0,
+                    format!(
+                        "colour component {} of \"{}\" is negative (expected a number ≥ 0)",
+                        show(a.1),
+                        show(key)
+                    ),
+                ));
+            }
+            Ok(x)
         };
         let one = |what: &str| -> Result<f32, SceneError> {
             match args {
@@ -103,8 +169,8 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Vec<Material>, SceneError> {
         match key {
             b"Kd" | b"Ka" | b"Ks" => {
                 let c = match args {
-                    [a] => Vec3::splat(number(a)?),
-                    [a, b, c] => Vec3::new(number(a)?, number(b)?, number(c)?),
+                    [a] => Vec3::splat(component(a)?),
+                    [a, b, c] => Vec3::new(component(a)?, component(b)?, component(c)?),
                     _ => {
                         return Err(
                             f.error_at(at, format!("expected r g b after \"{}\"", show(key)))
@@ -158,7 +224,17 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Vec<Material>, SceneError> {
                                 nums.push(x);
                                 i += 1;
                             }
-                            _ => break,
+                            // A number, but not one of 32 bits: say so
+                            // (not "expected u [v [w]]").
+                            Some(_) => return Err(f.error_at(
+                                args[i].0,
+                                format!(
+                                    "\"{}\" value \"{}\" is not finite in 32 bits (out of range, or nan/inf)",
+                                    show(opt),
+                                    show(args[i].1)
+                                ),
+                            )),
+                            None => break,
                         }
                     }
                     if opt == b"-s" {
@@ -266,6 +342,63 @@ mod tests {
         fails("newmtl a\nmap_Kd\n", 2, 1, "expected a file name");
         fails("newmtl a\nmap_Kd my file.png\n", 2, 11, "names with blanks");
         fails("newmtl\n", 1, 1, "expected a material name");
-        fails("newmtl a\nd 1e39\n", 2, 3, "malformed number");
+        fails("newmtl a\nd 1e39\n", 2, 3, "not finite in 32 bits");
+    }
+
+    /// Issue 36: a negative or non-finite colour was accepted (Whitted
+    /// then failed a job with an unlocated "pixel is negative"; path
+    /// tracing rendered black), and `-s 1e39` said "expected u [v [w]]".
+    #[test]
+    fn colours_must_be_finite_and_not_negative_and_scales_finite() {
+        let fails = |src: &str, line, col, msg: &str| {
+            assert_error_at(parse("m.mtl", src.as_bytes()), "m.mtl", line, col, msg)
+        };
+        fails("newmtl a\nKd 0.5 -0.1 0\n", 2, 8, "is negative");
+        fails("newmtl a\nKa -1\n", 2, 4, "colour component -1 of \"Ka\" is negative");
+        fails("newmtl a\nKs 1 1 -0.5\n", 2, 8, "is negative");
+        fails("newmtl a\nKd nan 0 0\n", 2, 4, "not finite");
+        fails("newmtl a\nKd 1 inf 0\n", 2, 6, "not finite");
+        fails("newmtl a\nKd 1 1 1e39\n", 2, 8, "not finite");
+        fails(
+            "newmtl a\nmap_Kd -s 1e39 t.png\n",
+            2,
+            11,
+            "\"-s\" value \"1e39\" is not finite in 32 bits",
+        );
+        fails("newmtl a\nmap_Kd -s 1 nan t.png\n", 2, 13, "not finite");
+        // Zero is a colour (black); -0 too.
+        let m = parse("m.mtl", b"newmtl a\nKd 0 -0 0\n").unwrap();
+        assert_eq!(m[0].kd, Some(Vec3::ZERO));
+    }
+
+    /// Issue 36: what a parse holds is bounded by the file, statement by
+    /// statement (no token list of a whole line of a skipped statement),
+    /// and the materials by a count.
+    #[test]
+    fn arguments_and_materials_are_bounded() {
+        let many = format!("newmtl a\nKd{}\n", " 1".repeat(MAX_MTL_ARGS + 1));
+        assert_error_at(
+            parse("m.mtl", many.as_bytes()),
+            "m.mtl",
+            2,
+            3 + 2 * MAX_MTL_ARGS as u32 + 1,
+            "more than 64 arguments after \"Kd\"",
+        );
+        // A skipped statement may have any number.
+        let skipped = format!("newmtl a\nmap_Ks{}\n", " x".repeat(10_000));
+        assert_eq!(parse("m.mtl", skipped.as_bytes()).unwrap().len(), 1);
+        let mut src = String::new();
+        for k in 0..=MAX_MTL_MATERIALS {
+            src.push_str(&format!("newmtl m{k}\n"));
+        }
+        assert_error_at(
+            parse("m.mtl", src.as_bytes()),
+            "m.mtl",
+            MAX_MTL_MATERIALS as u32 + 1,
+            1,
+            "more than 65536 materials in one file",
+        );
+        src.truncate(src.len() - format!("newmtl m{MAX_MTL_MATERIALS}\n").len());
+        assert_eq!(parse("m.mtl", src.as_bytes()).unwrap().len(), MAX_MTL_MATERIALS);
     }
 }

@@ -29,6 +29,8 @@
 //! with texture coordinates but without normals gets its smooth normals
 //! here, before the split, so that a seam does not show in the shading.
 
+use std::collections::{HashMap, HashSet};
+
 use glam::{Vec2, Vec3};
 
 use super::read::{parse_token, per_vertex_attributes, show, unit_normal, MeshFile};
@@ -57,10 +59,25 @@ pub struct ObjMaterials {
 /// A triangle no `usemtl` applies to.
 pub const NO_MATERIAL: u32 = u32::MAX;
 
+/// The most distinct `usemtl` names one OBJ may use: a triangle names its
+/// surface in 16 bits, and surface 0 is the default. Checked when a name is
+/// first seen; the error is at that name.
+pub const MAX_OBJ_MATERIALS: usize = u16::MAX as usize - 1;
+
+/// The most distinct `.mtl` files one OBJ's `mtllib` statements may name
+/// (a name repeated costs a lookup, nothing more). Checked when a name is
+/// first seen; the error is at that name.
+pub const MAX_OBJ_LIBRARIES: usize = 1024;
+
 /// [`parse`], keeping the material statements. Triangles are in file order
 /// (as in the mesh), and a position split by the loader keeps its triangles.
+/// `libs` and `names` hold each name once, in order of first appearance
+/// (looked up by hash: a file of many `usemtl` lines costs linear time), at
+/// most [`MAX_OBJ_LIBRARIES`] and [`MAX_OBJ_MATERIALS`] of them.
 pub fn parse_with_materials(file: &str, bytes: &[u8]) -> Result<(Mesh, ObjMaterials), SceneError> {
     let mut materials = ObjMaterials::default();
+    let mut lib_seen: HashSet<String> = HashSet::new();
+    let mut name_index: HashMap<String, u32> = HashMap::new();
     let mut current = NO_MATERIAL;
     let mut p = Parser {
         file: MeshFile { name: file, bytes },
@@ -80,21 +97,38 @@ pub fn parse_with_materials(file: &str, bytes: &[u8]) -> Result<(Mesh, ObjMateri
                 b"mtllib" => {
                     // Names may not contain blanks (each token is a file).
                     while let Some((at, name)) = lx.token() {
-                        materials
-                            .libs
-                            .push((String::from_utf8_lossy(name).into_owned(), at));
+                        let name = String::from_utf8_lossy(name);
+                        if lib_seen.contains(&*name) {
+                            continue;
+                        }
+                        if lib_seen.len() == MAX_OBJ_LIBRARIES {
+                            return Err(p.err(
+                                at,
+                                format!("more than {MAX_OBJ_LIBRARIES} material libraries (mtllib) in one mesh"),
+                            ));
+                        }
+                        lib_seen.insert(name.clone().into_owned());
+                        materials.libs.push((name.into_owned(), at));
                     }
                 }
                 b"usemtl" => {
                     let Some((at, name)) = lx.token() else {
                         return Err(p.err(at, "expected a material name after \"usemtl\""));
                     };
-                    let name = String::from_utf8_lossy(name).into_owned();
-                    current = match materials.names.iter().position(|(n, _)| *n == name) {
-                        Some(i) => i as u32,
+                    let name = String::from_utf8_lossy(name);
+                    current = match name_index.get(&*name) {
+                        Some(&i) => i,
                         None => {
-                            materials.names.push((name, at));
-                            (materials.names.len() - 1) as u32
+                            if materials.names.len() == MAX_OBJ_MATERIALS {
+                                return Err(p.err(
+                                    at,
+                                    format!("more than {MAX_OBJ_MATERIALS} materials (usemtl names) in one mesh"),
+                                ));
+                            }
+                            let i = materials.names.len() as u32;
+                            name_index.insert(name.clone().into_owned(), i);
+                            materials.names.push((name.into_owned(), at));
+                            i
                         }
                     };
                 }
@@ -781,6 +815,25 @@ f 1//3 2//3 3//3
             assert_eq!(m.normals.is_empty(), m.uvs.is_empty(), "{name}");
             check_mesh_invariants(&m);
         }
+    }
+
+    /// Issue 36: `mtllib` names are kept once each (a library named 50,000
+    /// times on a line was read 50,000 times), at most
+    /// [`MAX_OBJ_LIBRARIES`] of them, the error at the one that passes it.
+    #[test]
+    fn material_libraries_are_kept_once_and_bounded() {
+        let src = format!("mtllib{}\nmtllib b.mtl a.mtl\n{CUBE}", " a.mtl".repeat(50_000));
+        let (_, m) = parse_with_materials("m.obj", src.as_bytes()).unwrap();
+        let names: Vec<&str> = m.libs.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, ["a.mtl", "b.mtl"]);
+        let mut src = String::from("mtllib");
+        for k in 0..=MAX_OBJ_LIBRARIES {
+            src.push_str(&format!(" l{k:04}.mtl"));
+        }
+        src.push('\n');
+        src.push_str(CUBE);
+        let col = 1 + "mtllib".len() + MAX_OBJ_LIBRARIES * " l0000.mtl".len() + 1;
+        fails(&src, 1, col as u32, "more than 1024 material libraries");
     }
 
     fn edit() -> impl Strategy<Value = Edit> {

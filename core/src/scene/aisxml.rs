@@ -33,6 +33,7 @@ mod light;
 mod materials;
 mod mesh;
 mod model;
+mod outputs;
 mod plane;
 mod render;
 mod settings;
@@ -46,6 +47,8 @@ mod xml;
 
 #[cfg(test)]
 mod animation_tests;
+#[cfg(test)]
+mod bounds_tests;
 #[cfg(test)]
 mod doc_tests;
 #[cfg(test)]
@@ -124,9 +127,10 @@ pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Resu
         object_ids: HashMap::new(),
         light_ids: HashMap::new(),
         camera_ids: HashMap::new(),
-        outputs: HashMap::new(),
+        outputs: outputs::Outputs::default(),
         texture_ids: HashMap::new(),
         texels: 0,
+        mtl_libraries: HashMap::new(),
     };
     r.scene(&root)?;
     let mut desc = r.desc;
@@ -154,12 +158,14 @@ struct Resolver<'a> {
     object_ids: HashMap<String, Claim>,
     light_ids: HashMap<String, Claim>,
     camera_ids: HashMap<String, Claim>,
-    /// Output path → offset of the `<render>` that writes it.
-    outputs: HashMap<String, usize>,
+    /// Every camera's output, with the offset of its `<render>`.
+    outputs: outputs::Outputs,
     /// Texture file (bundle path) → index in `desc.textures`.
     texture_ids: HashMap<String, u32>,
     /// Texels (level 0) of the textures decoded so far.
     texels: u64,
+    /// `.mtl` files (bundle path) parsed so far (see `materials.rs`).
+    mtl_libraries: HashMap<String, std::rc::Rc<materials::MtlLibrary>>,
 }
 
 impl<'a> Resolver<'a> {

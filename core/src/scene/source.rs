@@ -157,7 +157,47 @@ pub enum PathError {
 
 /// Normalises a `file="..."` reference into a bundle-relative path, or says
 /// why it is not allowed (absolute, or climbing out of the scene directory).
+/// A reference written in the scene file: [`resolve_reference`] from the
+/// scene's directory.
 pub fn normalize_rel_path(reference: &str) -> Result<String, PathError> {
+    resolve_reference("", reference)
+}
+
+/// The one rule for a file named inside another file of a scene (the scene
+/// file, an OBJ's `mtllib`, a `.mtl`'s `map_Kd`): `reference` is relative
+/// to the folder `from` of the file that names it (itself relative to the
+/// scene's directory, normalised, `""` for the scene's directory), and the
+/// result, normalised, must stay inside the scene's directory. So
+/// `models/x.obj` may name `../textures/x.png` (which is
+/// `textures/x.png`), and nothing may name `../x.png` from the scene's
+/// directory. Absolute references are refused whatever `from` is.
+/// `trevi-submit` collects a bundle by parsing its scene, so what it sends
+/// follows this rule too.
+pub fn resolve_reference(from: &str, reference: &str) -> Result<String, PathError> {
+    if reference.is_empty() {
+        return Err(PathError::Empty);
+    }
+    let path = Path::new(reference);
+    if path.is_absolute() || reference.starts_with('/') || reference.starts_with('\\') {
+        return Err(PathError::Absolute(reference.to_string()));
+    }
+    if path.components().any(|c| matches!(c, Component::RootDir | Component::Prefix(_))) {
+        return Err(PathError::Absolute(reference.to_string()));
+    }
+    let joined = if from.is_empty() {
+        reference.to_string()
+    } else {
+        format!("{from}/{reference}")
+    };
+    normalize_joined(&joined).map_err(|e| match e {
+        PathError::ClimbsOut(_) => PathError::ClimbsOut(reference.to_string()),
+        PathError::NamesNoFile(_) => PathError::NamesNoFile(reference.to_string()),
+        other => other,
+    })
+}
+
+/// [`resolve_reference`]'s normalisation of the joined path.
+fn normalize_joined(reference: &str) -> Result<String, PathError> {
     if reference.is_empty() {
         return Err(PathError::Empty);
     }
@@ -210,5 +250,33 @@ mod tests {
             normalize_rel_path("a/.."),
             Err(PathError::NamesNoFile(_))
         ));
+    }
+
+    /// Issue 36: `models/x.obj` naming `../textures/x.png` stays inside
+    /// the scene's directory and was refused as climbing out.
+    #[test]
+    fn references_resolve_from_the_folder_of_the_file_that_names_them() {
+        assert_eq!(
+            resolve_reference("models", "../textures/x.png").unwrap(),
+            "textures/x.png"
+        );
+        assert_eq!(
+            resolve_reference("a/b", "../../x.mtl").unwrap(),
+            "x.mtl"
+        );
+        assert_eq!(resolve_reference("a", "./t/x.png").unwrap(), "a/t/x.png");
+        assert_eq!(
+            resolve_reference("models", "../../x.png"),
+            Err(PathError::ClimbsOut("../../x.png".into()))
+        );
+        assert_eq!(
+            resolve_reference("models", "/etc/passwd"),
+            Err(PathError::Absolute("/etc/passwd".into()))
+        );
+        assert_eq!(
+            resolve_reference("models", ".."),
+            Err(PathError::NamesNoFile("..".into()))
+        );
+        assert_eq!(resolve_reference("models", ""), Err(PathError::Empty));
     }
 }

@@ -11,12 +11,17 @@
 //! Bounds: the image's size is read from its header and checked against
 //! [`MAX_TEXTURE_SIDE`] and [`MAX_TEXTURE_TEXELS`] before anything is
 //! allocated for its pixels, so a 100,000 × 100,000 PNG header is refused at
-//! the cost of reading a header. The MIP chain adds at most a third.
+//! the cost of reading a header. The MIP chain adds at most a third. A
+//! JPEG's markers are read first ([`jpeg_scan`]): its size comes from its
+//! frame header, and one of more than [`jpeg_scan::MAX_JPEG_SCANS`] scans
+//! (each a pass over every block when decoded) is refused. A PNG's
+//! decoder inflates no more than the image its IHDR declares.
 //!
 //! Coordinates: `u` runs left to right and `v = 0` is the image's bottom row
 //! (the OBJ convention); texel `(i, j)` (column, row from the top) has its
 //! centre at `u = (i + ½)/W`, `v = 1 − (j + ½)/H`.
 
+pub mod jpeg_scan;
 mod memory;
 mod sample;
 
@@ -50,6 +55,9 @@ pub enum TextureError {
     Empty { width: u64, height: u64 },
     #[error("cannot decode the texture: {0}")]
     Decode(String),
+    /// Refused from its markers before decoding (see [`jpeg_scan`]).
+    #[error("{0}")]
+    Jpeg(#[from] jpeg_scan::JpegScanError),
 }
 
 /// One level of a MIP chain: `width × height` linear RGB texels, rows from
@@ -121,6 +129,12 @@ impl Texture {
             // PNG: straight from IHDR (the decoder reads on to the first
             // data chunk before it says).
             Some(wh) => wh,
+            None if format == Some(image::ImageFormat::Jpeg) => {
+                // JPEG: the frame's size and the scan count from the
+                // markers; a decode costs a pass over the image per scan.
+                let shape = jpeg_scan::scan(bytes, jpeg_scan::MAX_JPEG_SCANS)?;
+                (shape.width, shape.height)
+            }
             None => reader
                 .into_dimensions()
                 .map_err(|e| TextureError::Decode(e.to_string()))?,

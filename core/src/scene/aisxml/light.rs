@@ -73,13 +73,13 @@ pub(super) const LIGHT: &[Attribute] = &[
         "edge-u",
         "vector",
         "required for a rect",
-        "a rect light's first edge: its corners are position ± edge-u/2 ± edge-v/2",
+        "a rect light's first edge (at most 1e9 long): its corners are position ± edge-u/2 ± edge-v/2",
     ),
     extension(
         "edge-v",
         "vector",
         "required for a rect",
-        "a rect light's second edge; the front faces edge-u × edge-v",
+        "a rect light's second edge (at most 1e9 long); the front faces edge-u × edge-v",
     ),
     extension(
         "emission",
@@ -227,6 +227,11 @@ impl<'a> Resolver<'a> {
     }
 }
 
+/// The longest edge of a rect light: its area, up to 10¹⁸, then has a
+/// square (10³⁶) that fits in 32 bits, as the area lights' sampling
+/// computes it.
+pub const MAX_RECT_EDGE: f64 = 1e9;
+
 impl<'a> Resolver<'a> {
     /// `<light type="rect">`: a two-triangle mesh (corners relative to the
     /// centre, the centre in the model's transform, so far-off lights keep
@@ -253,6 +258,18 @@ impl<'a> Resolver<'a> {
             if !x.is_finite() {
                 let a = el.req(name)?;
                 return Err(el.expected(a, "a vector \"x y z\" whose components fit in 32 bits"));
+            }
+            // The emitter's area is computed in 32 bits (|u × v|, through
+            // its square): past this an edge made it infinite and the
+            // light vanished without an error.
+            if x.as_dvec3().length() > MAX_RECT_EDGE {
+                let a = el.req(name)?;
+                return Err(el
+                    .attr_err(
+                        a,
+                        format!("a rect light's edge may be at most {MAX_RECT_EDGE:e} long (its area is computed in 32 bits); this one is {:e}", x.as_dvec3().length()),
+                    )
+                    .with_kind(SceneErrorKind::Limit));
             }
         }
         let sided = el

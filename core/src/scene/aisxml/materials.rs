@@ -11,10 +11,14 @@
 //! with reflectivity = the largest `Ks` component, 4, 6, 7 and 9 (glass) the
 //! same plus refraction by `d` and `Ni`; 0-2 and absent are plain Phong.
 
+use std::collections::HashMap;
+use std::rc::Rc;
+
 use super::{Resolver, Result};
 use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
 use crate::mesh::mtl::{self, Material};
-use crate::mesh::obj::{ObjMaterials, NO_MATERIAL};
+use crate::mesh::obj::{ObjMaterials, MAX_OBJ_MATERIALS, NO_MATERIAL};
+use crate::scene::source::{resolve_reference, PathError};
 use crate::mesh::Mesh;
 use crate::scene::{Surface, TextureMap};
 use crate::texture::Wrap;
@@ -28,10 +32,25 @@ pub(super) struct MeshMaterials {
     pub triangle_surface: Vec<u16>,
 }
 
+/// A parsed `.mtl` file, read and parsed once per scene however many
+/// meshes and `mtllib` statements name it: its bundle path, its bytes (to
+/// locate an error in it) and its materials.
+#[derive(Debug)]
+pub(super) struct MtlLibrary {
+    path: String,
+    bytes: Vec<u8>,
+    materials: Vec<Material>,
+}
+
 impl Resolver<'_> {
     /// Loads the `.mtl` files of the OBJ `obj_path` (its bytes `obj`) and
     /// turns its materials into surfaces. `None` when it names no `.mtl`
     /// (a `usemtl` without an `mtllib` is ignored, as before).
+    ///
+    /// Cost: each library is read and parsed once per scene (shared
+    /// through `mtl_libraries`), and each `usemtl` name is looked up by
+    /// hash, so the work is linear in the files' sizes; `m` holds each
+    /// name once (see [`crate::mesh::obj::parse_with_materials`]).
     pub(super) fn obj_materials(
         &mut self,
         obj_path: &str,
@@ -42,21 +61,20 @@ impl Resolver<'_> {
         if m.libs.is_empty() || m.names.is_empty() {
             return Ok(None);
         }
-        let dir = match obj_path.rfind('/') {
-            Some(i) => &obj_path[..=i],
-            None => "",
-        };
-        let mut lib: Vec<(Material, String, Vec<u8>)> = Vec::new();
+        let mut libs: Vec<Rc<MtlLibrary>> = Vec::with_capacity(m.libs.len());
         for (name, at) in &m.libs {
             let loc = || Location::at_offset(obj_path, obj, *at);
-            let rel = crate::scene::source::normalize_rel_path(name).map_err(|e| {
+            let path = self.referenced_path(obj_path, name).map_err(|e| {
                 SceneError::of_kind(
                     SceneErrorKind::Reference,
                     loc(),
                     format!("{e} (expected a relative path inside the scene's directory)"),
                 )
             })?;
-            let path = format!("{dir}{rel}");
+            if let Some(lib) = self.mtl_libraries.get(&path) {
+                libs.push(lib.clone());
+                continue;
+            }
             let bytes = self.source.read(&path).map_err(|e| {
                 SceneError::of_kind(
                     read_error_kind(&e),
@@ -64,30 +82,44 @@ impl Resolver<'_> {
                     format!("cannot read material library \"{path}\" ({e}); expected a file of the scene bundle"),
                 )
             })?;
-            for mat in mtl::parse(&path, &bytes)? {
-                lib.push((mat, path.clone(), bytes.clone()));
-            }
+            let materials = mtl::parse(&path, &bytes)?;
+            let lib = Rc::new(MtlLibrary {
+                path: path.clone(),
+                bytes,
+                materials,
+            });
+            self.mtl_libraries.insert(path.clone(), lib.clone());
             self.files.insert(path);
+            libs.push(lib);
         }
-        if m.names.len() >= usize::from(u16::MAX) {
+        // The first definition of a name wins (libraries in mtllib order).
+        let mut by_name: HashMap<&str, (usize, usize)> = HashMap::new();
+        for (l, lib) in libs.iter().enumerate() {
+            for (k, mat) in lib.materials.iter().enumerate() {
+                by_name.entry(mat.name.as_str()).or_insert((l, k));
+            }
+        }
+        if m.names.len() > MAX_OBJ_MATERIALS {
+            // The OBJ reader refuses this where the name is; a fallback.
             return Err(SceneError::of_kind(
                 SceneErrorKind::Limit,
-                Location::at_offset(obj_path, obj, m.names[0].1),
-                format!("more than {} materials in one mesh", u16::MAX - 1),
+                Location::at_offset(obj_path, obj, m.names[MAX_OBJ_MATERIALS].1),
+                format!("more than {MAX_OBJ_MATERIALS} materials (usemtl names) in one mesh"),
             ));
         }
         let mut surfaces = vec![Surface::default()];
         // Per usemtl name, its surface (0: unknown name, the default).
         let mut of_name = Vec::with_capacity(m.names.len());
         for (name, _) in &m.names {
-            let Some((mat, mtl_path, mtl_bytes)) = lib.iter().find(|(x, _, _)| x.name == *name)
-            else {
+            let Some(&(l, k)) = by_name.get(name.as_str()) else {
                 of_name.push(0u16);
                 continue;
             };
+            let lib = &libs[l];
+            let mat = &lib.materials[k];
             let mut s = surface_of(mat);
             if let Some(map) = &mat.map_kd {
-                let at = || Location::at_offset(mtl_path, mtl_bytes, map.at);
+                let at = || Location::at_offset(&lib.path, &lib.bytes, map.at);
                 if mesh.uvs.is_empty() {
                     return Err(SceneError::of_kind(
                         SceneErrorKind::BadValue,
@@ -95,18 +127,13 @@ impl Resolver<'_> {
                         format!("map_Kd of material \"{name}\": the mesh \"{obj_path}\" has no texture coordinates (expected vt on every face corner)"),
                     ));
                 }
-                let mdir = match mtl_path.rfind('/') {
-                    Some(i) => &mtl_path[..=i],
-                    None => "",
-                };
-                let rel = crate::scene::source::normalize_rel_path(&map.file).map_err(|e| {
+                let path = self.referenced_path(&lib.path, &map.file).map_err(|e| {
                     SceneError::of_kind(
                         SceneErrorKind::Reference,
                         at(),
                         format!("{e} (expected a relative path inside the scene's directory)"),
                     )
                 })?;
-                let path = format!("{mdir}{rel}");
                 let texture =
                     self.load_texture(&path, |msg, kind| SceneError::of_kind(kind, at(), msg))?;
                 s.texture = Some(TextureMap {
@@ -133,6 +160,28 @@ impl Resolver<'_> {
             surfaces,
             triangle_surface,
         }))
+    }
+
+    /// The bundle path of `reference`, written in the bundle file
+    /// `referrer` (an OBJ or a `.mtl`): resolved against the referrer's
+    /// folder, and refused if it leaves the scene's directory (the one rule
+    /// of [`resolve_reference`]).
+    fn referenced_path(
+        &self,
+        referrer: &str,
+        reference: &str,
+    ) -> std::result::Result<String, PathError> {
+        let in_scene = if self.scene_dir.is_empty() {
+            referrer
+        } else {
+            referrer
+                .strip_prefix(self.scene_dir.as_str())
+                .and_then(|r| r.strip_prefix('/'))
+                .unwrap_or(referrer)
+        };
+        let from = in_scene.rfind('/').map_or("", |i| &in_scene[..i]);
+        let rel = resolve_reference(from, reference)?;
+        Ok(self.bundle_path(&rel))
     }
 }
 

@@ -2,6 +2,7 @@
 //! including Trevi's adaptive sampling (docs/aisxml-extensions.md).
 
 use super::table::{attr, extension, Attribute, REQUIRED};
+use super::outputs::{Output, MAX_PATTERN_RUN};
 use super::values::{parse_uint, El};
 use super::xml::{excerpt, is_xml_ws, Attr, Elem};
 use super::{Resolver, Result};
@@ -118,7 +119,12 @@ pub(super) const RENDER: &[Attribute] = &[
         "none (a still)",
         "the frames of a sequence, each at t = frame / fps",
     ),
-    extension("fps", "real > 0", "24", "frames per second"),
+    extension(
+        "fps",
+        "real ≥ 1.2e-38 (> 0 in 32 bits)",
+        "24",
+        "frames per second",
+    ),
 ];
 
 impl<'a> Resolver<'a> {
@@ -160,9 +166,7 @@ impl<'a> Resolver<'a> {
         let seed = el.uint("seed", 0, u64::MAX)?.unwrap_or(0);
 
         let frames = self.frames(&el)?;
-        let fps = el
-            .real_in("fps", "a number > 0", |v| v > 0.0)?
-            .unwrap_or(DEFAULT_FPS);
+        let fps = self.fps(&el)?;
         let output_attr = el.get("output");
         let output = match output_attr {
             Some(a) => {
@@ -185,6 +189,21 @@ impl<'a> Resolver<'a> {
                 } else {
                     format!("{camera_id}.png")
                 };
+                if camera_id.contains('#') {
+                    // A # would make the name a frame-number pattern (or
+                    // more than one), refused later and elsewhere without
+                    // a place in the scene.
+                    return Err(camera
+                        .attr_err(
+                            camera_id_attr,
+                            format!(
+                                "the camera id \"{}\" contains #, which would make its default output \"{}\" a frame-number pattern (expected an id without #, or an explicit output= on <render>)",
+                                excerpt(camera_id),
+                                excerpt(&default)
+                            ),
+                        )
+                        .with_kind(SceneErrorKind::BadValue));
+                }
                 match normalize_rel_path(&default) {
                     Ok(rel) if has_image_extension(&rel) => rel,
                     _ => {
@@ -200,19 +219,32 @@ impl<'a> Resolver<'a> {
             }
         };
         let output = self.bundle_path(&output);
-        if let Some(&first) = self.outputs.get(&output) {
-            let msg = format!(
-                "output \"{}\" is already written by the <render> at {} (expected a distinct output per camera)",
-                excerpt(&output),
-                self.src.line_col(first)
-            );
+        // Compared with every earlier camera's by the names they write,
+        // not only as patterns (see outputs.rs).
+        if let Some((name, other, first)) = self.outputs.add(Output::new(&output, frames), e.pos)
+        {
+            // The same output, or one of the names both write.
+            let msg = if other == output {
+                format!(
+                    "output \"{}\" is already written by the <render> at {} (expected a distinct output per camera)",
+                    excerpt(&output),
+                    self.src.line_col(first)
+                )
+            } else {
+                format!(
+                    "output \"{}\" writes \"{}\", which the <render> at {} (output \"{}\") writes too (expected outputs that name distinct files for every frame)",
+                    excerpt(&output),
+                    excerpt(&name),
+                    self.src.line_col(first),
+                    excerpt(&other)
+                )
+            };
             return Err(match output_attr {
                 Some(a) => el.attr_err(a, msg),
                 None => el.err(msg),
             }
             .with_kind(SceneErrorKind::Reference));
         }
-        self.outputs.insert(output.clone(), e.pos);
 
         let threshold = el.real_in("noise-threshold", "a number > 0", |v| v > 0.0)?;
         let min_samples = el.u32_in("min-samples", 1, MAX_ADAPTIVE_SAMPLES)?;
@@ -282,6 +314,31 @@ impl<'a> Resolver<'a> {
         })
     }
 
+    /// `fps=`: a number > 0, kept at 32-bit precision; one too small for
+    /// 32 bits (`1e-300`) is refused as that, not as "not > 0".
+    fn fps(&self, el: &El<'a>) -> Result<f64> {
+        let Some(a) = el.get("fps") else {
+            return Ok(DEFAULT_FPS);
+        };
+        let v = el.reals(a, &[1], "a number > 0")?[0];
+        if !(v > 0.0) {
+            return Err(el.expected(a, "a number > 0"));
+        }
+        if v < MIN_FPS {
+            return Err(el
+                .attr_err(
+                    a,
+                    format!(
+                        "fps {} is too small (expected at least {:e}, the smallest normal 32-bit number)",
+                        excerpt(&a.value),
+                        f32::MIN_POSITIVE
+                    ),
+                )
+                .with_kind(SceneErrorKind::BadValue));
+        }
+        Ok(f64::from(v as f32))
+    }
+
     /// `frames="first-last"` (or one frame number).
     fn frames(&self, el: &El<'a>) -> Result<Option<Frames>> {
         let Some(a) = el.get("frames") else {
@@ -308,6 +365,10 @@ impl<'a> Resolver<'a> {
     }
 }
 
+/// The smallest `fps=`: the smallest normal 32-bit number (fps is kept
+/// in 32 bits, where a smaller one is 0 or loses its precision).
+pub const MIN_FPS: f64 = f32::MIN_POSITIVE as f64;
+
 /// An output with `#` is a sequence's pattern: one run of `#`, in the file
 /// name, and only with `frames=`; a sequence's output needs one.
 fn check_pattern(el: &El, a: &Attr, rel: &str, sequence: bool) -> Result<()> {
@@ -322,6 +383,12 @@ fn check_pattern(el: &El, a: &Attr, rel: &str, sequence: bool) -> Result<()> {
         return Err(el.expected(
             a,
             "a file name with one run of # for the frame number (like \"shot.####.png\")",
+        ));
+    }
+    if name.bytes().filter(|&b| b == b'#').count() > MAX_PATTERN_RUN {
+        return Err(el.expected(
+            a,
+            &format!("a run of at most {MAX_PATTERN_RUN} # for the frame number"),
         ));
     }
     match (runs == 1, sequence) {

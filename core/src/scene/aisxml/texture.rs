@@ -8,6 +8,7 @@ use super::{Resolver, Result};
 use crate::error::{read_error_kind, SceneErrorKind};
 use crate::scene::source::normalize_rel_path;
 use crate::scene::TextureMap;
+use crate::texture::jpeg_scan::JpegScanError;
 use crate::texture::{Texture, TextureError, Wrap, MAX_SCENE_TEXELS};
 use glam::Vec2;
 
@@ -96,9 +97,9 @@ impl<'a> Resolver<'a> {
         let left = MAX_SCENE_TEXELS - self.texels;
         let texture = Texture::decode_within(&bytes, left).map_err(|e| {
             let kind = match e {
-                TextureError::TooLarge { .. } | TextureError::OverBudget { .. } => {
-                    SceneErrorKind::Limit
-                }
+                TextureError::TooLarge { .. }
+                | TextureError::OverBudget { .. }
+                | TextureError::Jpeg(JpegScanError::TooManyScans { .. }) => SceneErrorKind::Limit,
                 _ => SceneErrorKind::Invalid,
             };
             err(format!("texture file \"{path}\": {e}"), kind)
