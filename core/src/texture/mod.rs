@@ -14,8 +14,9 @@
 //! the cost of reading a header. The MIP chain adds at most a third. A
 //! JPEG's markers are read first ([`jpeg_scan`]): its size comes from its
 //! frame header, and one of more than [`jpeg_scan::MAX_JPEG_SCANS`] scans
-//! (each a pass over every block when decoded) is refused. A PNG's
-//! decoder inflates no more than the image its IHDR declares.
+//! (each a pass over every block when decoded) is refused. A PNG whose
+//! compressed image data is more than its IHDR's image can need is refused
+//! from its chunk headers ([`png_scan`]): the decoder inflates all of it.
 //!
 //! Coordinates: `u` runs left to right and `v = 0` is the image's bottom row
 //! (the OBJ convention); texel `(i, j)` (column, row from the top) has its
@@ -23,6 +24,7 @@
 
 pub mod jpeg_scan;
 mod memory;
+pub mod png_scan;
 mod sample;
 
 pub use memory::SceneMemory;
@@ -58,6 +60,9 @@ pub enum TextureError {
     /// Refused from its markers before decoding (see [`jpeg_scan`]).
     #[error("{0}")]
     Jpeg(#[from] jpeg_scan::JpegScanError),
+    /// Refused from its chunks before decoding (see [`png_scan`]).
+    #[error("{0}")]
+    Png(#[from] png_scan::PngScanError),
 }
 
 /// One level of a MIP chain: `width × height` linear RGB texels, rows from
@@ -140,6 +145,9 @@ impl Texture {
                 .map_err(|e| TextureError::Decode(e.to_string()))?,
         };
         check_size(u64::from(w), u64::from(h), budget)?;
+        if format == Some(image::ImageFormat::Png) {
+            png_scan::check(bytes)?;
+        }
         let mut reader = image::io::Reader::new(Cursor::new(bytes));
         if let Some(f) = format {
             reader.set_format(f);

@@ -99,6 +99,7 @@ impl<'a> Resolver<'a> {
             let kind = match e {
                 TextureError::TooLarge { .. }
                 | TextureError::OverBudget { .. }
+                | TextureError::Png(_)
                 | TextureError::Jpeg(JpegScanError::TooManyScans { .. }) => SceneErrorKind::Limit,
                 _ => SceneErrorKind::Invalid,
             };
