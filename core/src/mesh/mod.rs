@@ -4,6 +4,7 @@
 //! index and carry their own transform, so a mesh used by 100 models costs
 //! its triangles once.
 
+pub mod counts;
 pub mod mtl;
 pub mod obj;
 pub mod ply;

@@ -11,7 +11,9 @@
 //! Two phases: `xml.rs` turns the text into a small element tree (checking XML
 //! well-formedness, rejecting DTDs and entities, and checking which element
 //! may appear where); this module then reads that tree, loads meshes and
-//! fills in every default.
+//! fills in every default. [`parse_scene_headers`] reads the same tree but
+//! of mesh and texture files only their headers (see [`SceneHeaders`]):
+//! what the coordinator admits a job with.
 //!
 //! One file per element reads it, beside its attribute table (name, type,
 //! default, meaning; see [`table`]): `settings.rs`, `mesh.rs`, `model.rs`
@@ -52,9 +54,12 @@ mod bounds_tests;
 #[cfg(test)]
 mod doc_tests;
 #[cfg(test)]
+mod headers_tests;
+#[cfg(test)]
 mod tests;
 
 use super::source::FileSource;
+use super::estimate::{estimate_sized, AssetSizes, MemoryEstimate};
 use super::{SceneDesc, MAX_OBJECTS};
 use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
 use glam::DVec3;
@@ -89,26 +94,84 @@ pub const ATTRIBUTE_TABLES: &[(&str, &[Attribute])] = &[
 /// Parses the scene file `scene` (bundle-relative) from `source`, loading the
 /// meshes it references, and returns the resolved, validated description.
 pub fn parse_scene(scene: &str, source: &dyn FileSource) -> Result<SceneDesc> {
-    let bytes = source.read(scene).map_err(|e| {
-        SceneError::of_kind(
-            read_error_kind(&e),
-            Location::new(scene, 1, 1),
-            format!("cannot read the scene file: {e}"),
-        )
-    })?;
-    let text = std::str::from_utf8(&bytes).map_err(|e| {
-        SceneError::of_kind(
-            SceneErrorKind::Syntax,
-            Location::at_offset(scene, &bytes, e.valid_up_to()),
-            "the scene file is not valid UTF-8 (expected UTF-8 text)",
-        )
-    })?;
-    parse_scene_str(scene, text, source)
+    let bytes = read_scene(scene, source)?;
+    parse_scene_str(scene, scene_text(scene, &bytes)?, source)
 }
 
 /// Like [`parse_scene`], with the scene file's text already in hand. `scene`
 /// is its bundle-relative name (used in errors and to resolve `file=`).
 pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Result<SceneDesc> {
+    parse_with(scene, text, source, Load::Full).map(|r| r.0)
+}
+
+/// A scene read by [`parse_scene_headers`]: its description with every
+/// camera, light, object and surface resolved, but no mesh or texture
+/// loaded ([`SceneDesc::meshes`] and [`SceneDesc::textures`] are empty,
+/// models keep no per-triangle surface table, and no mesh is recentred), so
+/// it cannot be built; and the sizes of its meshes and textures, read from
+/// their files' headers.
+#[derive(Debug, Clone)]
+pub struct SceneHeaders {
+    pub desc: SceneDesc,
+    pub sizes: AssetSizes,
+}
+
+impl SceneHeaders {
+    /// The scene's memory estimate: at least what the full parse's gives
+    /// (see [`estimate_sized`]).
+    pub fn estimate(&self) -> MemoryEstimate {
+        estimate_sized(&self.desc, &self.sizes)
+    }
+}
+
+/// [`parse_scene`] for admitting a job: the scene file is read and checked
+/// as fully as by [`parse_scene`], but of mesh and texture files only what
+/// their headers say is read (image sizes of every part, mesh counts; see
+/// `mesh/counts.rs` and `texture/header.rs`), never a pixel, and no mesh is
+/// built. A texture's size is checked against the same bounds as when it
+/// is decoded; what is wrong inside a mesh's or image's data is found by
+/// the full parse (the worker's).
+pub fn parse_scene_headers(scene: &str, source: &dyn FileSource) -> Result<SceneHeaders> {
+    let bytes = read_scene(scene, source)?;
+    let (desc, sizes) = parse_with(scene, scene_text(scene, &bytes)?, source, Load::HeadersOnly)?;
+    Ok(SceneHeaders { desc, sizes })
+}
+
+fn read_scene(scene: &str, source: &dyn FileSource) -> Result<Vec<u8>> {
+    source.read(scene).map_err(|e| {
+        SceneError::of_kind(
+            read_error_kind(&e),
+            Location::new(scene, 1, 1),
+            format!("cannot read the scene file: {e}"),
+        )
+    })
+}
+
+fn scene_text<'b>(scene: &str, bytes: &'b [u8]) -> Result<&'b str> {
+    std::str::from_utf8(bytes).map_err(|e| {
+        SceneError::of_kind(
+            SceneErrorKind::Syntax,
+            Location::at_offset(scene, bytes, e.valid_up_to()),
+            "the scene file is not valid UTF-8 (expected UTF-8 text)",
+        )
+    })
+}
+
+/// What a parse loads of the mesh and texture files a scene names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Load {
+    /// Meshes loaded and textures decoded: a scene to build.
+    Full,
+    /// Counts and image sizes from the files' headers only.
+    HeadersOnly,
+}
+
+fn parse_with(
+    scene: &str,
+    text: &str,
+    source: &dyn FileSource,
+    load: Load,
+) -> Result<(SceneDesc, AssetSizes)> {
     let src = Src { file: scene, text };
     let root = xml::parse_document(&src)?;
     let scene_dir = match scene.rfind('/') {
@@ -118,8 +181,10 @@ pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Resu
     let mut r = Resolver {
         src: &src,
         source,
+        load,
         scene_dir,
         desc: SceneDesc::default(),
+        sizes: AssetSizes::default(),
         files: BTreeSet::new(),
         mesh_ids: HashMap::new(),
         mesh_offsets: Vec::new(),
@@ -135,7 +200,7 @@ pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Resu
     r.scene(&root)?;
     let mut desc = r.desc;
     desc.files = r.files.into_iter().collect();
-    Ok(desc)
+    Ok((desc, r.sizes))
 }
 
 /// Where an id was first defined: element name and offset of its `<`.
@@ -144,10 +209,16 @@ type Claim = (String, usize);
 struct Resolver<'a> {
     src: &'a Src<'a>,
     source: &'a dyn FileSource,
+    load: Load,
     scene_dir: String,
     desc: SceneDesc,
+    /// The meshes' counts, textures' sizes and models' per-triangle table
+    /// lengths, in both modes (what models read of their mesh, and what
+    /// the estimate of a headers-only parse is made from).
+    sizes: AssetSizes,
     files: BTreeSet<String>,
-    /// Mesh id → (index in `desc.meshes`, offset of its `<mesh>`).
+    /// Mesh id → (index in `desc.meshes` and `sizes.meshes`, offset of its
+    /// `<mesh>`).
     mesh_ids: HashMap<String, (usize, usize)>,
     /// Per mesh, where its object-space origin was moved to (see
     /// [`mesh::recentre`]).

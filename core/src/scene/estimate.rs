@@ -45,6 +45,8 @@
 //! pixels and per-thread stacks, bounded by the tile size and `max-depth`).
 
 use super::SceneDesc;
+use crate::mesh::counts::MeshCounts;
+use crate::texture::header::TextureHeader;
 use std::collections::HashSet;
 
 /// Bytes per triangle the trees of a mesh hold once built (see the
@@ -113,15 +115,58 @@ impl MemoryEstimate {
     }
 }
 
+/// The sizes the estimate needs of a scene's meshes and textures, from the
+/// loaded ones ([`AssetSizes::of`]) or from their files' headers (the
+/// headers-only parse, [`super::aisxml::parse_scene_headers`]), which then
+/// leaves [`SceneDesc::meshes`] and [`SceneDesc::textures`] empty.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct AssetSizes {
+    /// Per mesh of [`SceneDesc::meshes`], in order.
+    pub meshes: Vec<MeshCounts>,
+    /// Per texture of [`SceneDesc::textures`], its level-0 width and height.
+    pub textures: Vec<(u32, u32)>,
+    /// Per model of [`SceneDesc::models`], the length of its per-triangle
+    /// surface table ([`super::Model::triangle_surface`]).
+    pub triangle_surfaces: Vec<u64>,
+}
+
+impl AssetSizes {
+    /// The sizes of a fully parsed scene's meshes and textures.
+    pub fn of(desc: &SceneDesc) -> AssetSizes {
+        AssetSizes {
+            meshes: desc.meshes.iter().map(MeshCounts::of).collect(),
+            textures: desc
+                .textures
+                .iter()
+                .map(|t| t.levels.first().map_or((0, 0), |l| (l.width, l.height)))
+                .collect(),
+            triangle_surfaces: desc
+                .models
+                .iter()
+                .map(|m| m.triangle_surface.len() as u64)
+                .collect(),
+        }
+    }
+}
+
 /// Estimates the most memory building `desc` and rendering it holds (see the module's
 /// documentation for the formula).
 pub fn estimate(desc: &SceneDesc) -> MemoryEstimate {
+    estimate_sized(desc, &AssetSizes::of(desc))
+}
+
+/// [`estimate`] with the meshes' and textures' sizes given apart from
+/// `desc` (whose meshes and textures are then not read). From the sizes a
+/// headers-only parse gives, the result is at least the full parse's (equal
+/// unless an OBJ or PLY mesh may split vertices: see
+/// [`MeshCounts::vertices`]).
+pub fn estimate_sized(desc: &SceneDesc, sizes: &AssetSizes) -> MemoryEstimate {
     let mut meshes = 0u64;
     let mut largest = 0u64;
-    for m in &desc.meshes {
-        let v = m.positions.len() as u64;
-        let t = m.triangles.len() as u64;
-        let uv = if m.uvs.is_empty() { 0 } else { 8 };
+    for m in &sizes.meshes {
+        let v = m.vertices;
+        let t = m.triangles;
+        let uv = if m.uvs { 8 } else { 0 };
         meshes = meshes
             .saturating_add(v.saturating_mul(24 + uv))
             .saturating_add(t.saturating_mul(16 + BVH_BYTES_PER_TRIANGLE));
@@ -133,23 +178,24 @@ pub fn estimate(desc: &SceneDesc) -> MemoryEstimate {
         largest = largest.max(t.saturating_mul(per));
     }
     let build = largest;
-    let textures = desc
+    let textures = sizes
         .textures
         .iter()
-        .map(|t| t.memory_bytes())
+        .map(|&(w, h)| TextureHeader::decoded_bytes(w, h))
         .fold(0u64, u64::saturating_add);
 
     let mut objects = FIXED_BYTES;
     let mut emitters = 0u64;
-    for model in &desc.models {
+    for (i, model) in desc.models.iter().enumerate() {
+        let table = sizes.triangle_surfaces.get(i).copied().unwrap_or(0);
         objects = objects
             .saturating_add(MODEL_BYTES)
             .saturating_add(model.surfaces.len() as u64 * SURFACE_BYTES)
-            .saturating_add(2 * model.triangle_surface.len() as u64);
+            .saturating_add(table.saturating_mul(2));
         let glows = |s: &super::Surface| s.emission != glam::Vec3::ZERO;
         if model.surfaces.iter().any(glows) {
-            let t = desc.meshes.get(model.mesh).map_or(0, |m| m.triangles.len());
-            emitters = emitters.saturating_add(t as u64);
+            let t = sizes.meshes.get(model.mesh).map_or(0, |m| m.triangles);
+            emitters = emitters.saturating_add(t);
         }
     }
     emitters += desc

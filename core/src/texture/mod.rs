@@ -22,6 +22,7 @@
 //! (the OBJ convention); texel `(i, j)` (column, row from the top) has its
 //! centre at `u = (i + ½)/W`, `v = 1 − (j + ½)/H`.
 
+pub mod header;
 pub mod jpeg_scan;
 mod memory;
 pub mod png_scan;
@@ -271,13 +272,9 @@ fn span(k: u32, n: u32, src: u32) -> std::ops::Range<u32> {
 fn decode_exr(bytes: &[u8], budget: u64) -> Result<Texture, TextureError> {
     use exr::prelude::*;
     let err = |e: exr::error::Error| TextureError::Decode(e.to_string());
-    // The header first: its size is checked before any pixel is allocated.
-    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(err)?;
-    let Some(header) = meta.headers.first() else {
-        return Err(TextureError::Decode("the file has no layer".into()));
-    };
-    let size = header.layer_size;
-    check_size(size.width() as u64, size.height() as u64, budget)?;
+    // Every part's header first (the reader may allocate for any part, not
+    // only the one it keeps): checked before any pixel is allocated.
+    header::probe(bytes)?.check(budget)?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

@@ -17,6 +17,17 @@ pub(super) struct Ctx<'h> {
     property: &'h str,
 }
 
+impl<'h> Ctx<'h> {
+    /// Property `property` of instance `index` of element `element`.
+    pub(super) fn new(element: &'h str, index: u64, property: &'h str) -> Self {
+        Ctx {
+            element,
+            index,
+            property,
+        }
+    }
+}
+
 impl std::fmt::Display for Ctx<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(

@@ -48,6 +48,7 @@
 mod ascii;
 mod binary;
 mod body;
+mod counts;
 mod header;
 #[cfg(test)]
 mod test_files;
@@ -59,6 +60,8 @@ use ascii::AsciiBody;
 use binary::BinaryBody;
 use body::read_body;
 use header::{Format, Header};
+
+pub use counts::counts;
 
 /// Parses a PLY file's bytes. `file` is the bundle-relative name used in errors.
 pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {

@@ -2,10 +2,11 @@
 //! `<triangles>`, or from an OBJ or PLY file of the bundle.
 
 use super::table::{attr, Attribute, REQUIRED};
-use super::values::{parse_uint, El};
+use super::values::{parse_real, parse_uint, El, NumError};
 use super::xml::{excerpt, Attr, Elem};
-use super::{Resolver, Result};
+use super::{Load, Resolver, Result};
 use crate::error::{read_error_kind, SceneErrorKind};
+use crate::mesh::counts::MeshCounts;
 use crate::mesh::Mesh;
 use crate::scene::source::normalize_rel_path;
 use crate::scene::MAX_MESH_ELEMENTS;
@@ -49,17 +50,32 @@ impl<'a> Resolver<'a> {
             ).with_kind(SceneErrorKind::Reference));
         }
         let invert = el.boolean("invert")?.unwrap_or(false);
-        let (mut mesh, offset) = match el.get("file") {
-            Some(f) => {
-                if let Some(c) = e.children.first() {
-                    return Err(self.src.err(
-                        c.pos,
-                        format!(
-                            "<{}> inside a <mesh> with file= (expected either file= or inline data, not both)",
-                            c.name
-                        ),
-                    ).with_kind(SceneErrorKind::UnknownElement));
+        let file = el.get("file");
+        if let (Some(_), Some(c)) = (file, e.children.first()) {
+            return Err(self.src.err(
+                c.pos,
+                format!(
+                    "<{}> inside a <mesh> with file= (expected either file= or inline data, not both)",
+                    c.name
+                ),
+            ).with_kind(SceneErrorKind::UnknownElement));
+        }
+        if self.load == Load::HeadersOnly {
+            let counts = match file {
+                Some(f) => self.mesh_file_counts(&el, f)?,
+                None => {
+                    self.mesh_materials.push(None);
+                    inline_counts(&el, &id)?
                 }
+            };
+            check_mesh_size(&el, &id, counts.file_vertices, counts.triangles)?;
+            self.mesh_ids.insert(id, (self.sizes.meshes.len(), e.pos));
+            self.sizes.meshes.push(counts);
+            self.mesh_offsets.push(DVec3::ZERO);
+            return Ok(());
+        }
+        let (mut mesh, offset) = match file {
+            Some(f) => {
                 let (mut mesh, materials) = self.mesh_file(&el, f)?;
                 self.mesh_materials.push(materials);
                 let offset = recentre(mesh.positions.iter().map(|p| p.as_dvec3()));
@@ -75,36 +91,28 @@ impl<'a> Resolver<'a> {
                 inline_mesh(&el, &id)?
             }
         };
-        for (n, what) in [
-            (mesh.positions.len(), "vertices"),
-            (mesh.triangles.len(), "triangles"),
-        ] {
-            if n > MAX_MESH_ELEMENTS {
-                return Err(el
-                    .err(format!(
-                        "<mesh> \"{}\" has {n} {what} (expected at most {MAX_MESH_ELEMENTS})",
-                        excerpt(&id)
-                    ))
-                    .with_kind(SceneErrorKind::Limit));
-            }
-        }
+        check_mesh_size(
+            &el,
+            &id,
+            mesh.positions.len() as u64,
+            mesh.triangles.len() as u64,
+        )?;
         if mesh.normals.is_empty() {
             mesh.compute_smooth_normals();
         }
         if invert {
             mesh.invert();
         }
-        self.mesh_ids.insert(id, (self.desc.meshes.len(), e.pos));
+        self.mesh_ids.insert(id, (self.sizes.meshes.len(), e.pos));
+        self.sizes.meshes.push(MeshCounts::of(&mesh));
         self.desc.meshes.push(mesh);
         self.mesh_offsets.push(offset);
         Ok(())
     }
 
-    fn mesh_file(
-        &mut self,
-        el: &El<'a>,
-        f: &'a Attr,
-    ) -> Result<(Mesh, Option<super::materials::MeshMaterials>)> {
+    /// The bundle path of the mesh file `f` names, and its bytes; whether
+    /// it is an OBJ (else a PLY).
+    fn read_mesh_file(&self, el: &El<'a>, f: &'a Attr) -> Result<(String, Vec<u8>, bool)> {
         let rel = normalize_rel_path(&f.value).map_err(|m| {
             el.attr_err(
                 f,
@@ -127,6 +135,53 @@ impl<'a> Resolver<'a> {
             )
             .with_kind(read_error_kind(&e))
         })?;
+        Ok((path, bytes, is_obj))
+    }
+
+    /// A mesh file's counts (the headers-only parse), with its OBJ
+    /// materials resolved as [`Resolver::mesh_file`] resolves them (their
+    /// textures' headers read), but without their per-triangle table.
+    fn mesh_file_counts(&mut self, el: &El<'a>, f: &'a Attr) -> Result<MeshCounts> {
+        let (path, bytes, is_obj) = self.read_mesh_file(el, f)?;
+        let counts = if is_obj {
+            let c = crate::mesh::counts::obj(&path, &bytes)?;
+            // What `obj_materials` reads of the mesh: whether it has uvs.
+            let uvs = Mesh {
+                uvs: if c.counts.uvs {
+                    vec![glam::Vec2::ZERO]
+                } else {
+                    Vec::new()
+                },
+                ..Mesh::default()
+            };
+            let m = crate::mesh::obj::ObjMaterials {
+                libs: c.libs,
+                names: c.names,
+                triangle_material: Vec::new(),
+            };
+            let materials = self.obj_materials(&path, &bytes, &uvs, &m)?;
+            self.mesh_materials.push(materials);
+            c.counts
+        } else {
+            self.mesh_materials.push(None);
+            crate::mesh::ply::counts(&path, &bytes)?
+        };
+        if counts.triangles == 0 {
+            return Err(el.attr_err(
+                f,
+                format!("mesh file \"{path}\": the mesh has no triangles (expected at least one)"),
+            ));
+        }
+        self.files.insert(path);
+        Ok(counts)
+    }
+
+    fn mesh_file(
+        &mut self,
+        el: &El<'a>,
+        f: &'a Attr,
+    ) -> Result<(Mesh, Option<super::materials::MeshMaterials>)> {
+        let (path, bytes, is_obj) = self.read_mesh_file(el, f)?;
         let (mesh, materials) = if is_obj {
             let (mesh, m) = crate::mesh::obj::parse_with_materials(&path, &bytes)?;
             let materials = self.obj_materials(&path, &bytes, &mesh, &m)?;
@@ -174,6 +229,21 @@ impl<'a> Resolver<'a> {
     }
 }
 
+/// Fails when a mesh has more vertices or triangles than a scene may have.
+fn check_mesh_size(el: &El, id: &str, vertices: u64, triangles: u64) -> Result<()> {
+    for (n, what) in [(vertices, "vertices"), (triangles, "triangles")] {
+        if n > MAX_MESH_ELEMENTS as u64 {
+            return Err(el
+                .err(format!(
+                    "<mesh> \"{}\" has {n} {what} (expected at most {MAX_MESH_ELEMENTS})",
+                    excerpt(id)
+                ))
+                .with_kind(SceneErrorKind::Limit));
+        }
+    }
+    Ok(())
+}
+
 /// Where to put a mesh's object-space origin: the centre of its bounding box
 /// when the mesh lies far from the origin compared with its size (more than
 /// 8 half-extents away), else the origin itself. Vertices are stored in f32
@@ -201,7 +271,14 @@ fn recentre(points: impl Iterator<Item = DVec3>) -> DVec3 {
 /// An inline mesh: `<vertices>`, optional `<normals>` and `<uvs>` (two
 /// numbers, u v, per vertex), `<triangles>`; and
 /// the offset its vertices were stored relative to (see [`recentre`]).
-fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
+/// An inline mesh's `<vertices>`, `<normals>`, `<triangles>` and `<uvs>`
+/// (the first and third required), each at most once and without
+/// attributes.
+#[allow(clippy::type_complexity)]
+fn inline_parts<'e>(
+    el: &El<'e>,
+    id: &str,
+) -> Result<(&'e Elem, Option<&'e Elem>, &'e Elem, Option<&'e Elem>)> {
     let mut parts: [Option<&Elem>; 4] = [None, None, None, None];
     for c in &el.e.children {
         let slot = match c.name.as_str() {
@@ -242,6 +319,11 @@ fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
             ))
             .with_kind(SceneErrorKind::Missing));
     };
+    Ok((ve, ne, te, ue))
+}
+
+fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
+    let (ve, ne, te, ue) = inline_parts(el, id)?;
     let vel = El::new(el.src, ve);
     let v = vel.text_reals()?;
     if !v.len().is_multiple_of(3) {
@@ -340,4 +422,105 @@ fn inline_mesh(el: &El, id: &str) -> Result<(Mesh, DVec3)> {
         },
         offset,
     ))
+}
+
+/// An inline mesh's counts (the headers-only parse), checked as
+/// [`inline_mesh`] checks it (every number and index, every count) but
+/// without keeping a number.
+fn inline_counts(el: &El, id: &str) -> Result<MeshCounts> {
+    let (ve, ne, te, ue) = inline_parts(el, id)?;
+    let vel = El::new(el.src, ve);
+    let v = count_reals(&vel)?;
+    if !v.is_multiple_of(3) {
+        return Err(vel.err(format!(
+            "<vertices> of mesh \"{}\": expected 3 numbers per vertex (a multiple of 3), found {v}",
+            excerpt(id)
+        )));
+    }
+    let nv = v / 3;
+    if let Some(ne) = ne {
+        let nel = El::new(el.src, ne);
+        let n = count_reals(&nel)?;
+        if n != v {
+            return Err(nel.err(format!(
+                "<normals> of mesh \"{}\": expected one normal per vertex ({v} numbers for {nv} vertices), found {n} numbers",
+                excerpt(id)
+            )));
+        }
+    }
+    if let Some(ue) = ue {
+        let uel = El::new(el.src, ue);
+        let t = count_reals(&uel)?;
+        if t != 2 * nv {
+            return Err(uel.err(format!(
+                "<uvs> of mesh \"{}\": expected one u v pair per vertex ({} numbers for {nv} vertices), found {t} numbers",
+                excerpt(id),
+                2 * nv
+            )));
+        }
+    }
+    let tel = El::new(el.src, te);
+    let mut idx = 0usize;
+    for (pos, tok) in tel.text_tokens() {
+        let Some(i) = parse_uint(tok).and_then(|i| u32::try_from(i).ok()) else {
+            return Err(el.src.err(
+                pos,
+                format!(
+                    "<triangles>: expected a vertex index (an integer ≥ 0), found \"{}\"",
+                    excerpt(tok)
+                ),
+            ));
+        };
+        if i as usize >= nv {
+            return Err(el.src.err(
+                pos,
+                format!(
+                    "<triangles> of mesh \"{}\": vertex index {i} is out of range (expected an index below the vertex count, {nv})",
+                    excerpt(id)
+                ),
+            ));
+        }
+        idx += 1;
+    }
+    if idx == 0 {
+        return Err(tel.err(format!(
+            "<triangles> of mesh \"{}\" is empty (expected at least one triangle)",
+            excerpt(id)
+        )));
+    }
+    if !idx.is_multiple_of(3) {
+        return Err(tel.err(format!(
+            "<triangles> of mesh \"{}\": expected 3 indices per triangle (a multiple of 3), found {idx}",
+            excerpt(id)
+        )));
+    }
+    Ok(MeshCounts {
+        vertices: nv as u64,
+        file_vertices: nv as u64,
+        triangles: (idx / 3) as u64,
+        uvs: ue.is_some(),
+    })
+}
+
+/// How many numbers an element's text holds, each checked as
+/// [`El::text_reals`] checks it.
+fn count_reals(el: &El) -> Result<usize> {
+    let mut n = 0;
+    for (pos, tok) in el.text_tokens() {
+        if let Err(e) = parse_real(tok) {
+            let what = match e {
+                NumError::Malformed => "a number",
+                NumError::NonFinite => "a finite number",
+            };
+            return Err(el
+                .src
+                .err(
+                    pos,
+                    format!("<{}>: expected {what}, found \"{}\"", el.e.name, excerpt(tok)),
+                )
+                .with_kind(SceneErrorKind::BadValue));
+        }
+        n += 1;
+    }
+    Ok(n)
 }

@@ -5,7 +5,7 @@ use super::surface::surface;
 use super::table::{attr, Attribute, REQUIRED};
 use super::values::{parse_uint, tokens, El};
 use super::xml::{excerpt, is_xml_ws, Elem};
-use super::{Resolver, Result};
+use super::{Load, Resolver, Result};
 use crate::error::SceneErrorKind;
 use crate::scene::animation::ModelAnimation;
 use crate::scene::{Model, Surface};
@@ -54,12 +54,10 @@ impl<'a> Resolver<'a> {
                 )
                 .with_kind(SceneErrorKind::Reference));
         };
-        let tri_count = self.desc.meshes.get(mesh).map_or(0, |m| m.triangles.len());
-        let has_uvs = self
-            .desc
-            .meshes
-            .get(mesh)
-            .is_some_and(|m| !m.uvs.is_empty());
+        // From the counts, which both parses have (see `mesh.rs`).
+        let counts = self.sizes.meshes.get(mesh).copied().unwrap_or_default();
+        let tri_count = usize::try_from(counts.triangles).unwrap_or(usize::MAX);
+        let has_uvs = counts.uvs;
 
         let mut transform: Option<DMat4> = None;
         let mut default: Option<(Surface, usize)> = None;
@@ -98,11 +96,16 @@ impl<'a> Resolver<'a> {
         }
         let mut surfaces = vec![default.map_or_else(Surface::default, |(s, _)| s)];
         let mut triangle_surface: Vec<u16> = Vec::new();
+        // The length of the model's per-triangle table in a full parse.
+        let mut table = 0u64;
         // No <surface> of its own: the OBJ's materials, if it has any.
         if default.is_none() && named.is_empty() {
             if let Some(Some(m)) = self.mesh_materials.get(mesh) {
                 surfaces = m.surfaces.clone();
                 triangle_surface = m.triangle_surface.clone();
+                // A headers-only parse has no table of the OBJ's materials;
+                // a full parse's has one entry a triangle.
+                table = counts.triangles;
             }
         }
         if !named.is_empty() {
@@ -122,6 +125,12 @@ impl<'a> Resolver<'a> {
                 self.assign_triangles(&cl, k, &mut triangle_surface, &owners)?;
                 surfaces.push(surf);
             }
+        }
+        table = table.max(triangle_surface.len() as u64);
+        self.sizes.triangle_surfaces.push(table);
+        if self.load == Load::HeadersOnly {
+            // Checked; the estimate needs only its length.
+            triangle_surface = Vec::new();
         }
         let base = match self.mesh_offsets.get(mesh) {
             Some(&o) if o != DVec3::ZERO => {

@@ -4,12 +4,12 @@
 
 use super::values::El;
 use super::xml::Attr;
-use super::{Resolver, Result};
+use super::{Load, Resolver, Result};
 use crate::error::{read_error_kind, SceneErrorKind};
 use crate::scene::source::normalize_rel_path;
 use crate::scene::TextureMap;
 use crate::texture::jpeg_scan::JpegScanError;
-use crate::texture::{Texture, TextureError, Wrap, MAX_SCENE_TEXELS};
+use crate::texture::{header, Texture, TextureError, Wrap, MAX_SCENE_TEXELS};
 use glam::Vec2;
 
 impl<'a> Resolver<'a> {
@@ -65,7 +65,7 @@ impl<'a> Resolver<'a> {
     }
 
     /// Reads and decodes the image `f` names (once per scene), returning its
-    /// index in `desc.textures`.
+    /// index in `desc.textures` (and `sizes.textures`).
     pub(super) fn texture_file(&mut self, el: &El<'a>, f: &'a Attr) -> Result<u32> {
         let rel = normalize_rel_path(&f.value).map_err(|m| {
             el.attr_err(
@@ -78,7 +78,8 @@ impl<'a> Resolver<'a> {
         self.load_texture(&path, |msg, kind| el.attr_err(f, msg).with_kind(kind))
     }
 
-    /// Decodes the bundle file `path` once; `err` places an error (at the
+    /// Decodes the bundle file `path` once (a headers-only parse reads its
+    /// size from its headers instead); `err` places an error (at the
     /// attribute, or at the `.mtl` line that named the file).
     pub(super) fn load_texture(
         &mut self,
@@ -95,7 +96,7 @@ impl<'a> Resolver<'a> {
             )
         })?;
         let left = MAX_SCENE_TEXELS - self.texels;
-        let texture = Texture::decode_within(&bytes, left).map_err(|e| {
+        let located = |e: TextureError| {
             let kind = match e {
                 TextureError::TooLarge { .. }
                 | TextureError::OverBudget { .. }
@@ -104,11 +105,24 @@ impl<'a> Resolver<'a> {
                 _ => SceneErrorKind::Invalid,
             };
             err(format!("texture file \"{path}\": {e}"), kind)
-        })?;
-        let l0 = &texture.levels[0];
-        self.texels += u64::from(l0.width) * u64::from(l0.height);
-        let i = self.desc.textures.len() as u32;
-        self.desc.textures.push(texture);
+        };
+        let (width, height) = match self.load {
+            Load::Full => {
+                let texture = Texture::decode_within(&bytes, left).map_err(located)?;
+                let l0 = &texture.levels[0];
+                let size = (l0.width, l0.height);
+                self.desc.textures.push(texture);
+                size
+            }
+            // Every part's size from the headers, checked as the decoder
+            // checks it before decoding.
+            Load::HeadersOnly => header::probe(&bytes)
+                .and_then(|h| h.check(left))
+                .map_err(located)?,
+        };
+        self.texels += u64::from(width) * u64::from(height);
+        let i = self.sizes.textures.len() as u32;
+        self.sizes.textures.push((width, height));
         self.texture_ids.insert(path.to_string(), i);
         self.files.insert(path.to_string());
         Ok(i)
