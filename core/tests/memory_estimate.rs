@@ -83,8 +83,142 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-fn shared_meshes() -> PathBuf {
-    repo().join("../shared/meshes")
+/// The meshes kept in the repository (core/tests/data, with their licences).
+fn data() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data")
+}
+
+/// A sphere of `stacks` × `slices` with lumps (so the BVH is not a grid),
+/// as OBJ text without `vt`: 2 + (stacks − 1)·slices vertices and
+/// 2·slices·(stacks − 1) triangles. Stands in for a scan such as the
+/// Nefertiti bust, which stays out of the repository.
+fn lumpy_sphere(stacks: usize, slices: usize) -> Vec<u8> {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let v = |s: &mut String, th: f64, ph: f64| {
+        let r =
+            1.0 + 0.05 * (7.0 * th).sin() * (5.0 * ph).cos() + 0.02 * (31.0 * ph + 3.0 * th).sin();
+        let (x, y, z) = (
+            r * th.sin() * ph.cos(),
+            r * th.cos(),
+            r * th.sin() * ph.sin(),
+        );
+        writeln!(s, "v {x:.6} {y:.6} {z:.6}").unwrap();
+    };
+    let pi = std::f64::consts::PI;
+    v(&mut s, 0.0, 0.0);
+    for i in 1..stacks {
+        for j in 0..slices {
+            v(
+                &mut s,
+                pi * i as f64 / stacks as f64,
+                2.0 * pi * j as f64 / slices as f64,
+            );
+        }
+    }
+    v(&mut s, pi, 0.0);
+    let ring = |i: usize, j: usize| 2 + (i - 1) * slices + j % slices;
+    let last = 2 + (stacks - 1) * slices;
+    for j in 0..slices {
+        writeln!(s, "f 1 {} {}", ring(1, j + 1), ring(1, j)).unwrap();
+        writeln!(
+            s,
+            "f {last} {} {}",
+            ring(stacks - 1, j),
+            ring(stacks - 1, j + 1)
+        )
+        .unwrap();
+    }
+    for i in 1..stacks - 1 {
+        for j in 0..slices {
+            let (a, b, c, d) = (
+                ring(i, j),
+                ring(i, j + 1),
+                ring(i + 1, j),
+                ring(i + 1, j + 1),
+            );
+            writeln!(s, "f {a} {b} {d}\nf {a} {d} {c}").unwrap();
+        }
+    }
+    s.into_bytes()
+}
+
+/// A closed cylinder wall of `slices` × `rows` positions with texture
+/// coordinates and a seam (the first column's positions carry u = 0 and
+/// u = 1), naming the material library `mtl` (material `m`), as Bob's OBJ
+/// does: (slices + 1)·rows vertices once split, 2·slices·(rows − 1)
+/// triangles.
+fn textured_cylinder(slices: usize, rows: usize, mtl: &str) -> Vec<u8> {
+    use std::fmt::Write;
+    let mut s = String::new();
+    for r in 0..rows {
+        for j in 0..slices {
+            let a = 2.0 * std::f64::consts::PI * j as f64 / slices as f64;
+            writeln!(
+                s,
+                "v {:.6} {:.6} {:.6}",
+                a.cos(),
+                r as f64 / rows as f64,
+                a.sin()
+            )
+            .unwrap();
+        }
+    }
+    for r in 0..rows {
+        for j in 0..=slices {
+            writeln!(
+                s,
+                "vt {:.6} {:.6}",
+                j as f64 / slices as f64,
+                r as f64 / (rows - 1) as f64
+            )
+            .unwrap();
+        }
+    }
+    writeln!(s, "mtllib {mtl}\nusemtl m").unwrap();
+    let p = |r: usize, j: usize| 1 + r * slices + j % slices;
+    let t = |r: usize, j: usize| 1 + r * (slices + 1) + j;
+    for r in 0..rows - 1 {
+        for j in 0..slices {
+            let (a, b, c, d) = ((r, j), (r, j + 1), (r + 1, j), (r + 1, j + 1));
+            let c3 = |(r, j): (usize, usize)| format!("{}/{}", p(r, j), t(r, j));
+            writeln!(
+                s,
+                "f {} {} {}\nf {} {} {}",
+                c3(a),
+                c3(b),
+                c3(d),
+                c3(a),
+                c3(d),
+                c3(c)
+            )
+            .unwrap();
+        }
+    }
+    s.into_bytes()
+}
+
+/// An 8-bit RGB PNG of `size` × `size` with a pattern that does not
+/// compress away (what a painted texture decodes to is its size alone).
+fn png(size: u32) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, size, size);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    let mut w = enc.write_header().unwrap();
+    let mut x = 0x9e37_79b9_u32;
+    let pixels: Vec<u8> = (0..size * size * 3)
+        .map(|i| {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            ((i / 3 % size) as u8).wrapping_add((x & 15) as u8)
+        })
+        .collect();
+    w.write_image_data(&pixels).unwrap();
+    w.finish().unwrap();
+    out
 }
 
 /// A bundle of `xml` and the given files (bundle path, bytes).
@@ -131,34 +265,36 @@ struct Case {
 
 fn cases() -> Vec<Case> {
     let ex = repo().join("examples");
-    let sm = shared_meshes();
+    let spot = data().join("spot");
     let example = |name: &'static str| Case {
         name,
         bundle: Bundle::from_scene_file(&ex.join(name)).expect("example bundles"),
     };
+    // The size of the Nefertiti scan (99,938 triangles, no uvs).
+    let bust = lumpy_sphere(159, 316);
     vec![
         example("cornell.xml"),
         example("instancing.xml"),
         example("turntable.xml"),
         Case {
-            name: "nefertiti (99,938 triangles)",
+            name: "lumpy sphere (99,856 triangles)",
             bundle: bundle(
                 &mesh_scene("n.obj", r#"diffuse="0.8 0.8 0.8""#, 1),
-                &[("n.obj", read(&sm.join("nefertiti.obj")))],
+                &[("n.obj", bust.clone())],
             ),
         },
         Case {
-            name: "nefertiti x 50 instances",
+            name: "lumpy sphere x 50 instances",
             bundle: bundle(
                 &mesh_scene("n.obj", r#"diffuse="0.8 0.8 0.8""#, 50),
-                &[("n.obj", read(&sm.join("nefertiti.obj")))],
+                &[("n.obj", bust)],
             ),
         },
         Case {
-            name: "teapot",
+            name: "lumpy sphere (6,400 triangles)",
             bundle: bundle(
                 &mesh_scene("t.obj", r#"diffuse="0.8 0.8 0.8""#, 1),
-                &[("t.obj", read(&sm.join("teapot.obj")))],
+                &[("t.obj", lumpy_sphere(41, 80))],
             ),
         },
         Case {
@@ -166,20 +302,22 @@ fn cases() -> Vec<Case> {
             bundle: bundle(
                 &mesh_scene("s.obj", r#"diffuse="1 1 1" diffuse-texture="s.png""#, 1),
                 &[
-                    ("s.obj", read(&sm.join("spot/spot_triangulated.obj"))),
-                    ("s.png", read(&sm.join("spot/spot_texture.png"))),
+                    ("s.obj", read(&spot.join("spot_triangulated.obj"))),
+                    ("s.png", read(&spot.join("spot_texture.png"))),
                 ],
             ),
         },
+        // Bob's shape: an OBJ naming a library whose map_Kd is a 2048² PNG,
+        // and the same PNG again as the model's diffuse texture.
         Case {
-            name: "bob textured (2048x2048)",
+            name: "textured cylinder (2048x2048)",
             bundle: bundle(
                 &mesh_scene("b.obj", r#"diffuse="1 1 1" diffuse-texture="b.png""#, 1),
                 &[
-                    ("b.obj", read(&sm.join("bob/bob_tri.obj"))),
-                    ("bob_tri.mtl", read(&sm.join("bob/bob_tri.mtl"))),
-                    ("bob_diffuse.png", read(&sm.join("bob/bob_diffuse.png"))),
-                    ("b.png", read(&sm.join("bob/bob_diffuse.png"))),
+                    ("b.obj", textured_cylinder(96, 57, "b.mtl")),
+                    ("b.mtl", b"newmtl m\nmap_Kd b_diffuse.png\n".to_vec()),
+                    ("b_diffuse.png", png(2048)),
+                    ("b.png", png(2048)),
                 ],
             ),
         },

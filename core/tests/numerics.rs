@@ -453,7 +453,9 @@ fn max_depth_64_between_glass_panes_finishes() {
     let s = scene(xml);
     let r = render_tile(&s, 0, Rect::new(0, 0, 4, 3));
     assert!(r.pixels.iter().flatten().all(|c| c.is_finite()));
-    assert!(t0.elapsed().as_secs() < 20, "took {:?}", t0.elapsed());
+    // The bound on rays below is the check; this one only catches a hang,
+    // generous for a busy machine.
+    assert!(t0.elapsed().as_secs() < 120, "took {:?}", t0.elapsed());
     assert!(r.rays < 12 * 20_000, "{} rays for 12 samples", r.rays);
 }
 
@@ -851,11 +853,13 @@ fn survive(name: &str, seeds: Vec<Vec<u8>>, count: usize, parse: fn(&[u8]) -> bo
         for i in 0..count {
             let base = &pool[rng.below(pool.len())];
             let input = mutate(&mut rng, base);
-            let t0 = std::time::Instant::now();
+            // CPU time of this thread: a busy machine stretches wall-clock
+            // time, not the work a parse does.
+            let t0 = thread_cpu();
             let (r, peak) = meter::peak_during(|| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| parse(&input)))
             });
-            let took = t0.elapsed();
+            let took = thread_cpu().saturating_sub(t0);
             let shown = String::from_utf8_lossy(&input[..input.len().min(300)]).to_string();
             let outcome = match r {
                 Err(_) => Err(format!("{worker_name} input {i} panicked: {shown:?}")),
@@ -891,12 +895,12 @@ fn survive(name: &str, seeds: Vec<Vec<u8>>, count: usize, parse: fn(&[u8]) -> bo
         }
         let _ = tx.send(Ok((ok, err)));
     });
-    match rx.recv_timeout(std::time::Duration::from_secs(60)) {
+    match rx.recv_timeout(std::time::Duration::from_secs(600)) {
         Ok(Ok((ok, err))) => {
             assert!(ok > 0 && err > 0, "{name}: {ok} parsed, {err} errors");
         }
         Ok(Err(e)) => panic!("{e}"),
-        Err(_) => panic!("{name}: a parse hangs (no answer within 60 s)"),
+        Err(_) => panic!("{name}: a parse hangs (no answer within 600 s)"),
     }
 }
 
@@ -1128,5 +1132,26 @@ fn measure_hit_point_error_against_distance() {
             String::new()
         };
         println!("| {d:e} | {world_err:.3e}{lost} | {view_err:.3e} |");
+    }
+}
+
+/// The CPU time the calling thread has used (`/proc/thread-self/stat`, in
+/// clock ticks of 10 ms); where there is no /proc, the wall-clock time since
+/// the first call.
+fn thread_cpu() -> std::time::Duration {
+    let from_proc = std::fs::read_to_string("/proc/thread-self/stat")
+        .ok()
+        .and_then(|stat| {
+            let rest = &stat[stat.rfind(')')? + 1..];
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
+        });
+    match from_proc {
+        // Linux's USER_HZ is 100.
+        Some(ticks) => std::time::Duration::from_millis(ticks * 10),
+        None => {
+            static START: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+            START.get_or_init(std::time::Instant::now).elapsed()
+        }
     }
 }

@@ -272,3 +272,194 @@ fn ao_and_the_diffuse_gather_use_the_textured_albedo() {
     let untextured = render(&textured_scene(&scene(white, effects), png()), 0);
     assert!(differs(&a, &untextured), "the texture changes nothing here");
 }
+
+/// Side of the multi-scale texture below.
+const MS: u32 = 256;
+
+/// A texture whose MIP levels all differ: the sum of checkers of every
+/// scale, cells of 2^s texels weighted `w[s]`. Level k keeps the checkers
+/// of cells ≥ 2^k and averages the finer ones away, so each level, and the
+/// colour at any level of detail, is its own.
+fn multiscale_code(i: u32, j: u32) -> u8 {
+    const W: [u32; 8] = [4, 8, 16, 24, 32, 48, 56, 60];
+    (0..8)
+        .filter(|&s| ((i >> s) + (j >> s)) % 2 == 1)
+        .map(|s| W[s as usize])
+        .sum::<u32>() as u8
+}
+
+/// The MIP chain of [`multiscale_code`] in linear values, computed here in
+/// f64 (sRGB decoded, then 2 × 2 box filters: the sides are powers of 2).
+fn multiscale_levels() -> Vec<Vec<f64>> {
+    let mut levels = vec![(0..MS * MS)
+        .map(|k| srgb(multiscale_code(k % MS, k / MS)))
+        .collect::<Vec<f64>>()];
+    let mut side = MS;
+    while side > 1 {
+        let prev = levels.last().unwrap();
+        let half = side / 2;
+        let at = |i: u32, j: u32| prev[(j * side + i) as usize];
+        levels.push(
+            (0..half * half)
+                .map(|k| {
+                    let (i, j) = (2 * (k % half), 2 * (k / half));
+                    (at(i, j) + at(i + 1, j) + at(i, j + 1) + at(i + 1, j + 1)) / 4.0
+                })
+                .collect(),
+        );
+        side = half;
+    }
+    levels
+}
+
+/// The texture at `uv` and level of detail `lod`, in f64: bilinear between
+/// texel centres of each level (repeat), linear between the two levels.
+fn sample_levels(levels: &[Vec<f64>], u: f64, v: f64, lod: f64) -> f64 {
+    let bilinear = |k: usize| {
+        let side = (MS >> k) as i64;
+        let l = &levels[k];
+        let x = u * side as f64 - 0.5;
+        let y = (1.0 - v) * side as f64 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let t = |i: i64, j: i64| l[(j.rem_euclid(side) * side + i.rem_euclid(side)) as usize];
+        let (i, j) = (x0 as i64, y0 as i64);
+        let top = t(i, j) * (1.0 - fx) + t(i + 1, j) * fx;
+        let bottom = t(i, j + 1) * (1.0 - fx) + t(i + 1, j + 1) * fx;
+        top * (1.0 - fy) + bottom * fy
+    };
+    let top = (levels.len() - 1) as f64;
+    let lod = lod.clamp(0.0, top);
+    let l0 = lod.floor() as usize;
+    let f = lod - l0 as f64;
+    if f > 0.0 {
+        bilinear(l0) * (1.0 - f) + bilinear(l0 + 1) * f
+    } else {
+        bilinear(l0)
+    }
+}
+
+/// The ray-cone level of detail in closed form (Akenine-Möller et al.,
+/// Ray Tracing Gems ch. 20): λ = ½·log₂(texel area / world area) +
+/// log₂(w / cos θ), with w = spread · (length of the path from the camera),
+/// spread = 1 / (W · ½ / tan(fov/2)) for one sample a pixel.
+fn cone_lod(texel_area: f64, world_area: f64, path: f64, cos: f64) -> f64 {
+    let spread = 1.0 / (W as f64 * 0.5 / (60f64.to_radians() / 2.0).tan());
+    0.5 * (texel_area / world_area).log2() + (spread * path / cos).log2()
+}
+
+/// Checks a render against the closed form at every pixel given: `hit`
+/// tells a pixel's centre ray's uv, path length to the textured surface
+/// and cosine there (`None`: not on it). The renderer's logarithm is
+/// within 0.008 of log₂, so the value is checked between the levels of
+/// detail 0.01 either side. Returns the pixels checked and the highest
+/// level of detail among them.
+fn check_levels(
+    px: &[[f32; 3]],
+    texel_area: f64,
+    world_area: f64,
+    hit: impl Fn([f64; 3]) -> Option<(f64, f64, f64, f64)>,
+    what: &str,
+) -> (usize, f64) {
+    let levels = multiscale_levels();
+    let cam = camera();
+    let (mut checked, mut highest) = (0, 0f64);
+    for r in 0..W {
+        for i in 0..W {
+            let Some((u, v, path, cos)) = hit(cam.dir(i, r)) else {
+                continue;
+            };
+            let lod = cone_lod(texel_area, world_area, path, cos);
+            highest = highest.max(lod);
+            let mut lods = vec![lod - 0.01, lod, lod + 0.01];
+            if (lod - 0.01).floor() != (lod + 0.01).floor() {
+                lods.push((lod + 0.01).floor());
+            }
+            let wants: Vec<f64> = lods
+                .iter()
+                .map(|&l| sample_levels(&levels, u, v, l))
+                .collect();
+            let lo = wants.iter().copied().fold(f64::INFINITY, f64::min) - 2e-4;
+            let hi = wants.iter().copied().fold(f64::NEG_INFINITY, f64::max) + 2e-4;
+            let got = px[(r * W + i) as usize][0] as f64;
+            assert!(
+                (lo..=hi).contains(&got),
+                "{what}: pixel ({i}, {r}) uv ({u:.4}, {v:.4}) level {lod:.3}: got {got}, \
+                 want {} (level {:.0}: {}, level {:.0}: {})",
+                wants[1],
+                lod.floor(),
+                sample_levels(&levels, u, v, lod.floor()),
+                lod.floor() + 1.0,
+                sample_levels(&levels, u, v, lod.floor() + 1.0),
+            );
+            checked += 1;
+        }
+    }
+    (checked, highest)
+}
+
+#[test]
+fn the_level_of_detail_is_the_ray_cone_s_closed_form_head_on() {
+    // The quad [-1, 1]² at distance 2 with 256² texels: levels 2 to 3,
+    // each level of the texture distinct, so a level off by any amount (or
+    // a cone of the wrong width) gives other values.
+    let scene = textured_scene(&quad_scene("", ""), grey_png(MS, multiscale_code));
+    let px = render(&scene, 0);
+    // Each triangle: half the uv square (× 256² texels) over half of the
+    // 2 × 2 quad; the areas are doubled alike.
+    let texel_area = (MS * MS) as f64;
+    let (checked, highest) = check_levels(
+        &px,
+        texel_area,
+        4.0,
+        |d| {
+            let t = -2.0 / d[2];
+            let (x, y) = (d[0] * t, d[1] * t);
+            (x.abs() < 0.999 && y.abs() < 0.999)
+                .then(|| ((x + 1.0) / 2.0, (y + 1.0) / 2.0, t, -d[2]))
+        },
+        "head on",
+    );
+    assert!(checked > 1500, "{checked} pixels");
+    assert!(highest > 2.0, "levels up to {highest}");
+}
+
+#[test]
+fn a_mirror_extends_the_ray_cone_by_the_reflected_path() {
+    // A mirror in z = 0 in front of the camera (at z = 2, looking down −z)
+    // shows the textured quad [-4, 4]² in z = 4 behind the camera: the cone
+    // at the quad is as wide as the whole path's, camera to mirror to quad
+    // (6 / cos θ), as if the quad were seen directly 6 away. A cone
+    // restarted at the mirror would be 2 / 3 as wide (0.58 levels lower),
+    // one that ignored the first leg the same.
+    let xml = format!(
+        r#"<scene version="1">
+  <settings background="0 0 0" ambient="1 1 1"/>
+  <mesh id="q"><vertices>-4 -4 4  4 -4 4  4 4 4  -4 4 4</vertices>
+    <uvs>0 0  1 0  1 1  0 1</uvs><triangles>0 1 2  0 2 3</triangles></mesh>
+  <model id="m" mesh="q"><surface diffuse="1 1 1" diffuse-texture="tex.png"/></model>
+  <plane id="mirror" point="0 0 0" normal="0 0 1"><surface diffuse="0 0 0" reflectivity="1"/></plane>
+  <camera id="c" position="0 0 2" direction="0 0 -1" up="0 1 0" fov="60">
+    <render width="{W}" height="{W}" max-depth="4"/>
+  </camera>
+</scene>"#
+    );
+    let scene = textured_scene(&xml, grey_png(MS, multiscale_code));
+    let px = render(&scene, 0);
+    let (checked, highest) = check_levels(
+        &px,
+        (MS * MS) as f64,
+        64.0,
+        |d| {
+            // To the mirror (t1), then mirrored in z to the quad (t2).
+            let t1 = -2.0 / d[2];
+            let t2 = -4.0 / d[2];
+            let (x, y) = (d[0] * (t1 + t2), d[1] * (t1 + t2));
+            (x.abs() < 3.99 && y.abs() < 3.99)
+                .then(|| ((x + 4.0) / 8.0, (y + 4.0) / 8.0, t1 + t2, -d[2]))
+        },
+        "in the mirror",
+    );
+    assert_eq!(checked, (W * W) as usize, "the quad fills the mirror");
+    assert!(highest > 2.0, "levels up to {highest}");
+}

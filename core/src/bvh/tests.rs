@@ -598,3 +598,123 @@ fn mesh_leaves_find_brute_forces_closest_hit_on_every_path() {
         );
     }
 }
+
+/// Rays no camera should make but a broken transform or a NaN in a scene
+/// could: NaN, infinite and zero directions and origins, and NaN, zero and
+/// negative `t_max`.
+fn degenerate_rays(inside: Vec3) -> Vec<(Vec3, Vec3, f32)> {
+    let (nan, inf) = (f32::NAN, f32::INFINITY);
+    let dirs = [
+        Vec3::ZERO,
+        Vec3::new(nan, 0.5, 0.5),
+        Vec3::splat(nan),
+        Vec3::new(inf, 0.0, 0.0),
+        Vec3::new(-inf, inf, 1.0),
+        Vec3::splat(inf),
+        Vec3::new(0.0, 0.0, -0.0),
+        Vec3::new(1e-45, 0.0, 0.0),
+        Vec3::new(0.3, -0.4, 0.5),
+    ];
+    let origins = [
+        inside,
+        Vec3::new(-20.0, 5.0, 5.0),
+        Vec3::new(nan, 5.0, 5.0),
+        Vec3::splat(nan),
+        Vec3::new(inf, 5.0, 5.0),
+        Vec3::new(-inf, 5.0, 5.0),
+        Vec3::splat(-inf),
+        Vec3::new(3e38, -3e38, 3e38),
+    ];
+    let mut out = Vec::new();
+    for o in origins {
+        for d in dirs {
+            for t_max in [inf, 10.0, 0.0, -1.0, nan] {
+                out.push((o, d, t_max));
+            }
+        }
+    }
+    out
+}
+
+/// Degenerate rays neither panic nor loop: the tree visits each primitive
+/// at most once per ray, and answers what the reference tree answers (box
+/// tests; a NaN `t_max` enters nothing) or what brute force finds (the
+/// mesh, where a ray with a NaN or a zero direction hits nothing).
+#[test]
+fn nan_infinite_and_zero_rays_end_and_agree_with_the_reference_and_brute_force() {
+    let boxes = random_boxes(700, 31);
+    let new = Bvh::build(&boxes, 4);
+    let old = reference::RefBvh::build(&boxes, 4);
+    for (i, &(o, d, t_max)) in degenerate_rays(Vec3::splat(5.0)).iter().enumerate() {
+        let what = format!("ray {i}: {o} {d} {t_max}");
+        for mode in [Mode::Closest, Mode::Gather, Mode::StopAfter(0)] {
+            let guard = |seen: &Vec<(u32, u32)>| {
+                assert!(seen.len() <= boxes.len(), "{what}: {} visits", seen.len())
+            };
+            let (seen, t_new, h_new) = same_on_every_path(&new, &boxes, o, d, t_max, mode);
+            guard(&seen);
+            let (seen_un, _, h_un) = same_on_every_path_unordered(&new, &boxes, o, d, t_max, mode);
+            guard(&seen_un);
+            let (_, t_old, h_old) = run(&boxes, o, d, mode, |f| old.traverse(o, d, t_max, f));
+            if t_max.is_nan() {
+                // No interval at all: the tree enters nothing (the
+                // reference's box test, whose min and max drop a NaN,
+                // would take it as no bound).
+                assert!(
+                    !h_new && !h_un && seen.is_empty(),
+                    "{what}: a NaN t_max hit"
+                );
+                continue;
+            }
+            if matches!(mode, Mode::Closest) {
+                assert_eq!((t_new, h_new), (t_old, h_old), "{what}: closest");
+            }
+            if matches!(mode, Mode::StopAfter(0)) {
+                assert_eq!(h_new, h_old, "{what}: any hit");
+                assert_eq!(h_un, h_old, "{what}: unordered any hit");
+            }
+        }
+    }
+
+    let loaded = soup(5, 300);
+    let mut mesh = loaded.clone();
+    let (bvh, order) = MeshBvh::build(&mut mesh);
+    let tri = |m: &Mesh, t: usize| m.triangles[t].map(|i| m.positions[i as usize]);
+    for (i, (o, d, t_max)) in degenerate_rays(Vec3::splat(5.0)).into_iter().enumerate() {
+        let what = format!("mesh ray {i}: {o} {d} {t_max}");
+        let r = ShearedRay::new(o, d);
+        let mut want: Option<(f32, u32)> = None;
+        for t in 0..loaded.triangles.len() {
+            let [a, b, c] = tri(&loaded, t);
+            if let Some(h) = triangle::intersect(&r, a, b, c, t_max) {
+                if want.is_none_or(|(wt, _)| h.t < wt) {
+                    want = Some((h.t, t as u32));
+                }
+            }
+        }
+        if o.is_nan() || d.is_nan() || t_max.is_nan() || d == Vec3::ZERO {
+            assert_eq!(want, None, "{what}: brute force hits");
+        }
+        for &path in Simd::available() {
+            let mut visits = 0;
+            let mut best: Option<(f32, u32)> = None;
+            let (_, hit) = bvh.traverse_on::<_, true>(path, o, d, t_max, |t, h| {
+                visits += 1;
+                assert!(visits <= mesh.triangles.len(), "{what}: {visits} visits");
+                let key = (h.t, order[t as usize]);
+                if best.is_none_or(|b| key.0 < b.0 || (key.0 == b.0 && key.1 < b.1)) {
+                    best = Some(key);
+                }
+                Visit::Hit(f32::from_bits(best.unwrap().0.to_bits() + 1))
+            });
+            assert_eq!(hit, best.is_some(), "{what}");
+            assert_eq!(
+                best.map(|(t, k)| (t.to_bits(), k)),
+                want.map(|(t, k)| (t.to_bits(), k)),
+                "{what} on {path:?}"
+            );
+            let (_, any) = bvh.traverse_on::<_, false>(path, o, d, t_max, |_, _| Visit::Stop);
+            assert_eq!(any, want.is_some(), "{what} on {path:?}: any hit");
+        }
+    }
+}

@@ -236,3 +236,71 @@ fn frames_and_patterns_are_checked() {
         &["one run of #"],
     );
 }
+
+#[test]
+fn a_light_follows_its_keyed_position_between_and_beyond_its_keys() {
+    let mut d = parse(&format!(
+        r#"{MESH}{CAM}
+<light position="9 9 9" intensity="2">
+  <animate channel="position" times="1 3" values="0 2 0  4 6 -2"/>
+</light>"#
+    ))
+    .unwrap();
+    let a = d.animation.clone();
+    let at = |t: f64| a.lights[0].light_at(t).position;
+    // Held before the first key and after the last, linear between.
+    assert_eq!(at(0.0), DVec3::new(0.0, 2.0, 0.0));
+    assert_eq!(at(1.0), DVec3::new(0.0, 2.0, 0.0));
+    assert_eq!(at(2.0), DVec3::new(2.0, 4.0, -1.0));
+    assert_eq!(at(2.5), DVec3::new(3.0, 5.0, -1.5));
+    assert_eq!(at(7.0), DVec3::new(4.0, 6.0, -2.0));
+    // The description holds t = 0; applying a time moves the light (its
+    // other attributes kept).
+    assert_eq!(d.lights[0].position, DVec3::new(0.0, 2.0, 0.0));
+    a.apply(&mut d, 2.0).unwrap();
+    assert_eq!(d.lights[0].position, DVec3::new(2.0, 4.0, -1.0));
+    assert_eq!(d.lights[0].intensity, 2.0);
+}
+
+/// The rotation the keys give at `t`, with the model's static transform
+/// taken out (the keys at `t = 0` are the identity in these tests).
+fn keyed_rotation(keys: &str, t: f64) -> DMat4 {
+    let d = parse(&model(&format!(
+        r#"<animate channel="rotate" times="0 1 2" values="{keys}"/>"#
+    )))
+    .unwrap();
+    let m = &d.animation.models[0];
+    m.transform(t) * m.transform(0.0).inverse()
+}
+
+fn about(axis: DVec3, deg: f64) -> DMat4 {
+    DMat4::from_quat(glam::DQuat::from_axis_angle(
+        axis.normalize(),
+        deg.to_radians(),
+    ))
+}
+
+#[test]
+fn rotation_keys_turn_the_shorter_way_on_one_axis_and_between_two() {
+    // 0° then 350° about +y: the shorter way is 10° back, so halfway is
+    // −5°, not the 175° of interpolating the angle.
+    let r = keyed_rotation("0 1 0 0  0 1 0 0  0 1 0 350", 1.5);
+    assert!(r.abs_diff_eq(about(DVec3::Y, -5.0), 1e-12), "{r}");
+    // 0° then 270° about +z: −90° the short way; a quarter of it at 1.25.
+    let r = keyed_rotation("0 0 1 0  0 0 1 0  0 0 1 270", 1.25);
+    assert!(r.abs_diff_eq(about(DVec3::Z, -22.5), 1e-12), "{r}");
+    // 170° then −170° about +x: 20° apart through 180°, not 340° through 0°.
+    let r = keyed_rotation("1 0 0 0  1 0 0 170  1 0 0 -170", 1.5);
+    assert!(r.abs_diff_eq(about(DVec3::X, 180.0), 1e-12), "{r}");
+    // 90° about +x then 90° about +y: the great arc between the two, whose
+    // midpoint is, in closed form, the normalised sum of the two
+    // quaternions, q = (qx + qy) / |qx + qy| (their dot product is > 0).
+    let qx = glam::DQuat::from_axis_angle(DVec3::X, 90f64.to_radians());
+    let qy = glam::DQuat::from_axis_angle(DVec3::Y, 90f64.to_radians());
+    let mid = DMat4::from_quat((qx + qy).normalize());
+    let r = keyed_rotation("1 0 0 0  1 0 0 90  0 1 0 90", 1.5);
+    assert!(r.abs_diff_eq(mid, 1e-12), "{r} vs {mid}");
+    // Neither key, nor one of them held.
+    assert!(!r.abs_diff_eq(about(DVec3::X, 90.0), 1e-3));
+    assert!(!r.abs_diff_eq(about(DVec3::Y, 90.0), 1e-3));
+}
