@@ -15,10 +15,13 @@
 
 mod area;
 mod path;
+mod pixel;
+
+pub use pixel::{Cancelled, CANCEL_EVERY};
 
 use crate::camera::Camera;
 use crate::lights::{incident, jittered_position};
-use crate::sampling::{cosine_hemisphere, hash2, pixel_seed, PixelSampler, SamplerKind};
+use crate::sampling::{cosine_hemisphere, hash2, PixelSampler, SamplerKind};
 use crate::scene::{CameraDesc, IntegratorKind};
 use crate::world::{Hit, Scene, SurfacePoint, View};
 use glam::Vec3;
@@ -78,6 +81,8 @@ pub struct Integrator<'a, O: RayObserver = ()> {
     /// A camera sample's ray cone spread angle (radians): a pixel's angle
     /// over the samples per side (see [`Integrator::apply_texture`]).
     spread: f32,
+    /// Stops every pixel soon after it turns true (see `pixel.rs`).
+    cancel: &'a std::sync::atomic::AtomicBool,
 }
 
 /// Per-pixel state: the sampler, the current camera sample, a ray count,
@@ -86,6 +91,8 @@ pub struct PixelContext {
     sampler: PixelSampler,
     sample: u32,
     pub rays: u64,
+    /// The cancellation flag was seen: every further ray misses.
+    stopped: bool,
     /// Nodes of the reflection/refraction tree waiting for a child (see
     /// `Integrator::radiance`).
     pending: Vec<Pending>,
@@ -254,6 +261,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             sampler: options.sampler,
             textured: !scene.desc.textures.is_empty(),
             spread: pixel_spread(&scene.desc.cameras[camera]),
+            cancel: &pixel::NEVER,
         }
     }
 
@@ -276,84 +284,6 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             sp.cone = cone + spread * hit.t * dir.length();
             self.view.apply_texture(sp, hit, dir);
         }
-    }
-
-    /// The linear RGB value of pixel (column `x`, row `y`), and rays traced.
-    pub fn pixel(&self, x: u32, y: u32) -> ([f32; 3], u64) {
-        let r = &self.desc.render;
-        let mut ctx = PixelContext {
-            sampler: PixelSampler {
-                seed: pixel_seed(r.seed, self.camera_hash, x, y),
-                kind: self.sampler,
-            },
-            sample: 0,
-            rays: 0,
-            pending: Vec::new(),
-            links: Vec::new(),
-        };
-        let value = match r.adaptive {
-            None => {
-                // n ≤ MAX_SUPERSAMPLE, so n² fits in a u32 (the parser's bound).
-                let n = r.supersample;
-                let mut sum = Sum::<Vec3>::default();
-                for s in 0..n * n {
-                    let (sx, sy) = if r.jitter {
-                        let [jx, jy] = ctx.sampler.get2(STREAM_PIXEL, s);
-                        (
-                            ((s % n) as f32 + jx) / n as f32,
-                            ((s / n) as f32 + jy) / n as f32,
-                        )
-                    } else {
-                        (
-                            ((s % n) as f32 + 0.5) / n as f32,
-                            ((s / n) as f32 + 0.5) / n as f32,
-                        )
-                    };
-                    sum.add(self.camera_sample(&mut ctx, x, y, s, sx, sy));
-                }
-                saturate(sum.mean(u64::from(n * n)))
-            }
-            Some(a) => {
-                // Sample until the standard error of the mean (largest over the
-                // channels) is under the threshold, between min and max samples.
-                let mut sum = glam::DVec3::ZERO;
-                let mut sum_sq = glam::DVec3::ZERO;
-                let mut n = 0u32;
-                while n < a.max_samples {
-                    let [sx, sy] = ctx.sampler.get2(STREAM_PIXEL, n);
-                    let v = self.camera_sample(&mut ctx, x, y, n, sx, sy).as_dvec3();
-                    sum += v;
-                    sum_sq += v * v;
-                    n += 1;
-                    if n >= a.min_samples.max(2) {
-                        let nf = n as f64;
-                        let var = ((sum_sq - sum * sum / nf) / (nf - 1.0)).max(glam::DVec3::ZERO);
-                        let err = (var / nf).max_element().sqrt();
-                        if err <= a.threshold as f64 {
-                            break;
-                        }
-                    }
-                }
-                saturate((sum / n as f64).as_vec3())
-            }
-        };
-        (value.to_array(), ctx.rays)
-    }
-
-    /// Every closest-hit ray goes through here: counted, observed, traced.
-    #[inline(always)]
-    fn trace(&self, ctx: &mut PixelContext, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
-        ctx.rays += 1;
-        self.observer.closest(origin, dir, t_max);
-        self.view.intersect(origin, dir, t_max)
-    }
-
-    /// Every shadow ray goes through here: counted, observed, traced.
-    #[inline(always)]
-    fn trace_shadow(&self, ctx: &mut PixelContext, origin: Vec3, dir: Vec3, t_max: f32) -> f32 {
-        ctx.rays += 1;
-        self.observer.shadow(origin, dir, t_max);
-        self.view.transmittance(origin, dir, t_max)
     }
 
     fn camera_sample(
@@ -871,7 +801,7 @@ mod tests {
     <render width="1" height="1" max-depth="{MAX_DEPTH}"/></camera></scene>"#
         ));
         let (px, rays) = on_a_small_stack(move || {
-            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0)
+            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0).unwrap()
         });
         assert_eq!(rays, u64::from(MAX_DEPTH) + 1);
         assert_eq!(px, [0.2f32 * 0.5, 0.4 * 0.5, 0.6 * 0.5]);
@@ -891,7 +821,7 @@ mod tests {
             diffuse-depth="{MAX_DEPTH}"/></camera></scene>"#
         ));
         let (px, rays) = on_a_small_stack(move || {
-            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0)
+            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0).unwrap()
         });
         // One camera ray, then per level a gather ray and a shadow ray.
         assert!(rays >= 2 * u64::from(MAX_DEPTH), "{rays}");

@@ -108,18 +108,21 @@ pub fn render_tile_observed<O: RayObserver>(
     observer: &O,
 ) -> TileResult {
     let never = AtomicBool::new(false);
-    render_rows(scene, camera, rect, options, observer, &never).expect("never cancelled")
+    match render_rows(scene, camera, rect, options, observer, &never) {
+        Ok(r) => r,
+        Err(Cancelled) => unreachable!("a flag that is never set cancelled a render"),
+    }
 }
 
 /// The render of a tile was stopped by its cancellation flag.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
-#[error("the render of the tile was cancelled")]
-pub struct Cancelled;
+pub use crate::integrator::Cancelled;
 
 /// [`render_tile`] that gives up soon after `cancel` turns true: the flag is
-/// read before every pixel, so a tile stops within one pixel's work per
-/// thread however expensive the tile. An uncancelled render returns exactly
-/// the pixels of [`render_tile`].
+/// read before every pixel and every [`crate::integrator::CANCEL_EVERY`]
+/// rays inside one (integrator/pixel.rs), so a tile stops within
+/// milliseconds however expensive the tile or a single pixel of it, and
+/// no pixel is left half-made. An uncancelled render returns exactly the
+/// pixels of [`render_tile`].
 pub fn render_tile_cancellable(
     scene: &Scene,
     camera: usize,
@@ -137,7 +140,7 @@ fn render_rows<O: RayObserver>(
     observer: &O,
     cancel: &AtomicBool,
 ) -> Result<TileResult, Cancelled> {
-    let integrator = Integrator::observed(scene, camera, options, observer);
+    let integrator = Integrator::observed(scene, camera, options, observer).cancelled_by(cancel);
     let mut pixels = vec![[0.0f32; 3]; rect.pixel_count()];
     let rays = pixels
         .par_chunks_mut(rect.w.max(1) as usize)
@@ -149,7 +152,9 @@ fn render_rows<O: RayObserver>(
                 if cancel.load(Ordering::Relaxed) {
                     break;
                 }
-                let (v, r) = integrator.pixel(rect.x + i as u32, y);
+                let Ok((v, r)) = integrator.pixel(rect.x + i as u32, y) else {
+                    break;
+                };
                 *px = v;
                 rays += r;
             }

@@ -27,7 +27,7 @@ fn image_hash(s: &Scene, camera: usize) -> u64 {
     let mut h = 0x5eed_u64;
     for y in 0..r.height {
         for x in 0..r.width {
-            for c in it.pixel(x, y).0 {
+            for c in it.pixel(x, y).unwrap().0 {
                 h = mix64(h ^ u64::from(c.to_bits()));
             }
         }

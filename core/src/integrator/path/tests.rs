@@ -23,7 +23,7 @@ pub(crate) fn pixels(s: &Scene) -> Vec<[f32; 3]> {
     let it = Integrator::observed(s, 0, RenderOptions::default(), &());
     (0..r.height)
         .flat_map(|y| (0..r.width).map(move |x| (x, y)))
-        .map(|(x, y)| it.pixel(x, y).0)
+        .map(|(x, y)| it.pixel(x, y).unwrap().0)
         .collect()
 }
 
