@@ -154,7 +154,10 @@ fn material_libraries_cost_memory_linear_in_their_size() {
         total < 40 * input + (8 << 20),
         "{total} bytes allocated for {input} bytes of input"
     );
-    assert!(peak < 20 * input + (4 << 20), "peak {peak} for {input} bytes");
+    assert!(
+        peak < 20 * input + (4 << 20),
+        "peak {peak} for {input} bytes"
+    );
 }
 
 /// Issue 36: `usemtl` names were looked up linearly (100,000 names: 21 s,
@@ -341,7 +344,13 @@ fn a_png_costs_what_its_header_allows_however_its_data_inflate() {
     // A real image's data, however it was compressed, is within the bound:
     // stored (level 0) noise of the largest size a test affords.
     let noise: Vec<u8> = (0..256 * 257u32)
-        .map(|i| if i % 257 == 0 { 0 } else { (i.wrapping_mul(2_654_435_761) >> 24) as u8 })
+        .map(|i| {
+            if i % 257 == 0 {
+                0
+            } else {
+                (i.wrapping_mul(2_654_435_761) >> 24) as u8
+            }
+        })
         .collect();
     let stored = miniz_oxide::deflate::compress_to_vec_zlib(&noise, 0);
     assert!(stored.len() > noise.len());
