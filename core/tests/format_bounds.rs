@@ -154,7 +154,10 @@ fn material_libraries_cost_memory_linear_in_their_size() {
         total < 40 * input + (8 << 20),
         "{total} bytes allocated for {input} bytes of input"
     );
-    assert!(peak < 20 * input + (4 << 20), "peak {peak} for {input} bytes");
+    assert!(
+        peak < 20 * input + (4 << 20),
+        "peak {peak} for {input} bytes"
+    );
 }
 
 /// Issue 36: `usemtl` names were looked up linearly (100,000 names: 21 s,
@@ -253,6 +256,25 @@ fn a_jpeg_of_too_many_scans_is_refused_before_decoding() {
     assert!(e.contains("more than 64 scans"), "{e}");
 }
 
+/// Within the bound the cost is bounded too: the worst a file of
+/// `MAX_JPEG_SCANS` scans can make a decode walk is 64 passes over the
+/// blocks of the largest image allowed. Measured on a quarter of that
+/// image (1024 × 1024: a sixteenth of the texels), printed for
+/// docs/farm.md, and held to a generous bound.
+#[test]
+fn a_jpeg_of_the_most_scans_allowed_decodes_in_bounded_time() {
+    use trevi_core::texture::jpeg_scan::MAX_JPEG_SCANS;
+    let f = progressive_jpeg(1024, 1024, MAX_JPEG_SCANS as usize - 1);
+    let (t, secs) = cpu(|| Texture::decode(&f));
+    let t = t.unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(t.levels[0].width, 1024);
+    eprintln!(
+        "{} byte JPEG of 1024 x 1024 and {MAX_JPEG_SCANS} scans: {secs} s of CPU",
+        f.len()
+    );
+    assert!(secs < 10.0, "{secs} s");
+}
+
 /// A scene naming such a JPEG gets an error at the reference naming the
 /// file.
 #[test]
@@ -341,7 +363,13 @@ fn a_png_costs_what_its_header_allows_however_its_data_inflate() {
     // A real image's data, however it was compressed, is within the bound:
     // stored (level 0) noise of the largest size a test affords.
     let noise: Vec<u8> = (0..256 * 257u32)
-        .map(|i| if i % 257 == 0 { 0 } else { (i.wrapping_mul(2_654_435_761) >> 24) as u8 })
+        .map(|i| {
+            if i % 257 == 0 {
+                0
+            } else {
+                (i.wrapping_mul(2_654_435_761) >> 24) as u8
+            }
+        })
         .collect();
     let stored = miniz_oxide::deflate::compress_to_vec_zlib(&noise, 0);
     assert!(stored.len() > noise.len());

@@ -104,10 +104,7 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Vec<Material>, SceneError> {
         if let Some((extra, _)) = toks.next() {
             return Err(f.error_at(
                 extra,
-                format!(
-                    "more than {MAX_MTL_ARGS} arguments after \"{}\"",
-                    show(key)
-                ),
+                format!("more than {MAX_MTL_ARGS} arguments after \"{}\"", show(key)),
             ));
         }
         let args = &args[..];
@@ -354,7 +351,12 @@ mod tests {
             assert_error_at(parse("m.mtl", src.as_bytes()), "m.mtl", line, col, msg)
         };
         fails("newmtl a\nKd 0.5 -0.1 0\n", 2, 8, "is negative");
-        fails("newmtl a\nKa -1\n", 2, 4, "colour component -1 of \"Ka\" is negative");
+        fails(
+            "newmtl a\nKa -1\n",
+            2,
+            4,
+            "colour component -1 of \"Ka\" is negative",
+        );
         fails("newmtl a\nKs 1 1 -0.5\n", 2, 8, "is negative");
         fails("newmtl a\nKd nan 0 0\n", 2, 4, "not finite");
         fails("newmtl a\nKd 1 inf 0\n", 2, 6, "not finite");
@@ -399,6 +401,9 @@ mod tests {
             "more than 65536 materials in one file",
         );
         src.truncate(src.len() - format!("newmtl m{MAX_MTL_MATERIALS}\n").len());
-        assert_eq!(parse("m.mtl", src.as_bytes()).unwrap().len(), MAX_MTL_MATERIALS);
+        assert_eq!(
+            parse("m.mtl", src.as_bytes()).unwrap().len(),
+            MAX_MTL_MATERIALS
+        );
     }
 }

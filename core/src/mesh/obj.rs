@@ -810,7 +810,10 @@ f 1//3 2//3 3//3
     /// [`MAX_OBJ_LIBRARIES`] of them, the error at the one that passes it.
     #[test]
     fn material_libraries_are_kept_once_and_bounded() {
-        let src = format!("mtllib{}\nmtllib b.mtl a.mtl\n{CUBE}", " a.mtl".repeat(50_000));
+        let src = format!(
+            "mtllib{}\nmtllib b.mtl a.mtl\n{CUBE}",
+            " a.mtl".repeat(50_000)
+        );
         let (_, m) = parse_with_materials("m.obj", src.as_bytes()).unwrap();
         let names: Vec<&str> = m.libs.iter().map(|(n, _)| n.as_str()).collect();
         assert_eq!(names, ["a.mtl", "b.mtl"]);

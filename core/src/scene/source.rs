@@ -181,7 +181,10 @@ pub fn resolve_reference(from: &str, reference: &str) -> Result<String, PathErro
     if path.is_absolute() || reference.starts_with('/') || reference.starts_with('\\') {
         return Err(PathError::Absolute(reference.to_string()));
     }
-    if path.components().any(|c| matches!(c, Component::RootDir | Component::Prefix(_))) {
+    if path
+        .components()
+        .any(|c| matches!(c, Component::RootDir | Component::Prefix(_)))
+    {
         return Err(PathError::Absolute(reference.to_string()));
     }
     let joined = if from.is_empty() {
@@ -260,10 +263,7 @@ mod tests {
             resolve_reference("models", "../textures/x.png").unwrap(),
             "textures/x.png"
         );
-        assert_eq!(
-            resolve_reference("a/b", "../../x.mtl").unwrap(),
-            "x.mtl"
-        );
+        assert_eq!(resolve_reference("a/b", "../../x.mtl").unwrap(), "x.mtl");
         assert_eq!(resolve_reference("a", "./t/x.png").unwrap(), "a/t/x.png");
         assert_eq!(
             resolve_reference("models", "../../x.png"),

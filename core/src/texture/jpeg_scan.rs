@@ -76,7 +76,7 @@ pub fn scan(b: &[u8], max_scans: u32) -> Result<JpegShape, JpegScanError> {
         };
         i += 1;
         match code {
-            0xD9 => break, // EOI
+            0xD9 => break,                  // EOI
             0x01 | 0xD0..=0xD7 => continue, // TEM, RSTn: no length
             0x00 => {
                 return Err(JpegScanError::Malformed {
@@ -214,14 +214,20 @@ mod tests {
     #[test]
     fn malformed_files_are_refused_not_misread() {
         assert_eq!(scan(b"\x89PNG", 64), Err(JpegScanError::NotJpeg));
-        assert_eq!(scan(&[0xFF, 0xD8, 0xFF, 0xD9], 64), Err(JpegScanError::NoFrame));
+        assert_eq!(
+            scan(&[0xFF, 0xD8, 0xFF, 0xD9], 64),
+            Err(JpegScanError::NoFrame)
+        );
         let mut f = vec![0xFF, 0xD8];
         f.extend(sof(0xC0, 1, 1));
         f.truncate(f.len() - 3);
         assert_eq!(scan(&f, 64), Err(JpegScanError::Truncated(2)));
         let mut f = vec![0xFF, 0xD8];
         f.extend(seg(0xDA, &[0; 6]));
-        assert!(matches!(scan(&f, 64), Err(JpegScanError::Malformed { at: 2, .. })));
+        assert!(matches!(
+            scan(&f, 64),
+            Err(JpegScanError::Malformed { at: 2, .. })
+        ));
         let mut f = vec![0xFF, 0xD8];
         f.extend(sof(0xC0, 1, 1));
         f.extend(sof(0xC0, 1, 1));

@@ -81,7 +81,10 @@ fn references_from_a_subfolder_resolve_against_it_and_render() {
 
     // The same bundle decoded (what a worker parses) gives the same files.
     let again = crate::ParsedBundle::parse(parsed.bundle.clone()).unwrap();
-    assert_eq!(again.desc.files, vec!["materials/x.mtl", "models/x.obj", "textures/x.png"]);
+    assert_eq!(
+        again.desc.files,
+        vec!["materials/x.mtl", "models/x.obj", "textures/x.png"]
+    );
 }
 
 /// What really leaves the scene's directory is still refused, at the
@@ -192,7 +195,10 @@ fn outputs_that_write_one_file_are_refused_where_the_second_is() {
         .contains("writes \"c.0042.png\""));
     // Ranges that do not meet, and other folders, are fine.
     let e = cam("e", r#"frames="1-9" output="x.#.png""#);
-    let f = cam("f", r#"frames="10-99" output="x.#.png""#.replace("x.#", "y.#").as_str());
+    let f = cam(
+        "f",
+        r#"frames="10-99" output="x.#.png""#.replace("x.#", "y.#").as_str(),
+    );
     let g = cam("g", r#"frames="10-99" output="x.##.png""#);
     let h = cam("h", r#"frames="0-9999999" output="sub/x.#.png""#);
     parse(&cameras(&[&e, &f, &g, &h]), &[]).unwrap();
@@ -210,7 +216,10 @@ fn a_pattern_run_is_bounded() {
         c.find("output=").unwrap() as u32 + 1,
         "at most 32 #",
     );
-    let ok = cam("c", &format!(r#"frames="1-2" output="x.{}.png""#, "#".repeat(32)));
+    let ok = cam(
+        "c",
+        &format!(r#"frames="1-2" output="x.{}.png""#, "#".repeat(32)),
+    );
     parse(&cameras(&[&ok]), &[]).unwrap();
 }
 
@@ -231,7 +240,10 @@ fn an_fps_too_small_for_32_bits_says_so() {
     let d = parse(&cameras(&[&c]), &[]).unwrap();
     assert_eq!(d.cameras[0].render.fps, f64::from(1e-30f32));
     let c = cam("c", r#"frames="1-2" fps="-1""#);
-    assert!(parse(&cameras(&[&c]), &[]).unwrap_err().message.contains("> 0"));
+    assert!(parse(&cameras(&[&c]), &[])
+        .unwrap_err()
+        .message
+        .contains("> 0"));
 }
 
 /// Issue 36: a camera id with `#` failed later, without a place.

@@ -18,8 +18,8 @@ use super::{Resolver, Result};
 use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
 use crate::mesh::mtl::{self, Material};
 use crate::mesh::obj::{ObjMaterials, MAX_OBJ_MATERIALS, NO_MATERIAL};
-use crate::scene::source::{resolve_reference, PathError};
 use crate::mesh::Mesh;
+use crate::scene::source::{resolve_reference, PathError};
 use crate::scene::{Surface, TextureMap};
 use crate::texture::Wrap;
 

@@ -232,7 +232,10 @@ impl Outputs {
         if o.run == 0 {
             self.stills.insert(o.prefix, pos);
         } else {
-            self.patterns.entry(o.prefix.clone()).or_default().push((o, pos));
+            self.patterns
+                .entry(o.prefix.clone())
+                .or_default()
+                .push((o, pos));
         }
         None
     }
@@ -288,17 +291,12 @@ mod tests {
     use super::*;
 
     fn out(p: &str, frames: Option<(u32, u32)>) -> Output {
-        Output::new(
-            p,
-            frames.map(|(first, last)| Frames { first, last }),
-        )
+        Output::new(p, frames.map(|(first, last)| Frames { first, last }))
     }
 
     /// The slow way: every name of both.
     fn brute(a: &Output, b: &Output) -> bool {
-        let names = |o: &Output| -> Vec<String> {
-            (o.first..=o.last).map(|f| o.name(f)).collect()
-        };
+        let names = |o: &Output| -> Vec<String> { (o.first..=o.last).map(|f| o.name(f)).collect() };
         let nb = names(b);
         names(a).iter().any(|n| nb.contains(n))
     }
@@ -326,14 +324,23 @@ mod tests {
             shared(&seq("x1#.png", 0, 99), &seq("x#.png", 100, 200)),
             Some("x110.png".into())
         );
-        assert_eq!(shared(&seq("a/x.#.png", 0, 99), &seq("b/x.#.png", 0, 99)), None);
+        assert_eq!(
+            shared(&seq("a/x.#.png", 0, 99), &seq("b/x.#.png", 0, 99)),
+            None
+        );
         // Ten million frames each, compared without expanding them.
         assert_eq!(
-            shared(&seq("s.#######.exr", 0, 9_999_999), &seq("s.#.exr", 9_999_999, 9_999_999)),
+            shared(
+                &seq("s.#######.exr", 0, 9_999_999),
+                &seq("s.#.exr", 9_999_999, 9_999_999)
+            ),
             Some("s.9999999.exr".into())
         );
         assert_eq!(
-            shared(&seq("s.#######.exr", 0, 9_999_998), &seq("s.#.exr", 9_999_999, 9_999_999)),
+            shared(
+                &seq("s.#######.exr", 0, 9_999_998),
+                &seq("s.#.exr", 9_999_999, 9_999_999)
+            ),
             None
         );
     }
@@ -341,8 +348,8 @@ mod tests {
     #[test]
     fn the_symbolic_comparison_agrees_with_expanding_every_frame() {
         let pats = [
-            "x#.png", "x##.png", "x1#.png", "x#1.png", "x.#.png", "x10#.png", "x#0.png",
-            "x0#.png", "x###.png", "x.png", "x1.png", "x10.png", "x012.png", "x#.0.png",
+            "x#.png", "x##.png", "x1#.png", "x#1.png", "x.#.png", "x10#.png", "x#0.png", "x0#.png",
+            "x###.png", "x.png", "x1.png", "x10.png", "x012.png", "x#.0.png",
         ];
         let ranges = [(0, 0), (0, 12), (5, 120), (99, 101), (1, 9), (100, 1500)];
         for pa in pats {
@@ -371,7 +378,10 @@ mod tests {
         assert_eq!(o.add(out("x.png", None), 2), None);
         assert_eq!(o.add(out("y.10.png", None), 3), None);
         let clash = |name: &str, other: &str, at| Some((name.to_string(), other.to_string(), at));
-        assert_eq!(o.add(out("x.15.png", None), 4), clash("x.15.png", "x.#.png", 1));
+        assert_eq!(
+            o.add(out("x.15.png", None), 4),
+            clash("x.15.png", "x.#.png", 1)
+        );
         assert_eq!(
             o.add(out("y.##.png", Some((0, 99))), 5),
             clash("y.10.png", "y.10.png", 3)

@@ -1,8 +1,8 @@
 //! `<render>`: how a camera's frame is rendered and where it is written,
 //! including Trevi's adaptive sampling (docs/aisxml-extensions.md).
 
-use super::table::{attr, extension, Attribute, REQUIRED};
 use super::outputs::{Output, MAX_PATTERN_RUN};
+use super::table::{attr, extension, Attribute, REQUIRED};
 use super::values::{parse_uint, El};
 use super::xml::{excerpt, is_xml_ws, Attr, Elem};
 use super::{Resolver, Result};
@@ -221,8 +221,7 @@ impl<'a> Resolver<'a> {
         let output = self.bundle_path(&output);
         // Compared with every earlier camera's by the names they write,
         // not only as patterns (see outputs.rs).
-        if let Some((name, other, first)) = self.outputs.add(Output::new(&output, frames), e.pos)
-        {
+        if let Some((name, other, first)) = self.outputs.add(Output::new(&output, frames), e.pos) {
             // The same output, or one of the names both write.
             let msg = if other == output {
                 format!(
