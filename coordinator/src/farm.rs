@@ -14,6 +14,7 @@
 //! encoding one job's rows never stalls leasing. The order is always
 //! output → state, never the reverse.
 
+pub mod admission;
 mod checks;
 mod previews;
 mod restore;
@@ -40,7 +41,7 @@ use crate::scheduler::{
 };
 use crate::sink::TileSink;
 use crate::store::{SeqLink, Store, StoredJob};
-use crate::summaries::{SceneSummary, Summaries};
+use crate::summaries::Summaries;
 use crate::timed_lock::TimedLock;
 use crate::workers::WorkerInfo;
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -271,7 +272,7 @@ impl Farm {
             }),
             work: Notify::new(),
             bundles,
-            summaries: Summaries::default(),
+            summaries: Summaries::new(&cfg.limits),
             store,
             metrics: Arc::default(),
             cfg,
@@ -330,9 +331,10 @@ impl Farm {
     }
 
     /// Describes the job rendering `camera` (empty: the first camera) of a
-    /// stored bundle's scene. The scene is parsed the first time a bundle
-    /// is asked about (which parses meshes: call off the async threads),
-    /// then its summary is kept (see [`Summaries`]).
+    /// stored bundle's scene. The scene is read the first time a bundle is
+    /// asked about, headers only and within the admission bounds (see
+    /// [`admission`]; it reads the bundle: call off the async threads), then
+    /// its summary is kept (see [`Summaries`]).
     pub fn job_spec(
         &self,
         bundle_hash: &str,
@@ -348,11 +350,8 @@ impl Farm {
                 self.bundles.open_verified(bundle_hash)?;
                 summary
             }
-            None => self.summaries.get_or_parse(bundle_hash, || {
-                let bundle = self.bundles.get(bundle_hash)?;
-                let desc = trevi_core::scene::aisxml::parse_scene(&bundle.scene, &bundle)
-                    .map_err(|e| FarmError::BadScene(e.to_string()))?;
-                Ok::<_, FarmError>(SceneSummary::of(&desc))
+            None => self.summaries.get_or_admit(bundle_hash, |ticket| {
+                admission::summarize(&self.bundles, bundle_hash, ticket)
             })?,
         };
         let cam = if camera.is_empty() {

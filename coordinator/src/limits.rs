@@ -24,6 +24,14 @@ pub struct Limits {
     pub max_jobs_per_submitter: usize,
     /// Bundle uploads in progress at once; one more is refused.
     pub max_uploads: usize,
+    /// Scenes read at once to admit a job (the first submission on a
+    /// bundle; see [`crate::farm::admission`]); one more is refused.
+    pub max_admissions: usize,
+    /// Memory the admissions in progress may be counted at together, in
+    /// bytes (each at [`crate::farm::admission::admission_cost`] of its
+    /// bundle's size; one admission alone always fits); one more that does
+    /// not fit is refused.
+    pub admission_bytes: u64,
     /// How long an upload (a bundle's, or a worker's tile or segments) may
     /// go without a message before it is dropped.
     pub upload_idle: Duration,
@@ -144,6 +152,17 @@ pub const MAX_STREAMS_PER_CONNECTION: u32 = 256;
 /// 1 MiB, four waiting uploads on a connection did.
 pub const CONNECTION_WINDOW: u32 = MAX_STREAMS_PER_CONNECTION * TILE_UPLOAD_WINDOW + (1 << 20);
 
+/// [`Limits::max_admissions`] by default: reading a scene's headers is
+/// quick (its cost is reading and hashing the stored bundle), so two at
+/// once keep a submission burst moving without letting it hold much.
+pub const DEFAULT_MAX_ADMISSIONS: usize = 2;
+
+/// [`Limits::admission_bytes`] by default, in MiB: what two admissions of
+/// bundles of 100 MiB are counted at, and more than one of the largest
+/// bundle accepted by default (256 MiB, counted at 1 GiB + 8 MiB, which
+/// alone always fits).
+pub const DEFAULT_ADMISSION_MIB: u64 = 1024;
+
 /// Frames of one sequence in progress at once by default: a second frame
 /// lets idle workers start on it while the first one's last tiles are out.
 pub const DEFAULT_FRAMES_IN_PROGRESS: usize = 2;
@@ -166,6 +185,8 @@ impl Default for Limits {
             max_image_samples: 16384 * 16384 * 64,
             max_jobs_per_submitter: 1000,
             max_uploads: 4,
+            max_admissions: DEFAULT_MAX_ADMISSIONS,
+            admission_bytes: DEFAULT_ADMISSION_MIB << 20,
             upload_idle: Duration::from_secs(30),
             max_tile_uploads: DEFAULT_MAX_TILE_UPLOADS,
 

@@ -142,6 +142,17 @@ struct Args {
     #[arg(long, env = "TREVI_MAX_UPLOADS", value_parser = at_least::<usize>(1),
           default_value_t = defaults().limits.max_uploads)]
     max_uploads: usize,
+    /// Most scenes read at once to admit a job (the first submission on a
+    /// bundle reads its scene, headers only); one more is refused.
+    #[arg(long, env = "TREVI_MAX_ADMISSIONS", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.max_admissions)]
+    max_admissions: usize,
+    /// Memory the admissions in progress may be counted at together, in
+    /// MiB (each at 4 times its bundle's size plus 8 MiB; one alone always
+    /// fits); one more that does not fit is refused.
+    #[arg(long, env = "TREVI_ADMISSION_MIB", value_parser = at_least::<u64>(1),
+          default_value_t = defaults().limits.admission_bytes >> 20)]
+    admission_mib: u64,
     /// Tile uploads from workers received at once; more wait their turn,
     /// unread. Bounds what uploads hold whatever the number of workers.
     #[arg(long, env = "TREVI_MAX_TILE_UPLOADS", value_parser = at_least::<usize>(1),
@@ -190,6 +201,8 @@ impl Args {
                 max_image_samples: self.max_image_samples,
                 max_jobs_per_submitter: self.max_jobs_per_submitter,
                 max_uploads: self.max_uploads,
+                max_admissions: self.max_admissions,
+                admission_bytes: self.admission_mib.saturating_mul(1 << 20),
                 upload_idle: Duration::from_millis(self.upload_idle_ms),
                 max_tile_uploads: self.max_tile_uploads,
                 lease_ttl: Duration::from_millis(self.lease_ttl_ms),

@@ -3,18 +3,22 @@
 //!
 //! Submitting one job per camera of a scene asks the same bundle about each
 //! camera in turn; without this cache every submission would decode and
-//! parse the whole bundle (meshes included) again. With it, a submission
+//! read the whole bundle's scene again. With it, a submission
 //! on a cached bundle still has the stored copy checked against its hash
 //! (so a copy damaged on disk is refused), which reads it but parses
 //! nothing. The cache is small
 //! ([`Summaries::CAPACITY`] bundles, the least recently used dropped first)
 //! because a summary is only worth keeping while its jobs are being
 //! submitted, and it holds only what [`crate::Farm::job_spec`] reads, never
-//! the meshes. A local render hands the description it already parsed to
+//! the meshes. A summary is made by the headers-only parse, within the
+//! admission bounds of [`crate::farm::admission`]. A local render hands the description it already parsed to
 //! [`Summaries::prime`], so the embedded coordinator does not parse at all.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
+use crate::farm::admission::{Admissions, Ticket};
+use crate::limits::Limits;
+use trevi_core::scene::aisxml::SceneHeaders;
 use trevi_core::SceneDesc;
 
 /// One camera of a scene, as a job needs it.
@@ -38,7 +42,18 @@ pub struct SceneSummary {
 }
 
 impl SceneSummary {
+    /// The summary of a fully parsed scene.
     pub fn of(desc: &SceneDesc) -> SceneSummary {
+        Self::with_memory(desc, trevi_core::scene::estimate::estimate(desc).total())
+    }
+
+    /// The summary of a scene read by the headers-only parse (see
+    /// [`crate::farm::admission`]).
+    pub fn of_headers(h: &SceneHeaders) -> SceneSummary {
+        Self::with_memory(&h.desc, h.estimate().total())
+    }
+
+    fn with_memory(desc: &SceneDesc, memory: u64) -> SceneSummary {
         SceneSummary {
             cameras: desc
                 .cameras
@@ -51,21 +66,57 @@ impl SceneSummary {
                     output: c.render.output.clone(),
                 })
                 .collect(),
-            memory: trevi_core::scene::estimate::estimate(desc).total(),
+            memory,
         }
     }
 }
 
-/// Summaries by bundle hash, most recently used last.
-#[derive(Default)]
+/// Summaries by bundle hash, most recently used last; and the gate the
+/// parses that make them go through (see [`crate::farm::admission`]).
 pub struct Summaries {
     entries: Mutex<VecDeque<(String, Arc<SceneSummary>)>>,
     /// How many summaries were made by parsing a bundle (see
     /// [`Summaries::parses`]).
     parses: std::sync::atomic::AtomicU64,
+    admissions: Admissions,
+}
+
+impl Default for Summaries {
+    fn default() -> Self {
+        Summaries::new(&Limits::default())
+    }
 }
 
 impl Summaries {
+    /// An empty cache whose parses are bounded by `limits`'
+    /// `max_admissions` and `admission_bytes`.
+    pub fn new(limits: &Limits) -> Summaries {
+        Summaries {
+            entries: Mutex::default(),
+            parses: Default::default(),
+            admissions: Admissions::new(limits),
+        }
+    }
+
+    /// The admissions in progress.
+    pub fn admissions(&self) -> &Admissions {
+        &self.admissions
+    }
+
+    /// The summary of `hash`, from the cache or made by `parse` within an
+    /// admission (refused when the admissions are full; see
+    /// [`Admissions::enter`]).
+    pub fn get_or_admit(
+        &self,
+        hash: &str,
+        parse: impl FnOnce(&mut Ticket) -> Result<SceneSummary, crate::error::FarmError>,
+    ) -> Result<Arc<SceneSummary>, crate::error::FarmError> {
+        self.get_or_parse(hash, || {
+            let mut ticket = self.admissions.enter()?;
+            parse(&mut ticket)
+        })
+    }
+
     /// How many bundles' summaries are kept.
     pub const CAPACITY: usize = 16;
 
@@ -205,6 +256,88 @@ mod tests {
             Err(crate::FarmError::BadBundle(m)) if m.contains("damaged")
         ));
         assert_eq!(farm.summaries().parses(), 1);
+    }
+
+    /// A stored bundle of `files`, its scene `s.xml`, on a farm with
+    /// `limits`.
+    fn farm_with(
+        limits: Limits,
+        files: &[(&str, &[u8])],
+    ) -> (tempfile::TempDir, crate::Farm, String) {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut cfg = crate::FarmConfig::new(tmp.path());
+        cfg.durable = false;
+        cfg.limits = limits;
+        let farm = crate::Farm::new(cfg).unwrap();
+        let bundle = trevi_core::Bundle {
+            scene: "s.xml".into(),
+            files: files
+                .iter()
+                .map(|(n, b)| (n.to_string(), b.to_vec()))
+                .collect(),
+        };
+        let mut up = farm.bundles().begin_upload().unwrap();
+        up.write(&bundle.encode()).unwrap();
+        let hash = farm.bundles().finish_upload(up, usize::MAX).unwrap();
+        (tmp, farm, hash)
+    }
+
+    #[test]
+    fn an_admission_beyond_the_limit_is_refused_naming_the_flag() {
+        let limits = Limits {
+            max_admissions: 1,
+            ..Limits::default()
+        };
+        let (_tmp, farm, hash) = farm_with(limits, &[("s.xml", TWO_CAMERAS.as_bytes())]);
+        // Another admission in progress (held here; a barrier in effect).
+        let other = farm.summaries().admissions().enter().unwrap();
+        let e = farm.job_spec(&hash, "a", 0, 0).unwrap_err();
+        assert!(
+            matches!(&e, crate::FarmError::Limit(m) if m.contains("--max-admissions")),
+            "{e}"
+        );
+        assert_eq!(farm.summaries().parses(), 0);
+        drop(other);
+        assert_eq!(farm.job_spec(&hash, "a", 0, 0).unwrap().width, 8);
+        assert_eq!(farm.summaries().admissions().in_progress(), (0, 0));
+    }
+
+    /// A PNG signature and an IHDR claiming `side²` RGB, and no pixel data:
+    /// only a reader of headers can take it.
+    fn png_header(side: u32) -> Vec<u8> {
+        let mut b = b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR".to_vec();
+        b.extend_from_slice(&side.to_be_bytes());
+        b.extend_from_slice(&side.to_be_bytes());
+        b.extend_from_slice(&[8, 2, 0, 0, 0, 0, 0, 0, 0]);
+        b
+    }
+
+    #[test]
+    fn a_job_is_admitted_from_its_textures_headers() {
+        let scene = r#"<scene version="1">
+  <mesh id="q"><vertices>0 0 0 1 0 0 0 1 0</vertices><uvs>0 0 1 0 0 1</uvs><triangles>0 1 2</triangles></mesh>
+  <model id="m" mesh="q"><surface diffuse-texture="t.png"/></model>
+  <camera id="a" position="0 0 5" lookat="0 0 0" fov="40"><render width="8" height="6"/></camera>
+</scene>"#;
+        let png = png_header(4096);
+        let (_tmp, farm, hash) = farm_with(
+            Limits::default(),
+            &[("s.xml", scene.as_bytes()), ("t.png", &png)],
+        );
+        // Decoding would fail (there are no pixels); the header is enough.
+        farm.job_spec(&hash, "a", 0, 0).unwrap();
+        let s = farm.summaries().get(&hash).unwrap();
+        assert!(s.memory >= 4096 * 4096 * 12, "{}", s.memory);
+        // A claim beyond the texture bounds is refused from the header.
+        let (_tmp, farm, hash) = farm_with(
+            Limits::default(),
+            &[("s.xml", scene.as_bytes()), ("t.png", &png_header(20_000))],
+        );
+        let e = farm.job_spec(&hash, "a", 0, 0).unwrap_err();
+        assert!(
+            matches!(&e, crate::FarmError::BadScene(m) if m.contains("s.xml:3:") && m.contains("20000 x 20000")),
+            "{e}"
+        );
     }
 
     #[test]
