@@ -178,12 +178,17 @@ impl BundleStore {
 
     /// Opens the stored file of `hash` and marks the bundle as used (see
     /// [`BundleStore::collect`]); a missing file is
-    /// [`FarmError::UnknownBundle`].
+    /// [`FarmError::UnknownBundle`], any other error [`FarmError::Io`].
     fn open_used(&self, hash: &str) -> Result<std::fs::File, FarmError> {
         let path = self.path(hash)?;
         let _files = lock(&self.files);
-        let file =
-            std::fs::File::open(&path).map_err(|_| FarmError::UnknownBundle(hash.to_string()))?;
+        // Only a missing file is "no bundle": any other error (too many
+        // open files, permissions, a failing disk) says what it is and
+        // fails no job (see `crate::grpc`).
+        let file = std::fs::File::open(&path).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => FarmError::UnknownBundle(hash.to_string()),
+            _ => FarmError::io(format!("opening the stored bundle {hash}"), e),
+        })?;
         // Only the collector reads this time; failing to set it is harmless.
         let _ = file.set_modified(SystemTime::now());
         Ok(file)

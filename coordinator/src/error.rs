@@ -79,9 +79,19 @@ impl FarmError {
             FarmError::NotYourLease(_) => Code::PermissionDenied,
             FarmError::Limit(_) => Code::ResourceExhausted,
             FarmError::Invalid(_) => Code::InvalidArgument,
+            // Out of descriptors or memory: it passes, try again.
+            FarmError::Io { source, .. } if is_exhaustion(source.as_ref()) => Code::Unavailable,
             FarmError::Io { .. } | FarmError::Damaged(_) => Code::Internal,
         }
     }
+}
+
+/// Whether an I/O error is the process or the system running out of a
+/// resource that frees up (open files, memory): `UNAVAILABLE`, not a fault.
+fn is_exhaustion(e: &(dyn std::error::Error + 'static)) -> bool {
+    e.downcast_ref::<std::io::Error>()
+        .and_then(std::io::Error::raw_os_error)
+        .is_some_and(|c| [libc::EMFILE, libc::ENFILE, libc::ENOMEM, libc::EAGAIN].contains(&c))
 }
 
 impl From<FarmError> for tonic::Status {
@@ -117,6 +127,10 @@ mod tests {
             assert_eq!(status.code(), code);
             assert_eq!(status.message(), msg);
         }
+        let e = FarmError::io("opening f", std::io::Error::from_raw_os_error(libc::EMFILE));
+        assert_eq!(e.code(), Code::Unavailable);
+        let e = FarmError::io("opening f", std::io::Error::from_raw_os_error(libc::EACCES));
+        assert_eq!(e.code(), Code::Internal);
         let e = FarmError::io("reading f", std::io::Error::other("gone"));
         assert_eq!(e.to_string(), "reading f: gone");
         assert!(std::error::Error::source(&e).is_some(), "the cause is kept");

@@ -16,7 +16,9 @@
 
 pub mod admission;
 mod checks;
+mod outputs;
 mod previews;
+mod registrations;
 mod restore;
 mod retention;
 pub mod segments;
@@ -24,9 +26,10 @@ pub mod sequences;
 mod upkeep;
 
 use checks::output_name;
+use outputs::Output;
 pub use checks::{output_name_as, validate_pixels};
 pub use previews::PreviewImage;
-pub use retention::{BadDuration, Retention};
+pub use retention::{BadDuration, BadRetention, Retention, MAX_KEEP_ENDED_FOR, MIN_KEEP_ENDED_FOR};
 pub use segments::{SegmentPlan, SegmentUpload};
 pub use upkeep::Upkeep;
 
@@ -49,7 +52,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::{watch, Notify};
-use trevi_core::{FrameWriter, Rect};
+use trevi_core::Rect;
 
 /// Coordinator settings.
 #[derive(Debug, Clone)]
@@ -104,7 +107,7 @@ pub struct SubmitOptions<'a> {
     /// [`Limits::max_jobs_per_submitter`] unfinished jobs; empty for
     /// in-process callers, who share one count.
     pub who: &'a str,
-    /// Where the job's tiles go; `None`: a [`FrameWriter`] writing
+    /// Where the job's tiles go; `None`: a [`trevi_core::FrameWriter`] writing
     /// [`Farm::output_path`].
     pub sink: Option<MakeSink<'a>>,
 }
@@ -132,6 +135,10 @@ pub struct WorkerOptions<'a> {
     /// leases may ask for encoded segments (see [`Farm::put_segments`]),
     /// and only such a worker's are taken.
     pub png_segments: bool,
+    /// The client address it registered from, which may have at most
+    /// [`Limits::max_workers_per_address`] workers registered; empty for
+    /// in-process callers, who are not counted by address.
+    pub addr: &'a str,
 }
 
 /// A worker [`Farm::register_worker`] registered.
@@ -169,26 +176,6 @@ struct Admitted<P> {
     out: SharedOutput,
 }
 
-struct Output {
-    sink: Option<Box<dyn TileSink>>,
-    written: u64,
-    total: u64,
-    max_rows_held: usize,
-    preview: Preview,
-}
-
-impl Output {
-    fn new(sink: Box<dyn TileSink>, spec: &JobSpec, total: u64) -> Output {
-        Output {
-            sink: Some(sink),
-            written: 0,
-            total,
-            max_rows_held: 0,
-            preview: Preview::new(spec.width, spec.height),
-        }
-    }
-}
-
 struct State {
     sched: Scheduler,
     outputs: HashMap<JobId, Arc<Mutex<Output>>>,
@@ -206,6 +193,10 @@ struct State {
     parent_of: HashMap<JobId, JobId>,
     /// Workers that registered with this coordinator's PNG encoder.
     segment_workers: HashSet<WorkerId>,
+    /// Which ended jobs were fetched or were frames (see `retention`).
+    ended: retention::Ended,
+    /// Where each worker registered from (see `registrations`).
+    registrations: registrations::Registrations,
 }
 
 impl State {
@@ -269,6 +260,8 @@ impl Farm {
                 seqs: HashMap::new(),
                 parent_of: HashMap::new(),
                 segment_workers: HashSet::new(),
+                ended: retention::Ended::default(),
+                registrations: registrations::Registrations::default(),
             }),
             work: Notify::new(),
             bundles,
@@ -403,20 +396,7 @@ impl Farm {
 
     /// Queues a job; its tiles go where `opts` says.
     pub fn submit(&self, spec: JobSpec, opts: SubmitOptions) -> Result<JobInfo, FarmError> {
-        let SubmitOptions { who, sink } = opts;
-        let make: MakeSink<'_> = match sink {
-            Some(make) => make,
-            None => {
-                let name = spec.output_name.clone();
-                let (w, h) = (spec.width, spec.height);
-                Box::new(move |id| {
-                    let path = self.output_path(id, &name);
-                    let writer = FrameWriter::create(&path, w, h)
-                        .map_err(|e| FarmError::io("cannot create the output", e))?;
-                    Ok(Box::new(writer))
-                })
-            }
-        };
+        let SubmitOptions { who, sink: make } = opts;
         if spec.width == 0 || spec.height == 0 {
             return Err(FarmError::BadScene("the frame is empty".into()));
         }
@@ -452,7 +432,7 @@ impl Farm {
         &self,
         st: &mut State,
         spec: JobSpec,
-        make: MakeSink<'_>,
+        make: Option<MakeSink<'_>>,
         who: &str,
         parent: Option<JobId>,
     ) -> Result<JobInfo, FarmError> {
@@ -464,14 +444,23 @@ impl Farm {
             .map_or(0, |s| s.memory);
         let id = st.sched.submit(spec, now);
         st.sched.set_memory_estimate(id, memory, now);
-        let sink = match make(id) {
-            Ok(s) => s,
-            Err(e) => {
-                st.sched.finish(id, Err(e.to_string()), now);
-                return Err(e);
-            }
-        };
         let info = st.sched.info(id, now).expect("just submitted");
+        // The default output file is opened at the job's first tile (see
+        // `outputs`); a sink given by the caller is made now.
+        let out = match make {
+            None => Output::deferred(
+                self.output_path(id, &info.spec.output_name),
+                &info.spec,
+                info.tiles_total,
+            ),
+            Some(make) => match make(id) {
+                Ok(sink) => Output::new(sink, &info.spec, info.tiles_total),
+                Err(e) => {
+                    st.sched.finish(id, Err(e.to_string()), now);
+                    return Err(e);
+                }
+            },
+        };
         if let Some(store) = &self.store {
             let seq = SeqLink {
                 parent,
@@ -483,10 +472,7 @@ impl Farm {
                 return Err(e);
             }
         }
-        st.outputs.insert(
-            id,
-            Arc::new(Mutex::new(Output::new(sink, &info.spec, info.tiles_total))),
-        );
+        st.outputs.insert(id, Arc::new(Mutex::new(out)));
         st.watchers.insert(id, watch::channel(info.clone()).0);
         match parent {
             None => {
@@ -513,7 +499,10 @@ impl Farm {
             None
         };
         let mut st = self.state.lock();
+        let l = &self.cfg.limits;
+        st.check_registration(opts.addr, l.max_workers, l.max_workers_per_address)?;
         let id = st.sched.register_worker(Instant::now(), session);
+        st.registered(id, opts.addr);
         st.sched.describe_worker(id, opts.name, opts.threads);
         if opts.multi_tile {
             st.sched.allow_spans(id);
@@ -536,16 +525,19 @@ impl Farm {
         lease: LeaseId,
         bytes: u64,
     ) -> Result<(), FarmError> {
-        self.state
+        let honest = self
+            .state
             .lock()
             .sched
             .decline_lease(worker, lease, bytes, Instant::now())?;
-        tracing::info!(
-            worker,
-            lease,
-            needs = %trevi_core::scene::estimate::human_bytes(bytes),
-            "tile declined: the scene needs more memory than the worker's --max-memory; re-queued"
-        );
+        let needs = trevi_core::scene::estimate::human_bytes(bytes);
+        if honest {
+            tracing::info!(worker, lease, %needs,
+                "tile declined: the scene needs more memory than the worker's --max-memory; re-queued");
+        } else {
+            tracing::warn!(worker, lease, %needs,
+                "tile declined for memory its registered limit holds; re-queued, counted against the worker");
+        }
         self.work.notify_waiters();
         Ok(())
     }
@@ -870,7 +862,7 @@ impl Farm {
                 })
                 .collect();
             if let Err(e) = store.put_tiles(job, &rows) {
-                lock(&first.out).sink = None;
+                lock(&first.out).close();
                 self.end_job(job, Err(format!("storing tile {}: {e}", first.idx)));
                 return Err(e);
             }
@@ -913,11 +905,20 @@ impl Farm {
     ) -> Result<bool, FarmError> {
         let mut guard = lock(out);
         let o = &mut *guard;
+        let opened = o.open();
         let Some(sink) = o.sink.as_mut() else {
-            return Ok(false);
+            return match opened {
+                Ok(_) => Ok(false),
+                Err(e) => {
+                    drop(guard); // end_job takes the output's lock for its preview.
+                    let e = FarmError::io(format!("creating the output of job {job}"), e);
+                    self.end_job(job, Err(e.to_string()));
+                    Err(e)
+                }
+            };
         };
         if let Err(e) = write(sink.as_mut(), &mut o.preview) {
-            o.sink = None;
+            o.close();
             drop(guard); // end_job takes the output's lock for its preview.
             let e = FarmError::io(format!("writing the output of job {job}"), e);
             self.end_job(job, Err(e.to_string()));
@@ -1060,7 +1061,7 @@ impl Farm {
         drop(st);
         if let Some(out) = out {
             // Dropping an unfinished writer removes its temporary file.
-            lock(&out).sink = None;
+            lock(&out).close();
             let dir = self.cfg.data_dir.join("jobs").join(job.to_string());
             let _ = std::fs::remove_dir(dir);
             tracing::info!(job, "job cancelled");
@@ -1100,12 +1101,21 @@ impl Farm {
             .ok_or(FarmError::UnknownJob(job))
     }
 
-    /// The finished output file of a job that is done.
+    /// The finished output file of a job that is done (a frame of a
+    /// sequence: in its sequence's directory). Call off the async threads.
     pub fn output_file(&self, job: JobId) -> Result<PathBuf, FarmError> {
-        if self.state.lock().seqs.contains_key(&job) {
-            return self.frame_file(job, None);
-        }
+        let frame_of = {
+            let st = self.state.lock();
+            if st.seqs.contains_key(&job) {
+                drop(st);
+                return self.frame_file(job, None);
+            }
+            st.ended.frame_of(job)
+        };
         let info = self.info(job)?;
+        if let (Some((seq, f)), JobState::Done) = (frame_of, info.state) {
+            return self.frame_file(seq, Some(f));
+        }
         if info.state != JobState::Done {
             return Err(FarmError::NoOutput(
                 job,

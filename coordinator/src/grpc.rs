@@ -156,13 +156,26 @@ impl pb::bundles_server::Bundles for BundlesService {
         req: Request<pb::BundleRef>,
     ) -> Result<Response<Self::DownloadBundleStream>, Status> {
         let hash = req.into_inner().hash;
-        let farm = self.farm.clone();
-        let opened = {
-            let hash = hash.clone();
-            tokio::task::spawn_blocking(move || farm.bundles().open_verified(&hash))
+        // An error other than a missing or damaged copy (out of file
+        // descriptors, a failing disk) may pass: tried again a few times,
+        // then named to the worker, failing no job.
+        let mut opened;
+        let mut wait = Duration::from_millis(50);
+        loop {
+            let farm = self.farm.clone();
+            let h = hash.clone();
+            opened = tokio::task::spawn_blocking(move || farm.bundles().open_verified(&h))
                 .await
-                .map_err(join_error)?
-        };
+                .map_err(join_error)?;
+            match &opened {
+                Err(e @ FarmError::Io { .. }) if wait < BUNDLE_RETRY_WAIT => {
+                    tracing::warn!(bundle = %hash, error = %e, "cannot open a stored bundle; trying again");
+                    tokio::time::sleep(wait).await;
+                    wait *= 4;
+                }
+                _ => break,
+            }
+        }
         let file = match opened {
             Ok((file, _size)) => file,
             Err(e @ (FarmError::BadBundle(_) | FarmError::UnknownBundle(_))) => {
@@ -181,6 +194,11 @@ impl pb::bundles_server::Bundles for BundlesService {
                 }
                 return Err(e.into());
             }
+            Err(e @ FarmError::Io { .. }) => {
+                let mut status = Status::from(e);
+                status = Status::new(status.code(), format!("{} ({NOT_SERVED})", status.message()));
+                return Err(status);
+            }
             Err(e) => return Err(e.into()),
         };
         Ok(Response::new(stream_file(
@@ -189,6 +207,17 @@ impl pb::bundles_server::Bundles for BundlesService {
         )))
     }
 }
+
+/// Said by a bundle download the coordinator could not serve for a reason
+/// of its own (out of descriptors, a failing disk); a worker that returns
+/// its tile with an error naming it (it passes the status's message on) is
+/// not held to fault.
+pub const NOT_SERVED: &str = "the coordinator could not serve the bundle; not the job's fault";
+
+/// How long a download of a bundle whose stored copy cannot be opened for
+/// a reason other than its absence (out of descriptors, a failing disk)
+/// waits between tries at most: 50, 200 and 800 ms, then the error.
+const BUNDLE_RETRY_WAIT: Duration = Duration::from_millis(1000);
 
 /// Sends a file in chunks made by `make` (`size` is the file's size on the
 /// first chunk, 0 after; at least one chunk, empty for an empty file),
@@ -361,17 +390,27 @@ impl pb::jobs_server::Jobs for JobsService {
         req: Request<pb::JobId>,
     ) -> Result<Response<Self::DownloadOutputStream>, Status> {
         let r = req.into_inner();
-        let id = r.id;
-        let path = match r.frame {
-            Some(f) => self.farm.frame_file(id, Some(f))?,
-            None => self.farm.output_file(id)?,
-        };
-        let file = tokio::fs::File::open(&path)
-            .await
-            .map_err(|e| Status::internal(format!("opening the output of job {id}: {e}")))?;
-        Ok(Response::new(stream_file(file, |data, size| {
-            pb::OutputChunk { data, size }
-        })))
+        let (id, frame) = (r.id, r.frame);
+        // Finding and opening the file touches the disk: off the async
+        // threads, like every file system call (issue 36: a lookup that
+        // stat'ed every frame of a long sequence here held a runtime
+        // thread for half a minute and let leases expire).
+        let farm = self.farm.clone();
+        let file = blocking(move || {
+            let path = match frame {
+                Some(f) => farm.frame_file(id, Some(f))?,
+                None => farm.output_file(id)?,
+            };
+            let file = std::fs::File::open(&path)
+                .map_err(|e| FarmError::io(format!("opening the output of job {id}"), e))?;
+            farm.fetched(id, frame);
+            Ok(file)
+        })
+        .await?;
+        Ok(Response::new(stream_file(
+            tokio::fs::File::from_std(file),
+            |data, size| pb::OutputChunk { data, size },
+        )))
     }
 }
 
@@ -550,8 +589,14 @@ impl pb::workers_server::Workers for WorkersService {
         &self,
         req: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterResponse>, Status> {
+        // Workers are counted by their address (see Limits).
+        let addr = req
+            .remote_addr()
+            .map(|a| a.ip().to_string())
+            .unwrap_or_default();
         let r = req.into_inner();
         let reg = self.farm.register_worker(WorkerOptions {
+            addr: &addr,
             name: &r.name,
             threads: r.threads,
             session: true,
@@ -714,6 +759,16 @@ impl pb::workers_server::Workers for WorkersService {
         let keep = self.farm.config().limits.max_return_error_chars;
         let error: String = r.error.chars().take(keep).collect();
         let error = (!error.is_empty()).then_some(error);
+        // The coordinator's own fault (it could not serve the bundle): the
+        // tile is re-queued without counting against it or the worker. A
+        // worker that says so falsely gains nothing it could not have by
+        // returning the tile without an error.
+        if let Some(e) = error.as_deref().filter(|e| e.contains(NOT_SERVED)) {
+            tracing::warn!(worker = r.worker_id, lease = r.lease_id, error = %e,
+                "tile returned: the coordinator could not serve its bundle; re-queued");
+            self.farm.return_tile(r.worker_id, r.lease_id, None)?;
+            return Ok(Response::new(pb::TileReturnAck {}));
+        }
         if r.memory_needed > 0 && error.is_none() {
             self.farm
                 .decline_tile(r.worker_id, r.lease_id, r.memory_needed)?;

@@ -438,6 +438,9 @@ impl From<&WorkerInfo> for WorkerView {
 pub const STATE_ACTIVE_JOBS: usize = 500;
 /// Ended jobs `/api/state` shows at most (the newest by id).
 pub const STATE_ENDED_JOBS: usize = 50;
+/// Workers `/api/state` shows at most (busy and paused ones first, then by
+/// id); `workers_total` counts them all.
+pub const STATE_WORKERS: usize = 500;
 
 #[derive(Serialize)]
 struct StateView {
@@ -447,6 +450,8 @@ struct StateView {
     jobs_queued: usize,
     jobs_ended: usize,
     workers: Vec<WorkerView>,
+    /// Workers known, counting those not in `workers`.
+    workers_total: usize,
     rays_per_second: f64,
     queued_tiles: u64,
 }
@@ -470,7 +475,15 @@ async fn api_state(
         jobs_running: running,
         jobs_queued: queued,
         jobs_ended: s.jobs.len() - running - queued,
-        workers: s.workers.iter().map(WorkerView::from).collect(),
+        workers: {
+            // Busy and paused ones first: what is happening now.
+            let mut w: Vec<&WorkerInfo> = s.workers.iter().collect();
+            w.sort_by_key(|w| (!matches!(w.state, WorkerState::Busy | WorkerState::Paused), w.id));
+            w.truncate(STATE_WORKERS);
+            w.sort_by_key(|w| w.id);
+            w.into_iter().map(WorkerView::from).collect()
+        },
+        workers_total: s.workers.len(),
         rays_per_second: s.rays_per_second,
         queued_tiles: s.queue.tiles,
     }))

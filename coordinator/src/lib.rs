@@ -17,6 +17,7 @@
 //! - [`summaries`]: the cameras of each stored bundle's scene, parsed once.
 //! - [`listen`]: accepting connections through errors (out of file
 //!   descriptors) and raising the open-files limit at start-up.
+//! - [`dir_lock`]: one coordinator per data directory.
 //! - [`tls`]: loading and checking the certificate and key of `--tls-cert`
 //!   and `--tls-key`.
 //! - [`timed_lock`]: the mutex of the farm's state and of the store, which
@@ -29,6 +30,7 @@
 
 pub mod auth;
 pub mod bundles;
+pub mod dir_lock;
 pub mod error;
 pub mod farm;
 pub mod grpc;

@@ -35,6 +35,11 @@ pub struct Limits {
     /// How long an upload (a bundle's, or a worker's tile or segments) may
     /// go without a message before it is dropped.
     pub upload_idle: Duration,
+    /// Workers registered at once (all of them: a farm has one worker
+    /// token); one more registration is refused until one is forgotten.
+    pub max_workers: usize,
+    /// Workers registered at once from one client address.
+    pub max_workers_per_address: usize,
     /// Tile uploads (floats or encoded segments) the coordinator receives
     /// at once; more wait, unread, until one ends. Each holds at most one
     /// lease's pixels (12 bytes a pixel of [`Limits::max_lease_pixels`], or
@@ -189,6 +194,8 @@ impl Default for Limits {
             admission_bytes: DEFAULT_ADMISSION_MIB << 20,
             upload_idle: Duration::from_secs(30),
             max_tile_uploads: DEFAULT_MAX_TILE_UPLOADS,
+            max_workers: 10_000,
+            max_workers_per_address: 1_000,
 
             lease_ttl: Duration::from_secs(10),
             // A 16384-pixel-wide frame in 64-pixel tiles: two bands.

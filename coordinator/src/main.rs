@@ -129,15 +129,26 @@ struct Args {
     #[arg(long, env = "TREVI_MAX_JOBS_PER_SUBMITTER", value_parser = at_least::<usize>(1),
           default_value_t = defaults().limits.max_jobs_per_submitter)]
     max_jobs_per_submitter: usize,
-    /// Ended jobs (done, failed, cancelled) kept at most, with their outputs;
-    /// older ones are forgotten and their outputs deleted.
+    /// Ended jobs (done, failed, cancelled; a sequence is one) kept at most,
+    /// with their outputs; older ones are forgotten and their outputs
+    /// deleted, except outputs not fetched yet (only --keep-ended-for
+    /// removes those). At least 1.
     #[arg(long, env = "TREVI_KEEP_ENDED", default_value_t = defaults().retention.keep_ended)]
     keep_ended: usize,
     /// Forget ended jobs and delete their outputs this long after they
-    /// ended: 90s, 30m, 12h, 7d, or never.
+    /// ended: 90s, 30m, 12h, 7d (from 1m to 3650d), or never.
     #[arg(long, env = "TREVI_KEEP_ENDED_FOR",
         default_value_t = Retention::format_duration(defaults().retention.keep_ended_for))]
     keep_ended_for: String,
+    /// Most workers registered at once; one more registration is refused
+    /// until a silent one is forgotten.
+    #[arg(long, env = "TREVI_MAX_WORKERS", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.max_workers)]
+    max_workers: usize,
+    /// Most workers registered at once from one client address.
+    #[arg(long, env = "TREVI_MAX_WORKERS_PER_ADDRESS", value_parser = at_least::<usize>(1),
+          default_value_t = defaults().limits.max_workers_per_address)]
+    max_workers_per_address: usize,
     /// Most bundle uploads in progress at once; one more is refused.
     #[arg(long, env = "TREVI_MAX_UPLOADS", value_parser = at_least::<usize>(1),
           default_value_t = defaults().limits.max_uploads)]
@@ -205,6 +216,8 @@ impl Args {
                 admission_bytes: self.admission_mib.saturating_mul(1 << 20),
                 upload_idle: Duration::from_millis(self.upload_idle_ms),
                 max_tile_uploads: self.max_tile_uploads,
+                max_workers: self.max_workers,
+                max_workers_per_address: self.max_workers_per_address,
                 lease_ttl: Duration::from_millis(self.lease_ttl_ms),
                 window_bytes: self.window_mib << 20,
                 max_tile_failures: self.max_tile_failures,
@@ -223,6 +236,10 @@ impl Args {
                     .map_err(|e| anyhow::anyhow!("--keep-ended-for: {e}"))?,
                 bundle_grace: Duration::from_secs(self.bundle_grace_secs),
             },
+        })
+        .and_then(|cfg: FarmConfig| {
+            cfg.retention.check()?;
+            Ok(cfg)
         })
     }
 }
@@ -243,6 +260,9 @@ async fn main() -> Result<()> {
         Err(e) => tracing::warn!(error = %e, "cannot raise the open-files limit"),
     }
     let cfg = args.farm_config()?;
+    // Held until the process exits: a second coordinator on this directory
+    // is refused, naming this one.
+    let _dir_lock = trevi_coordinator::dir_lock::lock_data_dir(&args.data_dir)?;
     let submit_token = token_from(args.submit_token.clone(), args.submit_token_file.as_deref())
         .map_err(|e| anyhow::anyhow!("submit token: {e}"))?;
     let worker_token = token_from(args.worker_token.clone(), args.worker_token_file.as_deref())
@@ -364,6 +384,8 @@ mod tests {
             "--max-message-kib",
             "--max-image-samples",
             "--max-jobs-per-submitter",
+            "--max-workers",
+            "--max-workers-per-address",
             "--max-uploads",
             "--upload-idle-ms",
             "--http-header-timeout-ms",
@@ -389,7 +411,21 @@ mod tests {
             .farm_config()
             .unwrap();
         assert_eq!(cfg.limits.frames_in_progress, MAX_FRAMES_IN_PROGRESS);
-        // 0 kept ended jobs is a choice (keep none), not nonsense.
-        parse(&["--keep-ended", "0"]).unwrap();
+        // Keeping no ended job would delete every output as its job ends;
+        // a retention of a second, or of a thousand years, is a typo.
+        for (flag, value, says) in [
+            ("--keep-ended", "0", "keep at least 1"),
+            ("--keep-ended-for", "1s", "shorter than the shortest"),
+            ("--keep-ended-for", "0d", "shorter than the shortest"),
+            ("--keep-ended-for", "365000d", "longer than the longest"),
+        ] {
+            let e = parse(&[flag, value]).unwrap().farm_config().unwrap_err();
+            let msg = e.to_string();
+            assert!(msg.contains(flag) && msg.contains(says), "{flag} {value}: {msg}");
+        }
+        parse(&["--keep-ended", "1", "--keep-ended-for", "never"])
+            .unwrap()
+            .farm_config()
+            .unwrap();
     }
 }

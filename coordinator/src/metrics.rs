@@ -14,6 +14,11 @@
 
 use crate::scheduler::{Counters, JobInfo, JobState, QueueDepth};
 use crate::workers::{WorkerInfo, WorkerState};
+
+/// Series per worker a family of `/metrics` shows at most (the first by
+/// id): a farm's thousands of workers must not make thousands of series
+/// (the families by state and reason count them all).
+pub const WORKER_SERIES: usize = 100;
 use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::future::Future;
@@ -247,9 +252,14 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
         &mut out,
         "trevi_worker_paused",
         "gauge",
-        "1 for each worker that is paused, with its id, name and reason.",
+        "1 for each worker that is paused, with its id, name and reason (the first 100 by id).",
     );
-    for w in &s.workers {
+    let paused = s
+        .workers
+        .iter()
+        .filter(|w| w.state == WorkerState::Paused)
+        .take(WORKER_SERIES);
+    for w in paused {
         if let (WorkerState::Paused, Some(r)) = (w.state, &w.paused) {
             let _ = writeln!(
                 out,
@@ -265,18 +275,21 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
         &mut out,
         "trevi_worker_memory_limit_bytes",
         "gauge",
-        "Each live worker's --max-memory in bytes (workers that gave none are left out).",
+        "Each live worker's --max-memory in bytes (workers that gave none are left out; the first 100 by id).",
     );
-    for w in &s.workers {
-        if w.memory_limit > 0 && w.state != WorkerState::Lost {
-            let _ = writeln!(
-                out,
-                "trevi_worker_memory_limit_bytes{{worker=\"{}\",name=\"{}\"}} {}",
-                w.id,
-                label(&w.name),
-                w.memory_limit
-            );
-        }
+    let limited = s
+        .workers
+        .iter()
+        .filter(|w| w.memory_limit > 0 && !matches!(w.state, WorkerState::Lost | WorkerState::Left))
+        .take(WORKER_SERIES);
+    for w in limited {
+        let _ = writeln!(
+            out,
+            "trevi_worker_memory_limit_bytes{{worker=\"{}\",name=\"{}\"}} {}",
+            w.id,
+            label(&w.name),
+            w.memory_limit
+        );
     }
 
     let name = "trevi_grpc_request_duration_seconds";

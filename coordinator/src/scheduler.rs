@@ -877,9 +877,12 @@ impl Scheduler {
         let (expired, first) = self.leases.expired(now);
         self.earliest_deadline = first;
         for &id in &expired {
-            let Some(worker) = self.leases.get(id).map(|e| e.worker) else {
+            let Some((worker, job, tile)) = self.leases.get(id).map(|e| (e.worker, e.job, e.tile))
+            else {
                 continue;
             };
+            tracing::warn!(worker, lease = id, job, tile,
+                "lease expired: the worker went silent (lost); its tile is re-queued");
             let cause = format!("lease expired (worker {worker} went silent)");
             self.release(id, &cause, Release::Lost);
         }
@@ -907,22 +910,34 @@ impl Scheduler {
     /// more than its memory limit: the tile is re-queued without counting
     /// a failure, the job keeps the estimate (so it is not leased to
     /// workers that small again), and the worker shows as paused for
-    /// "memory" until it takes a tile.
+    /// "memory" until it takes a tile. The claim proves only that the
+    /// scene needs more than the worker's own registered limit, so the
+    /// estimate rises to just above that limit, no further (one worker's
+    /// word cannot keep a job from a bigger one). A claim its own limit
+    /// contradicts (no limit, or one that holds `bytes`) is false: the
+    /// tile is re-queued and the failure counted against the worker on
+    /// that job, not against the tile. False when the claim was false.
     pub fn decline_lease(
         &mut self,
         worker: WorkerId,
         lease: LeaseId,
         bytes: u64,
         now: Instant,
-    ) -> Result<(), SchedError> {
-        if let Some(e) = self.leases.get(lease) {
-            if e.worker == worker {
-                self.memory.set(e.job, bytes, now);
+    ) -> Result<bool, SchedError> {
+        let limit = self.workers.memory_limit(worker);
+        let honest = limit > 0 && bytes > limit;
+        if let Some(e) = self.leases.get(lease).filter(|e| e.worker == worker) {
+            if honest {
+                self.memory.set(e.job, bytes.min(limit.saturating_add(1)), now);
+            } else if let Some(j) = self.jobs.get_mut(&e.job) {
+                *j.worker_failures.entry(worker).or_default() += 1;
             }
         }
         self.return_lease(worker, lease, None, now)?;
-        self.workers.set_paused(worker, Some("memory"));
-        Ok(())
+        if honest {
+            self.workers.set_paused(worker, Some("memory"));
+        }
+        Ok(honest)
     }
 
     /// Fails the jobs that every live worker is kept from (each failed too

@@ -64,16 +64,25 @@ pub enum WorkerState {
     /// machine is busy, or it is outside its hours): see
     /// [`WorkerEntry::paused`].
     Paused,
-    /// Silent for longer than a lease lives: crashed, cut off or stopped.
+    /// Silent for longer than a lease lives without having said it was
+    /// stopping: crashed or cut off.
     Lost,
+    /// Silent after it said it was stopping (its last heartbeat's reason
+    /// was [`LEAVING`]): stopped cleanly, its leases handed back.
+    Left,
 }
 
+/// The pause reason a worker gives in its last heartbeat when it stops
+/// cleanly (SIGTERM, Ctrl-C): once silent it shows as "left", not "lost".
+pub const LEAVING: &str = "stopping";
+
 impl WorkerState {
-    pub const ALL: [WorkerState; 4] = [
+    pub const ALL: [WorkerState; 5] = [
         WorkerState::Busy,
         WorkerState::Idle,
         WorkerState::Paused,
         WorkerState::Lost,
+        WorkerState::Left,
     ];
 
     pub fn name(self) -> &'static str {
@@ -82,6 +91,7 @@ impl WorkerState {
             WorkerState::Idle => "idle",
             WorkerState::Paused => "paused",
             WorkerState::Lost => "lost",
+            WorkerState::Left => "left",
         }
     }
 }
@@ -106,6 +116,8 @@ pub struct WorkerEntry {
     /// The most memory it lets a scene take, in bytes (its
     /// `--max-memory`); 0: it said nothing (no limit).
     pub memory_limit: u64,
+    /// It called again after registering (a lease, a heartbeat...).
+    pub heard: bool,
 }
 
 impl WorkerEntry {
@@ -120,6 +132,7 @@ impl WorkerEntry {
             session: None,
             paused: None,
             memory_limit: 0,
+            heard: false,
         }
     }
 
@@ -142,7 +155,11 @@ impl WorkerEntry {
     /// Busy, idle or lost, given how many leases it holds.
     pub fn state(&self, leases: usize, lease_ttl: Duration, now: Instant) -> WorkerState {
         if now.saturating_duration_since(self.last_seen) > lease_ttl {
-            WorkerState::Lost
+            if self.paused.as_deref() == Some(LEAVING) {
+                WorkerState::Left
+            } else {
+                WorkerState::Lost
+            }
         } else if leases > 0 {
             WorkerState::Busy
         } else if self.paused.is_some() {
@@ -251,6 +268,7 @@ impl Workers {
         match self.entries.get_mut(&worker) {
             Some(w) => {
                 w.last_seen = now;
+                w.heard = true;
                 true
             }
             None => false,
@@ -282,11 +300,21 @@ impl Workers {
             .collect()
     }
 
-    /// Forgets the workers silent for longer than `after`; one that comes
-    /// back is told to register again.
+    /// Forgets the workers silent for longer than `after`, and those that
+    /// never called again after registering for longer than a tenth of it
+    /// (a registration alone holds a place only briefly, see
+    /// `crate::farm`'s registrations); one that comes back is told to
+    /// register again.
     pub fn forget_silent(&mut self, after: Duration, now: Instant) {
-        self.entries
-            .retain(|_, w| now.saturating_duration_since(w.last_seen) <= after);
+        self.entries.retain(|id, w| {
+            let silent = now.saturating_duration_since(w.last_seen);
+            let keep = silent <= after && (w.heard || silent <= after / 10);
+            if !keep {
+                let how = if w.heard { "silent" } else { "never called after registering" };
+                tracing::info!(worker = id, name = %w.name, silent_s = silent.as_secs(), "worker forgotten ({how})");
+            }
+            keep
+        });
     }
 
     /// Every worker by id, with the tiles it holds (`held`: job and

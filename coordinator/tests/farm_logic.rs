@@ -811,6 +811,7 @@ fn a_worker_acts_only_with_its_own_session_secret() {
                 multi_tile: false,
                 max_memory: 0,
                 png_segments: false,
+                addr: "",
             })
             .unwrap();
         (r.id, r.session.expect("asked for"))

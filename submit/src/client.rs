@@ -379,19 +379,26 @@ impl Client {
             Some(dir) => dir.join(&name),
             None => name,
         };
+        // Only where the frames done can be: one request per frame done,
+        // plus at most one per frame in progress (or cancelled by the end
+        // of a sequence that failed), never one per frame of the range.
+        let last = done_frames_end(&s, &f);
         let seq = crate::sequence::Sequence::new(
             0,
             s.camera.clone(),
             trevi_core::scene::animation::Frames {
                 first: f.first,
-                last: f.last,
+                last,
             },
             pattern.clone(),
         )?;
         let format = Format::from_path(&pattern)
             .with_context(|| format!("{} is not .png or .exr", pattern.display()))?;
         let mut got = 0;
-        for frame in f.first..=f.last {
+        for frame in f.first..=last {
+            if got >= s.frames_done {
+                break;
+            }
             let out = seq.output(frame);
             match self.download_frame(id, Some(frame), &out, format).await {
                 Ok(_) => got += 1,
@@ -473,6 +480,19 @@ impl Client {
         }
         let end = self.watch(s.id, progress).await?;
         if end.state() != JobState::Done {
+            // The frames it finished are kept, as a local render keeps them.
+            if end.frames_done > 0 {
+                match self.fetch_frames(end.clone(), Some(&seq.pattern)).await {
+                    Ok(_) if progress != Progress::Quiet => eprintln!(
+                        "sequence {}: kept the {} frames it finished ({})",
+                        s.id,
+                        end.frames_done,
+                        seq.pattern.display()
+                    ),
+                    Ok(_) => {}
+                    Err(e) => eprintln!("sequence {}: its finished frames: {e:#}", s.id),
+                }
+            }
             bail!("sequence {} {}: {}", s.id, end.state().label(), end.error);
         }
         for f in seq.frames.first..=seq.frames.last {
@@ -701,6 +721,25 @@ impl PreviewFile {
 pub const RECONNECT_FOR: Duration = Duration::from_secs(300);
 
 /// Whether a failed call may succeed once the coordinator is back.
+/// The last frame of sequence `s` (frames `f`) that may be done. Frames
+/// are started in order and a failed frame ends its sequence: the frames
+/// done are among the first `frames_done + frames_in_progress` of the
+/// range, or, once it failed or was cancelled, `frames_done` plus the
+/// frames that were in progress then (at most the coordinator's maximum
+/// of frames in progress).
+fn done_frames_end(s: &pb::JobStatus, f: &pb::FrameRange) -> u32 {
+    if s.state() == JobState::Done {
+        return f.last;
+    }
+    let slack = if matches!(s.state(), JobState::Failed | JobState::Cancelled) {
+        trevi_coordinator::limits::MAX_FRAMES_IN_PROGRESS as u32
+    } else {
+        s.frames_in_progress
+    };
+    let past = u64::from(f.first) + u64::from(s.frames_done) + u64::from(slack);
+    past.saturating_sub(1).clamp(u64::from(f.first), u64::from(f.last)) as u32
+}
+
 fn reconnectable(s: &tonic::Status) -> bool {
     matches!(
         s.code(),

@@ -590,6 +590,17 @@ impl Session {
                 }
             }
         }
+        if matches!(end, End::Shutdown) {
+            // Said last, so the coordinator shows this worker as "left",
+            // not "lost" (its leases were handed back above).
+            let bye = self.workers.heartbeat(pb::HeartbeatRequest {
+                worker_id: me.id,
+                lease_ids: Vec::new(),
+                session: me.session.clone(),
+                paused: "stopping".into(),
+            });
+            let _ = tokio::time::timeout(Duration::from_secs(1), bye).await;
+        }
         end
     }
 

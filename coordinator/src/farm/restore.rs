@@ -97,7 +97,15 @@ impl Farm {
                 tiles_total = info.tiles_total,
                 "resuming job"
             );
-            match self.rebuild_output(store, &info) {
+            let rebuilt = if done_tiles.is_empty() {
+                // Nothing stored: its file is opened at its first tile.
+                self.remove_stale_temp_files(&info);
+                let path = self.output_path(id, &info.spec.output_name);
+                Ok(Output::deferred(path, &info.spec, info.tiles_total))
+            } else {
+                self.rebuild_output(store, &info)
+            };
+            match rebuilt {
                 Ok(out) => {
                     let complete = out.written == out.total;
                     let out = Arc::new(Mutex::new(out));
@@ -120,16 +128,7 @@ impl Farm {
     fn rebuild_output(&self, store: &Store, info: &JobInfo) -> Result<Output, FarmError> {
         let job = info.id;
         let path = self.output_path(job, &info.spec.output_name);
-        // Temporary files of the writer that died with the last run.
-        if let Ok(entries) = std::fs::read_dir(path.parent().expect("jobs/<id>/name")) {
-            for e in entries.flatten() {
-                let name = e.file_name();
-                let name = name.to_string_lossy();
-                if name.starts_with('.') && name.contains(".trevi-tmp-") {
-                    let _ = std::fs::remove_file(e.path());
-                }
-            }
-        }
+        self.remove_stale_temp_files(info);
         let mut writer = FrameWriter::create(&path, info.spec.width, info.spec.height)
             .map_err(|e| FarmError::io("cannot create the output", e))?;
         let mut preview = Preview::new(info.spec.width, info.spec.height);
@@ -177,12 +176,26 @@ impl Farm {
                 Ok(())
             }
         })?;
-        Ok(Output {
-            max_rows_held: writer.rows_held(),
-            sink: Some(Box::new(writer)),
+        Ok(Output::restored(
+            Box::new(writer),
             written,
-            total: info.tiles_total,
+            info.tiles_total,
             preview,
-        })
+        ))
+    }
+
+    /// Removes the temporary files of the writer that died with the last
+    /// run in the job's directory.
+    fn remove_stale_temp_files(&self, info: &JobInfo) {
+        let path = self.output_path(info.id, &info.spec.output_name);
+        if let Ok(entries) = std::fs::read_dir(path.parent().expect("jobs/<id>/name")) {
+            for e in entries.flatten() {
+                let name = e.file_name();
+                let name = name.to_string_lossy();
+                if name.starts_with('.') && name.contains(".trevi-tmp-") {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
     }
 }

@@ -20,7 +20,7 @@
 //! other frames in progress are cancelled); cancelling a sequence cancels
 //! its frames in progress; its priority is its frames'.
 
-use super::{Farm, MakeSink, State};
+use super::{Farm, State};
 use crate::error::FarmError;
 #[cfg(doc)]
 use crate::limits::Limits;
@@ -31,9 +31,13 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
 use trevi_core::scene::animation::{frame_output, MAX_FRAME};
-use trevi_core::FrameWriter;
 
 pub use crate::limits::{DEFAULT_FRAMES_IN_PROGRESS, MAX_FRAMES_IN_PROGRESS};
+
+/// Most frame files a download without a frame looks for on disk (the
+/// highest frame done is known in memory; this covers a restart that lost
+/// which one it is).
+pub const FRAME_SCAN: usize = MAX_FRAMES_IN_PROGRESS + 1;
 
 /// A sequence's bookkeeping.
 pub struct Sequence {
@@ -56,6 +60,11 @@ pub struct Sequence {
     /// Rays of the frames done.
     pub(super) rays: u64,
     pub(super) who: String,
+    /// The highest frame done, and its job (whose last preview stands for
+    /// the sequence once no frame is in progress), when known: what a
+    /// download without a frame fetches, found without looking at the
+    /// disk.
+    pub(super) latest: Option<(u32, Option<JobId>)>,
 }
 
 impl Sequence {
@@ -129,6 +138,9 @@ impl State {
     /// is done and counted in the database).
     pub(super) fn frame_ended(&mut self, seq: JobId, job: JobId, ending: &JobInfo, counted: bool) {
         self.parent_of.remove(&job);
+        if let Some(f) = ending.spec.frame {
+            self.ended.frame(job, seq, f);
+        }
         let Some(s) = self.seqs.get_mut(&seq) else {
             return;
         };
@@ -138,6 +150,11 @@ impl State {
         if counted {
             s.done += 1;
             s.rays = s.rays.saturating_add(ending.rays);
+            if let Some(f) = ending.spec.frame {
+                if s.latest.is_none_or(|(l, _)| f >= l) {
+                    s.latest = Some((f, Some(job)));
+                }
+            }
         } else if !s.state.is_final() && s.failed.is_none() {
             let f = ending.spec.frame.unwrap_or_default();
             s.failed = Some(format!(
@@ -243,6 +260,7 @@ impl Farm {
             failed: None,
             rays: 0,
             who: who.to_string(),
+            latest: None,
         };
         let info = seq.info(id, &st.sched, now);
         st.seqs.insert(id, seq);
@@ -290,8 +308,7 @@ impl Farm {
                 ..s.spec.clone()
             };
             let who = s.who.clone();
-            let make = self.writer_sink(&spec);
-            let queued = self.submit_locked(&mut st, spec, make, &who, Some(seq));
+            let queued = self.submit_locked(&mut st, spec, None, &who, Some(seq));
             let s = st.seqs.get_mut(&seq).expect("checked above");
             s.next = f + 1;
             match queued {
@@ -304,19 +321,6 @@ impl Farm {
                 Err(e) => s.failed = Some(format!("frame {f}: {e}")),
             }
         }
-    }
-
-    /// A [`FrameWriter`] writing the job's output where
-    /// [`Farm::output_path`] says.
-    fn writer_sink(&self, spec: &JobSpec) -> MakeSink<'_> {
-        let name = spec.output_name.clone();
-        let (w, h) = (spec.width, spec.height);
-        Box::new(move |id| {
-            let path = self.output_path(id, &name);
-            let writer = FrameWriter::create(&path, w, h)
-                .map_err(|e| FarmError::io("cannot create the output", e))?;
-            Ok(Box::new(writer))
-        })
     }
 
     /// Moves a finished frame's output into its sequence's directory.
@@ -434,12 +438,18 @@ impl Farm {
     }
 
     /// The output file of frame `frame` of a sequence, once that frame is
-    /// done; without a frame, its last frame done.
+    /// done; without a frame, its highest frame done. Looks at the disk
+    /// at most [`FRAME_SCAN`] times, whatever the sequence's length: the
+    /// highest frame done is kept in memory (see [`Sequence::latest`]).
+    /// Call off the async threads: it stats files.
     pub fn frame_file(&self, seq: JobId, frame: Option<u32>) -> Result<PathBuf, FarmError> {
-        let (pattern, first, last) = {
+        let (pattern, first, last, latest, done) = {
             let st = self.state.lock();
-            let s = st.seqs.get(&seq).ok_or(FarmError::UnknownJob(seq))?;
-            (s.spec.output_name.clone(), s.first, s.last)
+            let Some(s) = st.seqs.get(&seq) else {
+                return Err(self.not_a_sequence(&st, seq, frame));
+            };
+            let latest = s.latest.map(|l| l.0);
+            (s.spec.output_name.clone(), s.first, s.last, latest, s.done)
         };
         let path = |f: u32| self.output_path(seq, &frame_output(&pattern, f));
         match frame {
@@ -449,11 +459,49 @@ impl Farm {
             )),
             Some(f) if path(f).is_file() => Ok(path(f)),
             Some(f) => Err(FarmError::NoOutput(seq, format!("frame {f} is not done"))),
-            None => (first..=last)
-                .rev()
-                .map(path)
-                .find(|p| p.is_file())
-                .ok_or_else(|| FarmError::NoOutput(seq, "no frame is done yet".into())),
+            None if done == 0 => Err(FarmError::NoOutput(seq, "no frame is done yet".into())),
+            None => {
+                // Frames start in order: none done is past `first + done`
+                // plus the frames in progress (at most the maximum).
+                let top = latest.unwrap_or_else(|| {
+                    let most = u64::from(first) + u64::from(done) + MAX_FRAMES_IN_PROGRESS as u64;
+                    most.min(u64::from(last)) as u32
+                });
+                (first..=top)
+                    .rev()
+                    .take(FRAME_SCAN)
+                    .map(path)
+                    .find(|p| p.is_file())
+                    .ok_or_else(|| {
+                        FarmError::NoOutput(seq, "its latest frame's file is missing".into())
+                    })
+            }
+        }
+    }
+
+    /// Why `job`, which is not a sequence, has no frame `frame` to
+    /// download: unknown, a still, or a frame of a sequence.
+    fn not_a_sequence(&self, st: &State, job: JobId, frame: Option<u32>) -> FarmError {
+        let Some(info) = st.info(job, Instant::now()) else {
+            return FarmError::UnknownJob(job);
+        };
+        let seq = st
+            .parent_of
+            .get(&job)
+            .copied()
+            .or_else(|| st.ended.frame_of(job).map(|(s, _)| s));
+        match (info.spec.frame, seq) {
+            (Some(f), Some(seq)) => FarmError::NoOutput(
+                job,
+                format!("it is frame {f} of sequence {seq}: fetch that sequence's frame {f}"),
+            ),
+            _ => FarmError::NoOutput(
+                job,
+                format!(
+                    "it is a still, not a sequence: it has no frame {}; fetch it without one",
+                    frame.unwrap_or_default()
+                ),
+            ),
         }
     }
 
@@ -474,12 +522,18 @@ impl Farm {
     }
 
     /// The job whose preview stands for `job`: a sequence's earliest frame
-    /// in progress; any other job itself.
+    /// in progress, or else its latest frame done; any other job itself.
     pub(super) fn preview_job(&self, job: JobId) -> JobId {
         let st = self.state.lock();
         st.seqs
             .get(&job)
-            .and_then(|s| s.running.values().next().copied())
+            .and_then(|s| {
+                s.running
+                    .values()
+                    .next()
+                    .copied()
+                    .or(s.latest.and_then(|l| l.1))
+            })
             .unwrap_or(job)
     }
 
@@ -513,6 +567,7 @@ impl Farm {
                 failed: None,
                 rays: j.rays,
                 who: j.submitter.clone(),
+                latest: None,
             };
             st.sched.skip_ids_through(j.id);
             if !seq.state.is_final() {
@@ -525,9 +580,15 @@ impl Farm {
             let (Some(p), Some(f)) = (j.seq.parent, j.spec.frame) else {
                 continue;
             };
+            if j.state.is_final() {
+                st.ended.frame(j.id, p, f);
+            }
             let Some(s) = st.seqs.get_mut(&p) else {
                 continue;
             };
+            if j.state == JobState::Done && s.latest.is_none_or(|(l, _)| f >= l) {
+                s.latest = Some((f, Some(j.id)));
+            }
             if s.state.is_final() {
                 continue;
             }
@@ -551,6 +612,15 @@ impl Farm {
             if !s.state.is_final() {
                 s.next = s.first + s.done + s.running.len() as u32;
                 s.rays = rays.get(&id).copied().unwrap_or(0);
+                // The frames before `next` not in progress are done.
+                if s.latest.is_none() {
+                    s.latest = (s.first..s.next)
+                        .rev()
+                        .find(|f| !s.running.contains_key(f))
+                        .map(|f| (f, None));
+                }
+            } else if s.latest.is_none() && s.state == JobState::Done {
+                s.latest = Some((s.last, None));
             }
             let info = st.info(id, now).expect("listed");
             st.watchers.insert(id, watch::channel(info).0);

@@ -232,8 +232,9 @@ mod tests {
         let job = s.submit(spec("a"), t0);
         let l = s.lease(small, t0).unwrap().expect("a lease");
         assert_eq!(l.memory_estimate, 0);
-        s.decline_lease(small, l.id, 3 * GIB, t0).unwrap();
-        assert_eq!(s.memory_estimate(job), 3 * GIB);
+        assert!(s.decline_lease(small, l.id, 3 * GIB, t0).unwrap());
+        // The claim proves no more than "over the worker's 1 GiB".
+        assert_eq!(s.memory_estimate(job), GIB + 1);
         assert_eq!(s.workers(t0)[0].paused.as_deref(), Some("memory"));
         assert_eq!(s.counters().tiles_requeued, 1);
         // Not counted as a failure, and not leased to it again.
@@ -241,5 +242,34 @@ mod tests {
         let big = s.register_worker(t0, None);
         let again = s.lease(big, t0).unwrap().expect("the big worker takes it");
         assert_eq!((again.job, again.rect), (job, l.rect));
+    }
+
+    /// Issue 36: one `ReturnTile(memory_needed = 2^64 - 1)` raised the
+    /// job's estimate past every worker and failed it while a 12 GiB
+    /// worker was attached.
+    #[test]
+    fn a_worker_s_memory_claim_cannot_keep_a_job_from_a_bigger_worker() {
+        let t0 = Instant::now();
+        let mut s = Scheduler::new(Limits::default(), 1);
+        let big = s.register_worker(t0, None);
+        s.set_memory_limit(big, 12 * GIB);
+        let liar = s.register_worker(t0, None);
+        s.set_memory_limit(liar, 1);
+        let job = s.submit(spec("a"), t0);
+        let l = s.lease(liar, t0).unwrap().expect("a lease");
+        assert!(s.decline_lease(liar, l.id, u64::MAX, t0).unwrap());
+        assert_eq!(s.memory_estimate(job), 2, "no higher than it was proven");
+        let again = s.lease(big, t0).unwrap().expect("the big worker takes it");
+        assert_eq!((again.job, again.rect), (job, l.rect));
+        // A worker with no limit lies: counted against it, not against
+        // the tile or the job, and the estimate stays.
+        let unlimited = s.register_worker(t0, None);
+        let l = s.lease(unlimited, t0).unwrap().expect("a lease");
+        assert!(!s.decline_lease(unlimited, l.id, u64::MAX, t0).unwrap());
+        assert_eq!(s.memory_estimate(job), 2);
+        assert!(s.take_failed().is_empty());
+        let w = s.workers(t0);
+        assert_eq!(w.iter().find(|w| w.id == unlimited).unwrap().paused, None);
+        assert_eq!(s.jobs[&job].worker_failures.get(&unlimited), Some(&1));
     }
 }
