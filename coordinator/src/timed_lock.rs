@@ -88,20 +88,39 @@ mod tests {
         let first = lock.held();
         assert!(first >= Duration::from_millis(30), "{first:?}");
         assert!(first <= outside.elapsed(), "{first:?}");
-        // Another thread waits about 200 ms for it while this one holds
-        // it 200 ms: about 200 ms more held (plus the other's instant),
-        // where counting the wait would make it about 400.
+        // Another thread waits for it while this one holds it. Every bound
+        // below is measured, none is a fixed time, so a busy machine only
+        // loosens them: the hold is at least what this thread measured
+        // inside it, and at most this thread's hold measured outside plus
+        // the other's from the moment this one let go (it cannot have had
+        // the lock earlier). Counting the other's wait would add the time
+        // it waited before that moment, at least the sleep below.
+        let before_lock = Instant::now();
         let held = lock.lock();
+        let after_lock = Instant::now();
+        let (asking, asked) = std::sync::mpsc::channel();
         let other = {
             let lock = lock.clone();
-            std::thread::spawn(move || *lock.lock() += 1)
+            std::thread::spawn(move || {
+                asking.send(()).unwrap();
+                *lock.lock() += 1;
+                Instant::now()
+            })
         };
-        std::thread::sleep(Duration::from_millis(200));
+        asked.recv().unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+        let before_release = Instant::now();
         drop(held);
-        other.join().unwrap();
+        let after_release = Instant::now();
+        let other_done = other.join().unwrap();
         let added = lock.held() - first;
-        assert!(added >= Duration::from_millis(200), "{added:?}");
-        assert!(added < Duration::from_millis(350), "{added:?}");
+        let at_least = before_release - after_lock;
+        let at_most = (after_release - before_lock) + (other_done - before_release);
+        assert!(added >= at_least, "{added:?} < {at_least:?}");
+        assert!(
+            added <= at_most,
+            "{added:?} > {at_most:?}: the wait was counted"
+        );
         assert_eq!(*lock.lock(), 2);
     }
 }

@@ -4,7 +4,7 @@
 mod common;
 
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use trevi_coordinator::scheduler::Lease;
 use trevi_coordinator::{
     Farm, FarmConfig, FarmError, JobSpec, JobState, Limits, SubmitOptions, TileOutcome, TileResult,
@@ -196,7 +196,9 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
 #[test]
 fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
     let dir = tempfile::tempdir().unwrap();
-    let f = farm(dir.path(), Duration::from_millis(30), 1 << 30);
+    // Long enough that the second worker asks well within it, even on a
+    // busy machine; then the test waits for the expiry, not for a time.
+    let f = farm(dir.path(), Duration::from_secs(2), 1 << 30);
     let job = f
         .submit(spec(16, 16, 16, "o.png", 0), SubmitOptions::default())
         .unwrap()
@@ -207,8 +209,14 @@ fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
     );
     let l = f.lease(slow).unwrap().unwrap();
     assert_eq!(f.lease(fast).unwrap(), None);
-    std::thread::sleep(Duration::from_millis(60));
-    assert_eq!(f.expire(), 1);
+    let give_up = Instant::now() + Duration::from_secs(60);
+    loop {
+        match f.expire() {
+            0 => assert!(Instant::now() < give_up, "the lease never expired"),
+            n => break assert_eq!(n, 1),
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let l2 = f.lease(fast).unwrap().unwrap();
     assert_eq!(l2.rect, l.rect);
     assert_eq!(f.heartbeat(slow, &[l.id]).unwrap(), vec![l.id]);
@@ -238,16 +246,47 @@ fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
 
 #[test]
 fn heartbeats_keep_a_lease_alive_past_its_first_deadline() {
+    // Every step is judged by the times measured around it: a heartbeat
+    // sent less than `ttl` after the one before (or the lease) must find
+    // the lease alive. A machine so busy that a step took longer proves
+    // nothing either way: the lease is taken again and the test goes on.
+    let ttl = Duration::from_millis(500);
     let dir = tempfile::tempdir().unwrap();
-    let f = farm(dir.path(), Duration::from_millis(400), 1 << 30);
+    let f = farm(dir.path(), ttl, 1 << 30);
     f.submit(spec(16, 16, 16, "o.png", 0), SubmitOptions::default())
         .unwrap();
     let w = f.register_worker(WorkerOptions::default()).unwrap().id;
-    let l = f.lease(w).unwrap().unwrap();
-    for _ in 0..5 {
-        std::thread::sleep(Duration::from_millis(100));
-        assert!(f.heartbeat(w, &[l.id]).unwrap().is_empty());
-        assert_eq!(f.expire(), 0);
+    let give_up = Instant::now() + Duration::from_secs(120);
+    'lease: loop {
+        assert!(
+            Instant::now() < give_up,
+            "no run of heartbeats within {ttl:?} of each other in 2 minutes"
+        );
+        // The deadline is set inside these calls: at least `ttl` after
+        // `renewed`, at most `ttl` after `leased`.
+        let mut renewed = Instant::now();
+        let Some(l) = f.lease(w).unwrap() else {
+            // Our earlier lease, given up after a stall, has yet to expire.
+            f.expire();
+            std::thread::sleep(ttl / 10);
+            continue;
+        };
+        let first_deadline = Instant::now() + ttl;
+        loop {
+            std::thread::sleep(ttl / 5);
+            let before = Instant::now();
+            let lost = f.heartbeat(w, &[l.id]).unwrap();
+            let expired = f.expire();
+            if Instant::now() - renewed >= ttl {
+                continue 'lease;
+            }
+            assert!(lost.is_empty(), "a lease renewed within its time was lost");
+            assert_eq!(expired, 0);
+            if before > first_deadline {
+                return;
+            }
+            renewed = before;
+        }
     }
 }
 

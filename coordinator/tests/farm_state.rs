@@ -164,10 +164,13 @@ fn five_thousand_cancelled_jobs_keep_only_the_newest_and_list_in_pages() {
 
 #[test]
 fn ended_jobs_are_forgotten_after_their_time_in_the_store_too() {
+    // Long enough that `new` cannot age out between its end and the check
+    // below, even on a busy machine; `old` is waited for, not slept for.
+    let keep = Duration::from_secs(3);
     let dir = tempfile::tempdir().unwrap();
     let retention = Retention {
         keep_ended: 1000,
-        keep_ended_for: Some(Duration::from_millis(300)),
+        keep_ended_for: Some(keep),
         ..Retention::default()
     };
     let f = Farm::new(config(dir.path(), true, retention)).unwrap();
@@ -176,7 +179,12 @@ fn ended_jobs_are_forgotten_after_their_time_in_the_store_too() {
         .unwrap()
         .id;
     f.cancel(old).unwrap();
-    std::thread::sleep(Duration::from_millis(400));
+    // `old` ended before this instant: once `keep` after it has passed, it
+    // is past its time.
+    let old_ended = Instant::now();
+    while Instant::now() <= old_ended + keep + Duration::from_millis(10) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
     let new = f
         .submit(spec(16, 16, 16), SubmitOptions::default())
         .unwrap()

@@ -129,7 +129,9 @@ async fn uploads_beyond_the_limit_wait_their_turn_without_stopping_the_connectio
 async fn a_stalled_upload_is_dropped_and_gives_its_turn_to_the_next() {
     let limits = Limits {
         max_tile_uploads: 1,
-        upload_idle: Duration::from_millis(300),
+        // Long enough that B's upload, sent at once, is never idle that
+        // long on a busy machine; A's stall is.
+        upload_idle: Duration::from_secs(2),
         ..Limits::default()
     };
     let (_dir, f, job, mut client) = serve(limits, (64, 32, 32)).await;
