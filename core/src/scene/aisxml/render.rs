@@ -311,19 +311,12 @@ impl<'a> Resolver<'a> {
 /// An output with `#` is a sequence's pattern: one run of `#`, in the file
 /// name, and only with `frames=`; a sequence's output needs one.
 fn check_pattern(el: &El, a: &Attr, rel: &str, sequence: bool) -> Result<()> {
-    let name = rel.rsplit('/').next().unwrap_or(rel);
-    let runs = name
-        .as_bytes()
-        .split(|&b| b != b'#')
-        .filter(|r| !r.is_empty())
-        .count();
-    let in_dir = rel.len() != name.len() && rel[..rel.len() - name.len()].contains('#');
-    if in_dir || runs > 1 {
+    let Some(runs) = crate::scene::animation::frame_runs(rel) else {
         return Err(el.expected(
             a,
             "a file name with one run of # for the frame number (like \"shot.####.png\")",
         ));
-    }
+    };
     match (runs == 1, sequence) {
         (true, false) => Err(el.attr_err(
             a,
