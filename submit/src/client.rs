@@ -50,6 +50,8 @@ pub struct Client {
     pub announce: bool,
     /// Keep the watched job's live preview in this PNG file (`--preview`).
     pub preview: Option<PathBuf>,
+    /// The jobs submitted through this connection, in order.
+    pub submitted: Vec<u64>,
     jobs: JobsClient<AuthChannel>,
     bundles: BundlesClient<AuthChannel>,
 }
@@ -68,6 +70,7 @@ impl Target {
     /// format (.png or .exr) and it must not be anything but a regular file
     /// if it exists (see [`trevi_core::output::check_output`]).
     pub fn new(camera: String, out: PathBuf) -> Result<Target> {
+        crate::cli::still_output(&out)?;
         let format = trevi_core::output::check_output(&out)?;
         Ok(Target {
             camera,
@@ -100,6 +103,7 @@ impl Client {
             url: url.to_string(),
             announce: true,
             preview: None,
+            submitted: Vec::new(),
             jobs: JobsClient::with_interceptor(channel.clone(), bearer.clone())
                 .max_decoding_message_size(MAX_MESSAGE_SIZE),
             bundles: BundlesClient::with_interceptor(channel, bearer)
@@ -376,6 +380,15 @@ impl Client {
             .with_context(|| format!("job {id} names no output pattern ({:?})", s.output_name))?;
         let pattern = match out {
             Some(o) if o.to_string_lossy().contains('#') => o.to_path_buf(),
+            // A name like x.png is one file, not a directory to make.
+            Some(o) if (o.extension().is_some() || o.exists()) && !o.is_dir() => {
+                bail!(
+                    "sequence {id} has {} frames: -o {} names one file; give a pattern \
+                     with a run of # (like shot.####.png) or a directory",
+                    f.last - f.first + 1,
+                    o.display()
+                )
+            }
             Some(dir) => dir.join(&name),
             None => name,
         };
@@ -468,6 +481,7 @@ impl Client {
                 seq.frames.last,
             )
             .await?;
+        self.submitted.push(s.id);
         if detach {
             println!("{}", s.id);
             return Ok(());
@@ -572,6 +586,7 @@ impl Client {
             let s = self
                 .submit(&hash, &t.camera, priority, tile_size, t.format)
                 .await?;
+            self.submitted.push(s.id);
             if detach || (self.announce && progress != Progress::Quiet) {
                 eprintln!(
                     "job {} queued: camera {} ({}x{}, {} tiles) on {}",

@@ -50,12 +50,12 @@ impl Sequence {
     /// Checks `pattern` (one run of `#` in the file name) and every frame's
     /// output (format, not a directory or device) before anything renders.
     pub fn new(camera: usize, id: String, frames: Frames, pattern: PathBuf) -> Result<Sequence> {
-        let name = pattern
-            .file_name()
-            .and_then(|n| n.to_str())
-            .with_context(|| format!("{}: not a file name in UTF-8", pattern.display()))?;
-        let runs = name.split(|c| c != '#').filter(|r| !r.is_empty()).count();
-        if runs != 1 {
+        let text = pattern
+            .to_str()
+            .with_context(|| format!("{}: not a path in UTF-8", pattern.display()))?;
+        // The scene parser's rule for `output=`: one run of `#`, in the file
+        // name (a `#` in a directory would make a directory named by it).
+        if trevi_core::scene::animation::frame_runs(text) != Some(1) {
             bail!(
                 "{}: a sequence's output needs one run of # in its file name for the frame number, like shot.####.png (give -o or output= on <render>)",
                 pattern.display()
@@ -258,5 +258,11 @@ mod tests {
         assert_eq!(s.output(10), PathBuf::from("out/shot.010.png"));
         let e = Sequence::new(0, "c".into(), s.frames, PathBuf::from("shot.png"));
         assert!(format!("{:#}", e.err().unwrap()).contains("one run of #"));
+        // The parser's rule: a `#` in a directory is refused, not made into
+        // a directory named `d#`.
+        for bad in ["d#/f.#.png", "a/#/f.#.png", "f.#.#.png"] {
+            let e = Sequence::new(0, "c".into(), s.frames, PathBuf::from(bad));
+            assert!(e.is_err(), "{bad}");
+        }
     }
 }

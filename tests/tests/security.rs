@@ -144,7 +144,7 @@ fn token_roles(dir: &Dir, certs: Option<&Path>) {
         assert_eq!(r.status, 1);
     });
     // The real programs with their tokens render the same bytes.
-    let _w = worker_with(dir, &c.url, "worker", &client_tls, &[("TREVI_TOKEN", WORK)]);
+    let _w = worker_with(dir, &c.url, "worker", &client_tls, &[("TREVI_WORKER_TOKEN", WORK)]);
     let out = dir.path().join("farm.png");
     let mut args = vec![
         scene.to_str().unwrap(),
@@ -156,14 +156,14 @@ fn token_roles(dir: &Dir, certs: Option<&Path>) {
         "16",
     ];
     args.extend(&client_tls);
-    let o = submit_env(dir, &args, &[("TREVI_TOKEN", SUBMIT)]);
+    let o = submit_env(dir, &args, &[("TREVI_SUBMIT_TOKEN", SUBMIT)]);
     assert!(o.status.success(), "{}", dir.logs());
     assert!(std::fs::read(&out).unwrap() == expected);
     // Without a token, or with the worker's, trevi-submit is told why.
     let o = submit(dir, &args);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("token"), "{err}");
-    let o = submit_env(dir, &args, &[("TREVI_TOKEN", WORK)]);
+    let o = submit_env(dir, &args, &[("TREVI_SUBMIT_TOKEN", WORK)]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && err.contains("PermissionDenied"),

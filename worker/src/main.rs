@@ -1,5 +1,7 @@
 //! `trevi-worker --coordinator URL [--threads N]`: a stateless render worker.
 
+mod names;
+
 use anyhow::{Context, Result};
 use clap::Parser;
 use std::num::{IntErrorKind, NonZeroU64, NonZeroUsize, ParseIntError};
@@ -27,11 +29,14 @@ struct Args {
     /// Name shown in the coordinator's logs (default: host-pid).
     #[arg(long, env = "TREVI_WORKER_NAME")]
     name: Option<String>,
-    /// The coordinator's worker token (sent as `authorization: Bearer`).
-    #[arg(long, env = "TREVI_TOKEN", hide_env_values = true)]
+    /// The coordinator's worker token (its --worker-token; sent as
+    /// `authorization: Bearer`). TREVI_TOKEN is no longer read: it named
+    /// trevi-submit's token too.
+    #[arg(long, env = "TREVI_WORKER_TOKEN", hide_env_values = true)]
     token: Option<String>,
-    /// Read the token from this file instead.
-    #[arg(long, env = "TREVI_TOKEN_FILE", conflicts_with = "token")]
+    /// Read the token from this file instead (TREVI_TOKEN_FILE, its old
+    /// name, is still read, with a warning).
+    #[arg(long, env = "TREVI_WORKER_TOKEN_FILE", conflicts_with = "token")]
     token_file: Option<std::path::PathBuf>,
     /// For an https:// coordinator: trust this PEM CA certificate instead of
     /// the system roots (a farm with its own CA, see deploy/make-certs.sh).
@@ -49,9 +54,11 @@ struct Args {
     poll_ms: NonZeroU64,
     /// The render threads' CPU priority: `idle` (only the CPU time nothing
     /// else on the machine wants: Linux's SCHED_IDLE, else nice 19) or
-    /// `normal` (for machines that do nothing but render).
-    #[arg(long, env = "TREVI_PRIORITY", default_value_t = Priority::default())]
-    priority: Priority,
+    /// `normal` (for machines that do nothing but render) [default: idle].
+    /// Not a job's priority (trevi-submit --priority). Old names, still
+    /// read: --priority, TREVI_PRIORITY (with a warning).
+    #[arg(long, env = "TREVI_CPU_PRIORITY", alias = "priority")]
+    cpu_priority: Option<Priority>,
     /// Step aside while the machine is busy: when other programs keep more
     /// than --busy-threshold cores busy for --busy-for-ms, stop the tiles in
     /// hand, give their leases back and take none until the load has stayed
@@ -136,7 +143,15 @@ async fn main() -> Result<()> {
     cfg.cache_size = args.scene_cache;
     cfg.tiles_in_flight = args.tiles_in_flight;
     cfg.poll = std::time::Duration::from_millis(args.poll_ms.get());
-    cfg.priority = args.priority;
+    cfg.priority = match args.cpu_priority {
+        Some(p) => p,
+        None => match names::deprecated_env("TREVI_CPU_PRIORITY", "TREVI_PRIORITY") {
+            Some(v) => v
+                .parse()
+                .map_err(|e| anyhow::anyhow!("TREVI_PRIORITY={v:?}: {e}"))?,
+            None => Priority::default(),
+        },
+    };
     cfg.max_memory = args.max_memory;
     if args.max_memory == MaxMemory::NONE {
         tracing::info!("no memory limit (--max-memory 0, or the machine's RAM is unknown)");
@@ -165,7 +180,11 @@ async fn main() -> Result<()> {
     if let Some(n) = args.name {
         cfg.name = n;
     }
-    cfg.token = match &args.token_file {
+    names::refuse_ambiguous_token(args.token.is_some() || args.token_file.is_some())?;
+    let token_file = args.token_file.or_else(|| {
+        names::deprecated_env("TREVI_WORKER_TOKEN_FILE", "TREVI_TOKEN_FILE").map(Into::into)
+    });
+    cfg.token = match &token_file {
         Some(f) => Some(
             std::fs::read_to_string(f)
                 .with_context(|| format!("cannot read {}", f.display()))?

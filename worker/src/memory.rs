@@ -97,6 +97,11 @@ impl FromStr for MaxMemory {
         if !bytes.is_finite() || bytes < 0.0 || bytes >= u64::MAX as f64 {
             return Err(bad());
         }
+        // Only a literal 0 means "no limit": a size that rounds down to 0
+        // bytes (0.0000001K) is a mistake, not a wish for no limit.
+        if bytes < 1.0 && v != 0.0 {
+            return Err(bad());
+        }
         Ok(MaxMemory(bytes as u64))
     }
 }
@@ -143,6 +148,11 @@ mod tests {
         assert_eq!(p("1T"), Ok(1 << 40));
         assert_eq!(p("1073741824"), Ok(1 << 30));
         assert_eq!(p("0"), Ok(0));
+        assert_eq!(p("0.0K"), Ok(0));
+        // Sizes that round to 0 bytes are not "no limit".
+        for tiny in ["0.0000001K", "0.5", "0.9B", "1e-30G"] {
+            assert!(p(tiny).is_err(), "{tiny}");
+        }
         for bad in ["", "G", "2X", "-1G", "two", "1e3G", "99999999999T"] {
             let e = p(bad).unwrap_err();
             assert!(e.to_string().contains("is not a size"), "{bad}: {e}");

@@ -277,6 +277,21 @@ pub fn frame_time(frame: u32, fps: f64) -> f64 {
     f64::from(frame) / fps
 }
 
+/// The runs of `#` in output path `path` (`/`-separated, like `output=`
+/// and `-o`), if it is a valid output: 0 for a still's file name, 1 for a
+/// sequence's pattern. `None` when a `#` is in a directory or the file name
+/// has more than one run: one rule for the scene parser and trevi-submit.
+pub fn frame_runs(path: &str) -> Option<usize> {
+    let name = path.rsplit('/').next().unwrap_or(path);
+    let runs = name
+        .as_bytes()
+        .split(|&b| b != b'#')
+        .filter(|r| !r.is_empty())
+        .count();
+    let in_dir = path[..path.len() - name.len()].contains('#');
+    (!in_dir && runs <= 1).then_some(runs)
+}
+
 /// An output pattern's name for one frame: its one run of `#` replaced by
 /// the frame number, zero-padded to the run's length (longer numbers are
 /// written in full).

@@ -371,19 +371,13 @@ pub const MIN_FPS: f64 = f32::MIN_POSITIVE as f64;
 /// An output with `#` is a sequence's pattern: one run of `#`, in the file
 /// name, and only with `frames=`; a sequence's output needs one.
 fn check_pattern(el: &El, a: &Attr, rel: &str, sequence: bool) -> Result<()> {
-    let name = rel.rsplit('/').next().unwrap_or(rel);
-    let runs = name
-        .as_bytes()
-        .split(|&b| b != b'#')
-        .filter(|r| !r.is_empty())
-        .count();
-    let in_dir = rel.len() != name.len() && rel[..rel.len() - name.len()].contains('#');
-    if in_dir || runs > 1 {
+    let Some(runs) = crate::scene::animation::frame_runs(rel) else {
         return Err(el.expected(
             a,
             "a file name with one run of # for the frame number (like \"shot.####.png\")",
         ));
-    }
+    };
+    let name = rel.rsplit('/').next().unwrap_or(rel);
     if name.bytes().filter(|&b| b == b'#').count() > MAX_PATTERN_RUN {
         return Err(el.expected(
             a,
