@@ -26,8 +26,8 @@ pub mod sequences;
 mod upkeep;
 
 use checks::output_name;
-use outputs::Output;
 pub use checks::{output_name_as, validate_pixels};
+use outputs::Output;
 pub use previews::PreviewImage;
 pub use retention::{BadDuration, BadRetention, Retention, MAX_KEEP_ENDED_FOR, MIN_KEEP_ENDED_FOR};
 pub use segments::{SegmentPlan, SegmentUpload};

@@ -196,7 +196,10 @@ impl pb::bundles_server::Bundles for BundlesService {
             }
             Err(e @ FarmError::Io { .. }) => {
                 let mut status = Status::from(e);
-                status = Status::new(status.code(), format!("{} ({NOT_SERVED})", status.message()));
+                status = Status::new(
+                    status.code(),
+                    format!("{} ({NOT_SERVED})", status.message()),
+                );
                 return Err(status);
             }
             Err(e) => return Err(e.into()),

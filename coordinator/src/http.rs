@@ -478,7 +478,12 @@ async fn api_state(
         workers: {
             // Busy and paused ones first: what is happening now.
             let mut w: Vec<&WorkerInfo> = s.workers.iter().collect();
-            w.sort_by_key(|w| (!matches!(w.state, WorkerState::Busy | WorkerState::Paused), w.id));
+            w.sort_by_key(|w| {
+                (
+                    !matches!(w.state, WorkerState::Busy | WorkerState::Paused),
+                    w.id,
+                )
+            });
             w.truncate(STATE_WORKERS);
             w.sort_by_key(|w| w.id);
             w.into_iter().map(WorkerView::from).collect()

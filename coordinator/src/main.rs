@@ -421,7 +421,10 @@ mod tests {
         ] {
             let e = parse(&[flag, value]).unwrap().farm_config().unwrap_err();
             let msg = e.to_string();
-            assert!(msg.contains(flag) && msg.contains(says), "{flag} {value}: {msg}");
+            assert!(
+                msg.contains(flag) && msg.contains(says),
+                "{flag} {value}: {msg}"
+            );
         }
         parse(&["--keep-ended", "1", "--keep-ended-for", "never"])
             .unwrap()

@@ -881,8 +881,13 @@ impl Scheduler {
             else {
                 continue;
             };
-            tracing::warn!(worker, lease = id, job, tile,
-                "lease expired: the worker went silent (lost); its tile is re-queued");
+            tracing::warn!(
+                worker,
+                lease = id,
+                job,
+                tile,
+                "lease expired: the worker went silent (lost); its tile is re-queued"
+            );
             let cause = format!("lease expired (worker {worker} went silent)");
             self.release(id, &cause, Release::Lost);
         }
@@ -928,7 +933,8 @@ impl Scheduler {
         let honest = limit > 0 && bytes > limit;
         if let Some(e) = self.leases.get(lease).filter(|e| e.worker == worker) {
             if honest {
-                self.memory.set(e.job, bytes.min(limit.saturating_add(1)), now);
+                self.memory
+                    .set(e.job, bytes.min(limit.saturating_add(1)), now);
             } else if let Some(j) = self.jobs.get_mut(&e.job) {
                 *j.worker_failures.entry(worker).or_default() += 1;
             }

@@ -752,7 +752,8 @@ fn done_frames_end(s: &pb::JobStatus, f: &pb::FrameRange) -> u32 {
         s.frames_in_progress
     };
     let past = u64::from(f.first) + u64::from(s.frames_done) + u64::from(slack);
-    past.saturating_sub(1).clamp(u64::from(f.first), u64::from(f.last)) as u32
+    past.saturating_sub(1)
+        .clamp(u64::from(f.first), u64::from(f.last)) as u32
 }
 
 fn reconnectable(s: &tonic::Status) -> bool {

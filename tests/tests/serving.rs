@@ -110,15 +110,21 @@ fn queued_jobs_hold_no_files_so_a_coordinator_short_of_descriptors_finishes_them
     assert_eq!(queued.len(), JOBS);
     let _w = worker_with(&dir, &c.url, "worker", &["--threads", "2"], &[]);
     wait_for(&dir, "every job to end", 600, || {
-        states(&rt, &c)
-            .iter()
-            .all(|(_, s, _)| *s != pb::JobState::Queued as i32 && *s != pb::JobState::Running as i32)
+        states(&rt, &c).iter().all(|(_, s, _)| {
+            *s != pb::JobState::Queued as i32 && *s != pb::JobState::Running as i32
+        })
     });
     let failed: Vec<_> = states(&rt, &c)
         .into_iter()
         .filter(|(_, s, _)| *s != pb::JobState::Done as i32)
         .collect();
-    assert!(failed.is_empty(), "{} failed: {:?}\n{}", failed.len(), &failed[..failed.len().min(3)], dir.logs());
+    assert!(
+        failed.is_empty(),
+        "{} failed: {:?}\n{}",
+        failed.len(),
+        &failed[..failed.len().min(3)],
+        dir.logs()
+    );
 }
 
 /// Issue 36: two coordinators started on one `--data-dir` and handed out
@@ -157,7 +163,13 @@ fn a_second_coordinator_on_one_data_directory_is_refused_naming_the_first() {
 fn one_worker_s_memory_claim_cannot_fail_a_job_a_bigger_worker_can_hold() {
     let dir = Dir::new();
     let rt = runtime();
-    let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &["--memory-grace-ms", "200"], &[]);
+    let c = coordinator_with(
+        &dir,
+        "127.0.0.1:0",
+        "coordinator",
+        &["--memory-grace-ms", "200"],
+        &[],
+    );
     let hash = upload_scene(&rt, &c, &tiny_scene(4));
     let id = rt.block_on(submit_job(&c, &hash)).unwrap().id;
     rt.block_on(async {
@@ -193,17 +205,29 @@ fn one_worker_s_memory_claim_cannot_fail_a_job_a_bigger_worker_can_hold() {
     });
     let _big = worker_with(&dir, &c.url, "big", &["--max-memory", "12G"], &[]);
     let end = wait_for_end(&dir, &rt, &c, id);
-    assert_eq!(end.state, pb::JobState::Done as i32, "{}\n{}", end.error, dir.logs());
+    assert_eq!(
+        end.state,
+        pb::JobState::Done as i32,
+        "{}\n{}",
+        end.error,
+        dir.logs()
+    );
     let log = dir.read_log("coordinator");
     assert!(log.contains("counted against the worker"), "{log}");
 }
 
 /// Waits for job `id` to end; returns its status.
-fn wait_for_end(dir: &Dir, rt: &tokio::runtime::Runtime, c: &Coordinator, id: u64) -> pb::JobStatus {
+fn wait_for_end(
+    dir: &Dir,
+    rt: &tokio::runtime::Runtime,
+    c: &Coordinator,
+    id: u64,
+) -> pb::JobStatus {
     let mut last = None;
     wait_for(dir, &format!("job {id} to end"), 300, || {
         let s = job(rt, c, id);
-        let over = s.state != pb::JobState::Queued as i32 && s.state != pb::JobState::Running as i32;
+        let over =
+            s.state != pb::JobState::Queued as i32 && s.state != pb::JobState::Running as i32;
         last = Some(s);
         over
     });
@@ -240,14 +264,20 @@ fn registrations_from_one_address_are_bounded_and_silent_ones_forgotten() {
             match register(&mut client).await {
                 Ok(_) => break,
                 Err(e) if e.code() == tonic::Code::ResourceExhausted => {
-                    assert!(std::time::Instant::now() < deadline, "never freed\n{}", dir.logs());
+                    assert!(
+                        std::time::Instant::now() < deadline,
+                        "never freed\n{}",
+                        dir.logs()
+                    );
                     tokio::time::sleep(std::time::Duration::from_millis(100)).await;
                 }
                 Err(e) => panic!("{e:?}"),
             }
         }
     });
-    assert!(dir.read_log("coordinator").contains("never called after registering"));
+    assert!(dir
+        .read_log("coordinator")
+        .contains("never called after registering"));
 }
 
 /// Registers a worker named "w" with one thread.

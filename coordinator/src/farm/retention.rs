@@ -53,9 +53,7 @@ pub const MAX_KEEP_ENDED_FOR: Duration = Duration::from_secs(3650 * 86400);
 /// Retention settings that make no sense.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum BadRetention {
-    #[error(
-        "--keep-ended 0 would delete every output the moment its job ends; keep at least 1"
-    )]
+    #[error("--keep-ended 0 would delete every output the moment its job ends; keep at least 1")]
     KeepNone,
     #[error(
         "--keep-ended-for {0} is shorter than the shortest, {min}: outputs would be deleted \
@@ -208,7 +206,9 @@ impl Farm {
         let mut st = self.state.lock();
         let whole = match st.seqs.get(&job) {
             Some(s) => s.state.is_final() && (frame.is_none() || frame == s.latest.map(|l| l.0)),
-            None => st.info(job, Instant::now()).is_some_and(|i| i.state.is_final()),
+            None => st
+                .info(job, Instant::now())
+                .is_some_and(|i| i.state.is_final()),
         };
         if whole {
             st.ended.fetched.insert(job);
