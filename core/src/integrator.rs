@@ -801,7 +801,9 @@ mod tests {
     <render width="1" height="1" max-depth="{MAX_DEPTH}"/></camera></scene>"#
         ));
         let (px, rays) = on_a_small_stack(move || {
-            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0).unwrap()
+            Integrator::observed(&s, 0, RenderOptions::default(), &())
+                .pixel(0, 0)
+                .unwrap()
         });
         assert_eq!(rays, u64::from(MAX_DEPTH) + 1);
         assert_eq!(px, [0.2f32 * 0.5, 0.4 * 0.5, 0.6 * 0.5]);
@@ -821,7 +823,9 @@ mod tests {
             diffuse-depth="{MAX_DEPTH}"/></camera></scene>"#
         ));
         let (px, rays) = on_a_small_stack(move || {
-            Integrator::observed(&s, 0, RenderOptions::default(), &()).pixel(0, 0).unwrap()
+            Integrator::observed(&s, 0, RenderOptions::default(), &())
+                .pixel(0, 0)
+                .unwrap()
         });
         // One camera ray, then per level a gather ray and a shadow ray.
         assert!(rays >= 2 * u64::from(MAX_DEPTH), "{rays}");

@@ -2,9 +2,9 @@
 //! subcommand, the `list` table, what happens to a farm job when the
 //! submitter is interrupted, and the rule for a still's `-o`.
 
+use crate::local::Interrupted;
 use anyhow::{bail, Result};
 use std::path::Path;
-use crate::local::Interrupted;
 use trevi_proto::pb;
 
 /// The subcommands, for suggestions (`wait` also answers to `attach`).
@@ -200,8 +200,14 @@ mod tests {
         };
         let m = LeftRunning::new(sig, &[7], "http://h:1").to_string();
         assert!(m.contains("job 7 keeps running"), "{m}");
-        assert!(m.contains("trevi-submit wait 7 --coordinator http://h:1"), "{m}");
-        assert!(m.contains("trevi-submit cancel 7 --coordinator http://h:1"), "{m}");
+        assert!(
+            m.contains("trevi-submit wait 7 --coordinator http://h:1"),
+            "{m}"
+        );
+        assert!(
+            m.contains("trevi-submit cancel 7 --coordinator http://h:1"),
+            "{m}"
+        );
         let m = LeftRunning::new(sig, &[], "u").to_string();
         assert!(m.contains("nothing was submitted"), "{m}");
     }

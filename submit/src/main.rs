@@ -51,7 +51,12 @@ struct Args {
     auth: Auth,
     /// Job priority on the farm: higher runs first (a worker's CPU class is
     /// trevi-worker --cpu-priority).
-    #[arg(long, env = "TREVI_JOB_PRIORITY", default_value_t = 0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        env = "TREVI_JOB_PRIORITY",
+        default_value_t = 0,
+        allow_negative_numbers = true
+    )]
     priority: i32,
     /// Submit and print the job ids without waiting (needs --coordinator).
     #[arg(long, env = "TREVI_DETACH")]
@@ -380,7 +385,14 @@ fn run(args: Args) -> Result<()> {
                 client.announce = false;
                 client.preview = args.preview.clone();
                 client
-                    .render(&bundle, &targets, args.priority, args.tile_size, false, progress)
+                    .render(
+                        &bundle,
+                        &targets,
+                        args.priority,
+                        args.tile_size,
+                        false,
+                        progress,
+                    )
                     .await
             };
             // A signal drops the render, and with it the half-written

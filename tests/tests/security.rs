@@ -144,7 +144,13 @@ fn token_roles(dir: &Dir, certs: Option<&Path>) {
         assert_eq!(r.status, 1);
     });
     // The real programs with their tokens render the same bytes.
-    let _w = worker_with(dir, &c.url, "worker", &client_tls, &[("TREVI_WORKER_TOKEN", WORK)]);
+    let _w = worker_with(
+        dir,
+        &c.url,
+        "worker",
+        &client_tls,
+        &[("TREVI_WORKER_TOKEN", WORK)],
+    );
     let out = dir.path().join("farm.png");
     let mut args = vec![
         scene.to_str().unwrap(),

@@ -25,9 +25,7 @@ pub fn deprecated_env(new: &str, old: &str) -> Option<String> {
 
 /// Refuses `TREVI_TOKEN` when no token was given under a current name.
 pub fn refuse_ambiguous_token(given: bool) -> Result<()> {
-    let old = std::env::var("TREVI_TOKEN")
-        .ok()
-        .filter(|v| !v.is_empty());
+    let old = std::env::var("TREVI_TOKEN").ok().filter(|v| !v.is_empty());
     if !given && old.is_some() {
         bail!(
             "TREVI_TOKEN is no longer read (trevi-submit read it for another token): \

@@ -278,7 +278,8 @@ mod tests {
         );
         let flag = AtomicBool::new(false);
         let plain = Integrator::observed(&s, 0, RenderOptions::default(), &());
-        let flagged = Integrator::observed(&s, 0, RenderOptions::default(), &()).cancelled_by(&flag);
+        let flagged =
+            Integrator::observed(&s, 0, RenderOptions::default(), &()).cancelled_by(&flag);
         for (x, y) in [(0, 0), (1, 2), (2, 1), (3, 3)] {
             let p = plain.pixel(x, y).unwrap();
             assert!(p.1 > CANCEL_EVERY, "too few rays to read the flag");
