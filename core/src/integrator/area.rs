@@ -32,7 +32,7 @@
 
 use super::{saturate, Integrator, PixelContext, RayObserver, Sum};
 use crate::area_lights::AreaLights;
-use crate::integrator::reflect;
+use crate::geometry::optics::reflect;
 use crate::sampling::hash2;
 use crate::world::SurfacePoint;
 use glam::Vec3;

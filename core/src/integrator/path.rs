@@ -22,7 +22,8 @@
 //! light j (radius > 0) `hash2(hash2(TAG_POINT, b), j)`. So a path is a pure
 //! function of the pixel and sample index like every other sample.
 
-use super::{reflect, refract, Integrator, PixelContext, RayObserver};
+use super::{Integrator, PixelContext, RayObserver};
+use crate::geometry::optics::{reflect, refract};
 use crate::area_lights::mean;
 use crate::lights::{incident, jittered_position};
 use crate::sampling::{basis, cosine_hemisphere, hash2};
