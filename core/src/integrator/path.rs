@@ -23,8 +23,8 @@
 //! function of the pixel and sample index like every other sample.
 
 use super::{Integrator, PixelContext, RayObserver};
-use crate::area_lights::mean;
 use crate::geometry::optics::{reflect, refract};
+use crate::lights::area::mean;
 use crate::lights::{incident, jittered_position};
 use crate::sampling::{basis, cosine_hemisphere, hash2};
 use crate::world::{HitKind, SurfacePoint};
