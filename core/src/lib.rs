@@ -24,7 +24,6 @@
 // NaN as well, which is exactly what the hit tests must reject.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-pub mod area_lights;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;

@@ -19,7 +19,7 @@
 //! queries [`Scene::intersect`] and friends use a view whose origin is the
 //! world's. See docs/numerics.md.
 
-use crate::area_lights::AreaLights;
+use crate::lights::area::AreaLights;
 use crate::bundle::{Bundle, FileSource};
 use crate::bvh::{simd, Bvh, MeshBvh, Visit};
 use crate::camera::Camera;

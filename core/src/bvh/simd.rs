@@ -268,8 +268,11 @@ impl Tri4 {
 }
 
 /// The watertight test of [`triangle::intersect`] on four triangles at once:
-/// the lanes of `leaf` (lanes past its `n` are computed on whatever floats
-/// follow and must be masked off), every lane against `t_max`. Each
+/// the `n` lanes of a leaf's copies `p` (laid out as `leaves.rs` describes:
+/// `p[(3·v + axis)·n + lane]`; lanes past `n` are computed on whatever
+/// floats follow and must be masked off), every lane against `t_max`. It
+/// takes the slice, not `leaves::Leaf`, so that this module does not
+/// depend on the one that calls it. Each
 /// lane performs that function's f32 operations in its order (the origin
 /// subtracted, the shear `x − s·z`, the edge functions `c·b − c·b`, the
 /// determinant `(u + v) + w`, `t_scaled = (u·az + v·bz) + w·cz`, the early
@@ -281,13 +284,13 @@ impl Tri4 {
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(super) fn triangles_sse(
-    leaf: super::leaves::Leaf,
+    p: &[f32],
+    n: usize,
     r: &crate::geometry::triangle::ShearedRay,
     t_max: f32,
 ) -> Tri4 {
     use crate::geometry::triangle::T_MARGIN;
     use std::arch::x86_64::*;
-    let (p, n) = (leaf.p, leaf.n);
     // The loads below read `p[(3·v + k)·n ..][..4]` for `v, k < 3`: at most
     // up to `p[8·n + 3]`, which is below `9·n + 3` for `n ≥ 1`.
     assert!(n >= 1 && p.len() >= 9 * n + 3);

@@ -476,7 +476,7 @@ fn sse_triangle_lanes_are_the_scalar_tests_bits() {
             }
             let r = ShearedRay::new(o, d);
             for t_max in [f32::INFINITY, 1.0, 0.5, 1e-3] {
-                let l = simd::triangles_sse(leaf, &r, t_max);
+                let l = simd::triangles_sse(leaf.p, leaf.n, &r, t_max);
                 for lane in 0..leaf.n {
                     let want = triangle::intersect(
                         &r,

@@ -1,8 +1,10 @@
-//! Rays, boxes and the three primitive shapes (triangles, spheres, planes).
+//! Rays, boxes, the three primitive shapes (triangles, spheres, planes) and
+//! the optics of a smooth surface (`optics`: reflection, refraction).
 //!
 //! Everything here is plain `f32` data and free functions: the traversal hot
 //! path calls them directly, with no dynamic dispatch.
 
+pub mod optics;
 pub mod plane;
 pub mod sphere;
 pub mod triangle;

@@ -31,8 +31,8 @@
 //! its images keep their bytes (`pin.rs`).
 
 use super::{saturate, Integrator, PixelContext, RayObserver, Sum};
-use crate::area_lights::AreaLights;
-use crate::integrator::reflect;
+use crate::geometry::optics::reflect;
+use crate::lights::area::AreaLights;
 use crate::sampling::hash2;
 use crate::world::SurfacePoint;
 use glam::Vec3;

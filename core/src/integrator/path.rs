@@ -22,8 +22,9 @@
 //! light j (radius > 0) `hash2(hash2(TAG_POINT, b), j)`. So a path is a pure
 //! function of the pixel and sample index like every other sample.
 
-use super::{reflect, refract, Integrator, PixelContext, RayObserver};
-use crate::area_lights::mean;
+use super::{Integrator, PixelContext, RayObserver};
+use crate::geometry::optics::{reflect, refract};
+use crate::lights::area::mean;
 use crate::lights::{incident, jittered_position};
 use crate::sampling::{basis, cosine_hemisphere, hash2};
 use crate::world::{HitKind, SurfacePoint};
