@@ -58,7 +58,9 @@ fn a_frame_whose_one_band_exceeds_the_window_is_refused_at_once_by_a_coordinator
         err.contains("--window-mib") && err.contains("65536x64"),
         "no clear refusal: {err}"
     );
-    assert!(t.elapsed() < Duration::from_secs(20), "{:?}", t.elapsed());
+    // "At once": long before a job of this size could have been rendered;
+    // generous for a busy machine.
+    assert!(t.elapsed() < Duration::from_secs(60), "{:?}", t.elapsed());
     // Nothing was allocated for it: no job, and the coordinator stayed small.
     std::thread::sleep(Duration::from_secs(1));
     let peak = proc_kib(c.proc.0.id(), "VmHWM");
@@ -122,7 +124,7 @@ fn a_frame_whose_one_band_exceeds_the_window_is_refused_at_once_in_local_mode() 
             }
         }
         assert!(
-            t.elapsed() < Duration::from_secs(30),
+            t.elapsed() < Duration::from_secs(60),
             "still running\n{}",
             dir.logs()
         );

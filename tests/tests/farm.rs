@@ -49,10 +49,13 @@ fn three_workers_render_the_same_bytes_as_the_embedded_render() {
     let _w: Vec<Proc> = (0..3)
         .map(|i| worker(&dir, &c.url, &format!("worker{i}")))
         .collect();
-    assert!(
-        farm_render(&dir, &c.url, &scene, "farm.png", 16) == expected,
-        "farm output differs\n{}",
-        dir.logs()
+    let got = farm_render(&dir, &c.url, &scene, "farm.png", 16);
+    assert!(got == expected, "farm output differs\n{}", dir.logs());
+    // And both are what core renders by itself, with no farm code.
+    assert_same_pixels(
+        &got,
+        &core_render(&dir, &scene, "core.png"),
+        "the farm's PNG",
     );
     // The farm's jobs can be listed and looked at.
     let list = submit(&dir, &["list", "--coordinator", &c.url]);
@@ -140,11 +143,9 @@ fn a_worker_killed_mid_job_does_not_stop_the_job() {
     let _others = [worker(&dir, &c.url, "w1"), worker(&dir, &c.url, "w2")];
     let status = wait_child(&dir, &mut sub, 120);
     assert!(status.success(), "{}", dir.logs());
-    assert!(
-        std::fs::read(&out).unwrap() == expected,
-        "output differs\n{}",
-        dir.logs()
-    );
+    let got = std::fs::read(&out).unwrap();
+    assert!(got == expected, "output differs\n{}", dir.logs());
+    assert_same_pixels(&got, &core_render(&dir, &scene, "core.png"), "after a kill");
 }
 
 #[test]
@@ -388,7 +389,13 @@ fn the_farm_writes_the_format_that_dash_o_names() {
         &[s, "--coordinator", &c.url, "-o", out.to_str().unwrap()],
     );
     assert!(o.status.success(), "{}", dir.logs());
-    assert!(std::fs::read(&out).unwrap() == expected, "{}", dir.logs());
+    let got = std::fs::read(&out).unwrap();
+    assert!(got == expected, "{}", dir.logs());
+    assert_same_pixels(
+        &got,
+        &core_render(&dir, &scene, "core.exr"),
+        "the farm's EXR",
+    );
     // An extension that names no format is refused before a job exists.
     let jpg = dir.path().join("x.jpg");
     let o = submit(
@@ -506,4 +513,38 @@ fn fetch_and_render_refuse_a_target_that_is_not_a_regular_file() {
         .filter(|n| n.ends_with(".part"))
         .collect();
     assert!(left.is_empty(), "{left:?}");
+}
+
+/// A closed form, no renderer involved: a scene of nothing but its
+/// background is that colour at every pixel, on the farm as anywhere.
+#[test]
+fn the_farm_renders_an_empty_scene_as_its_background_everywhere() {
+    let dir = Dir::new();
+    let scene = dir.write(
+        "scene/empty.xml",
+        r#"<scene version="1">
+  <settings background="0.2 0.4 0.6"/>
+  <camera id="c" position="0 0 5" lookat="0 0 0" fov="50">
+    <render width="40" height="24" output="empty.png"/>
+  </camera>
+</scene>"#,
+    );
+    let c = coordinator(&dir, 10_000);
+    let _w = worker(&dir, &c.url, "worker");
+    let got = farm_render(&dir, &c.url, &scene, "farm.png", 16);
+    let (w, h, rgb) = trevi_core::output::decode_png(&got).unwrap();
+    assert_eq!((w, h), (40, 24));
+    // Linear to 8-bit sRGB, rounded: the sRGB curve in closed form.
+    let code = |c: f64| {
+        let s = if c <= 0.003_130_8 {
+            12.92 * c
+        } else {
+            1.055 * c.powf(1.0 / 2.4) - 0.055
+        };
+        (s * 255.0).round() as u8
+    };
+    let want = [code(0.2), code(0.4), code(0.6)];
+    for (k, px) in rgb.chunks(3).enumerate() {
+        assert_eq!(px, want, "pixel {k}");
+    }
 }

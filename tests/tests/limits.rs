@@ -69,8 +69,7 @@ fn bundle_files(c: &Coordinator, prefix: &str) -> Vec<String> {
 #[test]
 fn many_concurrent_large_uploads_stream_to_disk_within_a_memory_bound() {
     if !Path::new("/proc/self/status").exists() {
-        eprintln!("SKIPPED: no /proc to read the coordinator's memory from");
-        return;
+        return skip("no /proc to read the coordinator's memory from");
     }
     const UPLOADS: usize = 8;
     const EACH_MIB: usize = 48;
@@ -162,7 +161,7 @@ fn uploads_beyond_the_cap_are_refused_and_a_stalled_one_is_dropped_after_the_idl
         let started = Instant::now();
         while bundle_files(&c, ".upload-").len() < 2 {
             assert!(
-                started.elapsed() < Duration::from_secs(10),
+                started.elapsed() < Duration::from_secs(60),
                 "the stalled uploads never started\n{}",
                 dir.logs()
             );
@@ -176,12 +175,17 @@ fn uploads_beyond_the_cap_are_refused_and_a_stalled_one_is_dropped_after_the_idl
         // The stalled ones are dropped after the idle timeout, their
         // temporary files with them.
         for call in [call1, call2] {
-            let (r, took) = call.await.unwrap();
+            // Never dropped would hang here: a generous bound, not a time
+            // the test expects.
+            let (r, took) = tokio::time::timeout(Duration::from_secs(120), call)
+                .await
+                .expect("a stalled upload was never dropped")
+                .unwrap();
             let e = r.unwrap_err();
             assert_eq!(e.code(), Code::DeadlineExceeded, "{e:?}");
             assert!(e.message().contains("--upload-idle-ms"), "{}", e.message());
             assert!(
-                took >= Duration::from_millis(1400) && took < Duration::from_secs(8),
+                took >= Duration::from_millis(1500),
                 "dropped after {took:?}"
             );
         }
@@ -217,10 +221,10 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
         &dir,
         "127.0.0.1:0",
         "coordinator",
-        &["--bundle-grace-secs", "3"],
+        &["--bundle-grace-secs", "5"],
         &[],
     );
-    wait_for(&dir, "the start-up sweep", 10, || {
+    wait_for(&dir, "the start-up sweep", 60, || {
         bundle_files(&c, "").is_empty()
     });
     let rt = runtime();
@@ -232,7 +236,7 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
         let (tx, call) = stalled_upload(bundles(&c, None).await, vec![1u8; 4096]);
         let t = Instant::now();
         while bundle_files(&c, ".upload-").len() != 1 {
-            assert!(t.elapsed() < Duration::from_secs(10), "{}", dir.logs());
+            assert!(t.elapsed() < Duration::from_secs(60), "{}", dir.logs());
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         call.abort();
@@ -240,7 +244,7 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
         let t = Instant::now();
         while !bundle_files(&c, ".upload-").is_empty() {
             assert!(
-                t.elapsed() < Duration::from_secs(10),
+                t.elapsed() < Duration::from_secs(60),
                 "an abandoned upload left {:?}\n{}",
                 bundle_files(&c, ".upload-"),
                 dir.logs()
@@ -252,21 +256,27 @@ fn failed_uploads_leave_no_temporary_file_and_unused_bundles_are_collected() {
             .await
             .unwrap()
             .hash;
+        let young = Instant::now();
         let unused = upload_one(&c, bundle_of(&tiny_scene(2)).encode())
             .await
             .unwrap()
             .hash;
         submit_job(&c, &used).await.unwrap();
-        // Young: both stay for now.
-        assert_eq!(bundle_files(&c, ""), {
-            let mut v = vec![used.clone(), unused.clone()];
-            v.sort();
-            v
-        });
+        // Young: both stay for now. Both are younger than the grace at
+        // least until `young` + 5 s: on a machine so busy that this check
+        // comes later, it proves nothing and is left out.
+        let files = bundle_files(&c, "");
+        if young.elapsed() < Duration::from_secs(5) {
+            assert_eq!(files, {
+                let mut v = vec![used.clone(), unused.clone()];
+                v.sort();
+                v
+            });
+        }
         let t = Instant::now();
         while bundle_files(&c, "") != vec![used.clone()] {
             assert!(
-                t.elapsed() < Duration::from_secs(15),
+                t.elapsed() < Duration::from_secs(90),
                 "bundles {:?} (used {used})\n{}",
                 bundle_files(&c, ""),
                 dir.logs()
@@ -402,7 +412,7 @@ fn idle_monitor_connections_are_closed_and_grpc_keeps_answering_meanwhile() {
             "--http",
             "127.0.0.1:0",
             "--http-header-timeout-ms",
-            "2000",
+            "6000",
             "--http-max-connections",
             "100",
         ],
@@ -421,19 +431,21 @@ fn idle_monitor_connections_are_closed_and_grpc_keeps_answering_meanwhile() {
             s
         })
         .collect();
-    // gRPC answers promptly all the while.
-    let t = Instant::now();
+    // gRPC answers all the while: before the header timeout closes the
+    // idle connections (a gRPC server blocked by them would answer only
+    // then). The timeout is long enough for a process to start and ask on
+    // a busy machine.
     let o = submit(&dir, &["list", "--coordinator", &c.url]);
-    let took = t.elapsed();
+    let took = opened.elapsed();
     assert!(o.status.success(), "{}", dir.logs());
     assert!(
-        took < Duration::from_secs(3),
-        "trevi-submit list took {took:?}"
+        took < Duration::from_secs(6),
+        "trevi-submit list answered {took:?} after the connections were made"
     );
     // Every idle connection is closed by the server: the ones over the cap
     // at once, the others after the header timeout.
     for s in &mut idle {
-        s.set_read_timeout(Some(Duration::from_secs(15))).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
         let mut buf = [0u8; 256];
         match s.read(&mut buf) {
             Ok(0) => {}
@@ -456,10 +468,9 @@ fn idle_monitor_connections_are_closed_and_grpc_keeps_answering_meanwhile() {
     }
     let all_closed = opened.elapsed();
     assert!(
-        all_closed >= Duration::from_millis(1900),
+        all_closed >= Duration::from_millis(6000),
         "closed too early: {all_closed:?}"
     );
-    assert!(all_closed < Duration::from_secs(10), "{all_closed:?}");
     // And the monitor serves again.
     let (code, body) = http::request(
         &addr,
@@ -483,20 +494,28 @@ fn open_files_limit(pid: u32) -> (String, String) {
 #[test]
 fn the_coordinator_raises_its_open_files_limit_to_the_hard_limit() {
     if !Path::new("/proc/self/limits").exists() {
-        eprintln!("SKIPPED: no /proc to read the coordinator's limits from");
-        return;
+        return skip("no /proc to read the coordinator's limits from");
     }
-    let (soft, hard) = open_files_limit(std::process::id());
-    if hard == "unlimited" || hard.parse::<u64>().unwrap_or(0) <= 256 {
-        eprintln!("SKIPPED: the hard open-files limit ({hard}) leaves nothing to raise");
-        return;
-    }
-    let _ = soft;
+    // Anyone may lower a hard limit: an unlimited or very high one is
+    // brought down to 4096 for the child, so the test runs wherever the
+    // hard limit is above 256.
+    let (_, ours) = open_files_limit(std::process::id());
+    let hard = match ours.parse::<u64>() {
+        Ok(n) if n <= 256 => {
+            return skip(&format!(
+                "the hard open-files limit ({ours}) leaves nothing to raise"
+            ))
+        }
+        Ok(n) => n.min(4096).to_string(),
+        Err(_) => "4096".to_string(),
+    };
     let dir = Dir::new();
     let data: PathBuf = dir.path().join("data");
     let mut child = std::process::Command::new("sh")
         .arg("-c")
-        .arg("ulimit -Sn 256 && exec \"$0\" \"$@\"")
+        .arg(format!(
+            "ulimit -Sn 256 && ulimit -Hn {hard} && exec \"$0\" \"$@\""
+        ))
         .arg(bin("trevi-coordinator"))
         .args(["--listen", "127.0.0.1:0", "--data-dir"])
         .arg(&data)

@@ -1,31 +1,27 @@
 //! Workers on spare machines, end to end with real processes: a worker
-//! that steps aside while a CPU hog keeps its machine busy (its tiles are
-//! finished by another worker, the image is the local render's, and it
-//! comes back when the hog ends), and a worker that keeps to its hours.
+//! that steps aside while its machine is busy (its tiles are finished by
+//! another worker, the image is the local render's, and it comes back when
+//! the machine is quiet again), and a worker that keeps to its hours. The
+//! busy machine's load is made up by the test, so that the machine running
+//! the test may be as busy as it likes.
 
 mod common;
 
 use common::farm::job;
 use common::http::{get, monitor_worker};
 use common::*;
-use std::process::{Command, Stdio};
+use std::process::Command;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 use trevi_proto::pb;
 
 /// SLOW_SCENE at 576 samples a pixel: a few seconds on one thread in tiles
-/// of 16, so the spare worker is still at it when the hog starts.
+/// of 16, so the spare worker is still at it when the machine turns busy.
 fn long_scene() -> String {
     let from = r#"supersample="6""#;
     assert!(SLOW_SCENE.contains(from), "SLOW_SCENE changed");
     SLOW_SCENE.replace(from, r#"supersample="24""#)
-}
-
-/// The cores `/proc/stat` counts (`cpu0`, `cpu1`...).
-fn cores() -> usize {
-    let stat = std::fs::read_to_string("/proc/stat").unwrap();
-    stat.lines()
-        .filter(|l| l.starts_with("cpu") && l.as_bytes().get(3).is_some_and(u8::is_ascii_digit))
-        .count()
-        .max(1)
 }
 
 /// Minutes after local midnight, as `date` tells.
@@ -36,20 +32,89 @@ fn local_minute() -> u32 {
     h.parse::<u32>().unwrap() * 60 + m.parse::<u32>().unwrap()
 }
 
-/// One busy-loop process per core, at normal priority: the machine's owner
-/// compiling something. Killed when dropped.
-fn hog(n: usize) -> Vec<Proc> {
-    (0..n)
-        .map(|_| {
-            Proc(
-                Command::new("sh")
-                    .args(["-c", "while :; do :; done"])
-                    .stdout(Stdio::null())
-                    .spawn()
-                    .expect("start a busy loop"),
-            )
-        })
-        .collect()
+/// The machine's load as the spare worker sees it: a file in
+/// `/proc/stat`'s format (the worker reads it in place of `/proc/stat`,
+/// `TREVI_TEST_PROC_STAT`) for a machine of [`FAKE_CORES`] cores, whose
+/// counters a thread advances with the real time, every core busy while
+/// [`FakeLoad::busy`] is set and idle otherwise. Whatever else the machine
+/// running the test is doing (a busy CI machine, two CPU hogs), the worker
+/// sees exactly the load the test decides. Stops when dropped.
+struct FakeLoad {
+    path: std::path::PathBuf,
+    busy: Arc<AtomicBool>,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// Cores of the made-up machine: far more than the worker's own threads, so
+/// its own CPU time (left out of the load) never brings "all busy" below
+/// the threshold, nor raises "all idle" above it.
+const FAKE_CORES: u64 = 64;
+
+impl FakeLoad {
+    fn new(dir: &Dir) -> FakeLoad {
+        let path = dir.path().join("proc-stat");
+        let busy = Arc::new(AtomicBool::new(false));
+        let stop = Arc::new(AtomicBool::new(false));
+        let write = |path: &std::path::Path, user: u64, idle: u64| {
+            let per_core = |v: u64| v / FAKE_CORES;
+            let mut text = format!("cpu  {user} 0 0 {idle} 0 0 0 0 0 0\n");
+            for i in 0..FAKE_CORES {
+                text += &format!(
+                    "cpu{i} {} 0 0 {} 0 0 0 0 0 0\n",
+                    per_core(user),
+                    per_core(idle)
+                );
+            }
+            // Whole or not at all: written beside, then renamed over.
+            let tmp = path.with_extension("tmp");
+            std::fs::write(&tmp, text).unwrap();
+            std::fs::rename(&tmp, path).unwrap();
+        };
+        write(&path, 0, 0);
+        let thread = {
+            let (path, busy, stop) = (path.clone(), busy.clone(), stop.clone());
+            std::thread::spawn(move || {
+                // Clock ticks (100 a second) of every core since the start.
+                let (mut user, mut idle) = (0u64, 0u64);
+                let mut last = Instant::now();
+                while !stop.load(Ordering::Relaxed) {
+                    std::thread::sleep(Duration::from_millis(20));
+                    let now = Instant::now();
+                    let ticks = ((now - last).as_secs_f64() * 100.0) as u64 * FAKE_CORES;
+                    if ticks == 0 {
+                        continue;
+                    }
+                    last = now;
+                    if busy.load(Ordering::Relaxed) {
+                        user += ticks;
+                    } else {
+                        idle += ticks;
+                    }
+                    write(&path, user, idle);
+                }
+            })
+        };
+        FakeLoad {
+            path,
+            busy,
+            stop,
+            thread: Some(thread),
+        }
+    }
+
+    fn set_busy(&self, busy: bool) {
+        self.busy.store(busy, Ordering::Relaxed);
+    }
+}
+
+impl Drop for FakeLoad {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 /// The `trevi_worker_paused` line of worker `name` on `/metrics`, if any.
@@ -82,10 +147,10 @@ fn a_busy_machine_hands_its_tiles_to_another_worker_and_comes_back_when_quiet() 
         &["--http", "127.0.0.1:0"],
         &[],
     );
-    let n = cores();
-    // Busy means nearly every core taken by other programs: the hog takes
-    // them all, while the build jobs of a shared CI machine come and go.
-    let threshold = format!("{}", n as f64 - 0.5);
+    // Busy means most of the (made-up) machine's cores taken by other
+    // programs.
+    let load = FakeLoad::new(&dir);
+    let threshold = format!("{}", FAKE_CORES / 2);
     let spare = worker_with(
         &dir,
         &c.url,
@@ -101,7 +166,10 @@ fn a_busy_machine_hands_its_tiles_to_another_worker_and_comes_back_when_quiet() 
             "--sample-ms",
             "200",
         ],
-        &[("TREVI_PRIORITY", "")],
+        &[
+            ("TREVI_PRIORITY", ""),
+            ("TREVI_TEST_PROC_STAT", load.path.to_str().unwrap()),
+        ],
     );
     let rt = runtime();
     let id = detach(&dir, &c, &scene, &["--tile", "16"]);
@@ -109,11 +177,11 @@ fn a_busy_machine_hands_its_tiles_to_another_worker_and_comes_back_when_quiet() 
         job(&rt, &c, id).tiles_done >= 1
     });
     let total = job(&rt, &c, id).tiles_total;
-    let hogs = hog(n);
-    wait_for(&dir, "the spare worker to pause", 60, || {
+    load.set_busy(true);
+    wait_for(&dir, "the spare worker to pause", 120, || {
         dir.read_log("spare").contains("paused (busy")
     });
-    wait_for(&dir, "/metrics to show the pause", 10, || {
+    wait_for(&dir, "/metrics to show the pause", 60, || {
         paused_line(&c, "spare").is_some_and(|l| l.contains("reason=\"busy\""))
     });
     assert_eq!(
@@ -132,13 +200,14 @@ fn a_busy_machine_hands_its_tiles_to_another_worker_and_comes_back_when_quiet() 
         got == want,
         "the farm's image differs from the local render"
     );
-    // The hog ends: the machine is quiet again and the worker comes back.
-    drop(hogs);
-    wait_for(&dir, "the spare worker to resume", 60, || {
+    // The other programs end: the machine is quiet again and the worker
+    // comes back.
+    load.set_busy(false);
+    wait_for(&dir, "the spare worker to resume", 120, || {
         dir.read_log("spare")
             .contains("resumed: the machine has been quiet")
     });
-    wait_for(&dir, "/metrics to drop the pause", 20, || {
+    wait_for(&dir, "/metrics to drop the pause", 60, || {
         paused_line(&c, "spare").is_none() && monitor_state(&c, "spare").0 == "idle"
     });
     drop(spare);
@@ -161,12 +230,12 @@ fn outside_its_hours_a_worker_takes_nothing_and_says_why() {
     let hm = |m: u32| format!("{:02}:{:02}", m / 60, m % 60);
     let hours = format!("{}-{}", hm((now + 2) % 1440), hm((now + 1439) % 1440));
     let _night = worker_with(&dir, &c.url, "night", &["--active-hours", &hours], &[]);
-    wait_for(&dir, "the worker to pause", 30, || {
+    wait_for(&dir, "the worker to pause", 60, || {
         dir.read_log("night").contains("paused (outside hours)")
     });
     let rt = runtime();
     let id = detach(&dir, &c, &scene, &["--tile", "16"]);
-    wait_for(&dir, "the monitor to show the pause", 10, || {
+    wait_for(&dir, "the monitor to show the pause", 60, || {
         monitor_state(&c, "night") == ("paused".to_string(), Some("outside hours".to_string()))
     });
     assert!(paused_line(&c, "night").is_some_and(|l| l.contains("reason=\"outside hours\"")));

@@ -423,7 +423,7 @@ fn watch_the_machine(
         });
         return rx;
     }
-    let cores = std::fs::read_to_string("/proc/stat")
+    let cores = pause::read_proc_stat()
         .map(|s| pause::count_cores(&s))
         .unwrap_or(0)
         .max(1);

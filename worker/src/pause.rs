@@ -15,6 +15,10 @@
 //! between two samples, in cores: 1.0 is one core kept busy by other
 //! programs. Our own render threads run at idle priority, so they never
 //! hold the machine back; what is left is the owner's work.
+//!
+//! Tests set [`PROC_STAT_VAR`] to a file of their own in `/proc/stat`'s
+//! format: the machine's load is then theirs to decide, whatever else the
+//! machine they run on is doing (tests/tests/spare.rs).
 
 use std::fmt;
 use std::time::{Duration, Instant};
@@ -159,10 +163,23 @@ impl CpuSample {
     }
 }
 
+/// The environment variable naming a file read in place of `/proc/stat`
+/// (for tests: a load they make up).
+pub const PROC_STAT_VAR: &str = "TREVI_TEST_PROC_STAT";
+
+/// The machine's CPU counters: the text of `/proc/stat`, or of the file
+/// [`PROC_STAT_VAR`] names.
+pub fn read_proc_stat() -> std::io::Result<String> {
+    match std::env::var_os(PROC_STAT_VAR) {
+        Some(path) => std::fs::read_to_string(path),
+        None => std::fs::read_to_string("/proc/stat"),
+    }
+}
+
 /// Reads a [`CpuSample`] from this machine (`None` where there is no
 /// `/proc`, or it cannot be read).
 pub fn sample_now() -> Option<CpuSample> {
-    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let stat = read_proc_stat().ok()?;
     let me = std::fs::read_to_string("/proc/self/stat").ok()?;
     CpuSample::parse(&stat, &me)
 }

@@ -536,3 +536,84 @@ pub fn bundle_of(scene: &str) -> trevi_core::Bundle {
         files,
     }
 }
+
+/// The CPU time process `pid` has used (user + system, all its threads),
+/// from `/proc/PID/stat`; also readable while it is a zombie, before it is
+/// reaped. What a process did in CPU time does not stretch on a busy
+/// machine as its wall-clock time does: tests bound the work done between
+/// two events with it.
+pub fn cpu_time(pid: u32) -> Duration {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .unwrap_or_else(|e| panic!("/proc/{pid}/stat: {e}"));
+    // The command name may hold spaces: fields are counted from the last ')'.
+    let rest = &stat[stat.rfind(')').expect("a /proc stat line") + 1..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    // After the name: state (0) ... utime (11), stime (12), in clock ticks.
+    let ticks: u64 = f[11].parse::<u64>().unwrap() + f[12].parse::<u64>().unwrap();
+    Duration::from_secs_f64(ticks as f64 / clock_ticks() as f64)
+}
+
+/// Whether process `pid` has exited (a zombie not yet reaped, or gone).
+pub fn exited(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Ok(stat) => stat[stat.rfind(')').unwrap_or(0) + 1..]
+            .split_whitespace()
+            .next()
+            .is_some_and(|s| s == "Z" || s == "X"),
+        Err(_) => true,
+    }
+}
+
+/// The kernel's clock ticks a second (`getconf CLK_TCK`; 100 on Linux).
+fn clock_ticks() -> u64 {
+    static TICKS: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    *TICKS.get_or_init(|| {
+        Command::new("getconf")
+            .arg("CLK_TCK")
+            .output()
+            .ok()
+            .and_then(|o| String::from_utf8(o.stdout).ok()?.trim().parse().ok())
+            .unwrap_or(100)
+    })
+}
+
+/// The image of `scene`'s first camera as core renders it with no farm
+/// code: `trevi_core::render_tile` over the whole frame, in this process,
+/// written by core's `FrameWriter` to `dir/out` (its extension names the
+/// format). An independent check of what the farm (and the embedded farm
+/// of `trevi-submit`, the same code) delivers.
+pub fn core_render(dir: &Dir, scene: &Path, out: &str) -> Vec<u8> {
+    let bundle = trevi_core::Bundle::from_scene_file(scene).unwrap_or_else(|e| panic!("{e}"));
+    let scene = trevi_core::Scene::from_bundle(&bundle).unwrap_or_else(|e| panic!("{e}"));
+    let r = &scene.desc.cameras[0].render;
+    let rect = trevi_core::Rect::new(0, 0, r.width, r.height);
+    let pixels = trevi_core::render_tile(&scene, 0, rect).pixels;
+    let path = dir.path().join(out);
+    let mut fw = trevi_core::FrameWriter::create(&path, r.width, r.height).unwrap();
+    fw.write_tile(rect, &pixels).unwrap();
+    fw.finish().unwrap();
+    std::fs::read(path).unwrap()
+}
+
+/// Asserts that two encoded images (PNG or EXR) hold the same pixels,
+/// decoded (so that a difference of encoder settings alone would not
+/// count, and any pixel's would).
+pub fn assert_same_pixels(got: &[u8], want: &[u8], what: &str) {
+    let decode = |b: &[u8]| {
+        let t = trevi_core::texture::Texture::decode(b).unwrap_or_else(|e| panic!("{what}: {e}"));
+        let l = &t.levels[0];
+        (l.width, l.height, l.texels.clone())
+    };
+    let (gw, gh, g) = decode(got);
+    let (ww, wh, w) = decode(want);
+    assert_eq!((gw, gh), (ww, wh), "{what}: sizes differ");
+    if let Some(k) = (0..g.len()).find(|&k| g[k] != w[k]) {
+        panic!(
+            "{what}: pixel ({}, {}) is {} where core renders {}",
+            k as u32 % gw,
+            k as u32 / gw,
+            g[k],
+            w[k]
+        );
+    }
+}
