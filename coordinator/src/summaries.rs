@@ -14,10 +14,10 @@
 //! admission bounds of [`crate::farm::admission`]. A local render hands the description it already parsed to
 //! [`Summaries::prime`], so the embedded coordinator does not parse at all.
 
-use std::collections::VecDeque;
-use std::sync::{Arc, Mutex};
 use crate::farm::admission::{Admissions, Ticket};
 use crate::limits::Limits;
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
 use trevi_core::scene::aisxml::SceneHeaders;
 use trevi_core::SceneDesc;
 

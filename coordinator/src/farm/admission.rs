@@ -164,7 +164,10 @@ mod tests {
         let a = g.enter().unwrap();
         let b = g.enter().unwrap();
         let e = g.enter().unwrap_err();
-        assert!(matches!(&e, FarmError::Limit(m) if m.contains("--max-admissions")), "{e}");
+        assert!(
+            matches!(&e, FarmError::Limit(m) if m.contains("--max-admissions")),
+            "{e}"
+        );
         drop(a);
         let _c = g.enter().unwrap();
         drop(b);
@@ -179,7 +182,10 @@ mod tests {
         a.reserve(150).unwrap();
         let mut b = g.enter().unwrap();
         let e = b.reserve(10).unwrap_err();
-        assert!(matches!(&e, FarmError::Limit(m) if m.contains("--admission-mib")), "{e}");
+        assert!(
+            matches!(&e, FarmError::Limit(m) if m.contains("--admission-mib")),
+            "{e}"
+        );
         drop(a);
         b.reserve(60).unwrap();
         b.reserve(30).unwrap();

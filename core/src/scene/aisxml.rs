@@ -58,8 +58,8 @@ mod headers_tests;
 #[cfg(test)]
 mod tests;
 
-use super::source::FileSource;
 use super::estimate::{estimate_sized, AssetSizes, MemoryEstimate};
+use super::source::FileSource;
 use super::{SceneDesc, MAX_OBJECTS};
 use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
 use glam::DVec3;

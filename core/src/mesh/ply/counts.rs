@@ -21,7 +21,12 @@ pub fn counts(file: &str, bytes: &[u8]) -> Result<MeshCounts, SceneError> {
     let triangles = match h.format {
         Format::Ascii => walk(&mut AsciiBody::new(file, h.body_start), &h)?,
         Format::BinaryLe | Format::BinaryBe => walk(
-            &mut BinaryBody::new(file, h.body_start, h.body_line, h.format == Format::BinaryBe),
+            &mut BinaryBody::new(
+                file,
+                h.body_start,
+                h.body_line,
+                h.format == Format::BinaryBe,
+            ),
             &h,
         )?,
     };
@@ -100,7 +105,10 @@ mod tests {
             bin.extend_from_slice(&i.to_le_bytes());
         }
         let c = counts("m.ply", &bin).unwrap();
-        assert_eq!(c, MeshCounts::of(&crate::mesh::ply::parse("m.ply", &bin).unwrap()));
+        assert_eq!(
+            c,
+            MeshCounts::of(&crate::mesh::ply::parse("m.ply", &bin).unwrap())
+        );
         // A body cut short is an error, as for the loader.
         assert!(counts("m.ply", &bin[..bin.len() - 2]).is_err());
     }

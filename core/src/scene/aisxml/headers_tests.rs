@@ -113,7 +113,10 @@ fn scene_errors_are_the_full_parse_s() {
         r#"<mesh id="i" file="none.obj"/>"#,
         r#"<model id="m" mesh="nothing"/>"#,
     ] {
-        let b = bundle(&format!("<scene version=\"1\">\n{body}\n{CAM}</scene>"), &[]);
+        let b = bundle(
+            &format!("<scene version=\"1\">\n{body}\n{CAM}</scene>"),
+            &[],
+        );
         let full = parse_scene("s.xml", &b).unwrap_err();
         let h = parse_scene_headers("s.xml", &b).unwrap_err();
         assert_eq!(h, full, "{body}");

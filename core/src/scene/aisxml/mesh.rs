@@ -516,7 +516,11 @@ fn count_reals(el: &El) -> Result<usize> {
                 .src
                 .err(
                     pos,
-                    format!("<{}>: expected {what}, found \"{}\"", el.e.name, excerpt(tok)),
+                    format!(
+                        "<{}>: expected {what}, found \"{}\"",
+                        el.e.name,
+                        excerpt(tok)
+                    ),
                 )
                 .with_kind(SceneErrorKind::BadValue));
         }

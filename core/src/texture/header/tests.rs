@@ -111,7 +111,10 @@ fn chunks_the_file_cannot_hold_are_refused() {
     // announced in a file of a few hundred bytes.
     let mut bytes = hostile_two_part_exr(65_536);
     bytes.truncate(bytes.len() - 8 * 4096);
-    let e = probe(&bytes).unwrap().check(MAX_TEXTURE_TEXELS).unwrap_err();
+    let e = probe(&bytes)
+        .unwrap()
+        .check(MAX_TEXTURE_TEXELS)
+        .unwrap_err();
     assert!(e.to_string().contains("chunks"), "{e}");
 }
 
