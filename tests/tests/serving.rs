@@ -108,7 +108,7 @@ fn queued_jobs_hold_no_files_so_a_coordinator_short_of_descriptors_finishes_them
     });
     let queued = states(&rt, &c);
     assert_eq!(queued.len(), JOBS);
-    let _w = worker_with(&dir, &c.url, "worker", &["--threads", "2"], &[]);
+    let _w = worker_with(&dir, &c.url, "worker", &[], &[]);
     wait_for(&dir, "every job to end", 600, || {
         states(&rt, &c).iter().all(|(_, s, _)| {
             *s != pb::JobState::Queued as i32 && *s != pb::JobState::Running as i32
