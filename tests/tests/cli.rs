@@ -361,6 +361,341 @@ fn nonsense_flag_values_are_refused_naming_the_flag() {
         worker(&[], &[("TREVI_TILES_IN_FLIGHT", "0")]),
         "--tiles-in-flight",
     );
-    refused(submit(&["two.xml", "--tile", "0"], dir.path()), "--tile");
+    refused(
+        submit(&["two.xml", "--tile-size", "0"], dir.path()),
+        "--tile-size",
+    );
+    // The old name, and the environment variable, are the same flag.
+    refused(
+        submit(&["two.xml", "--tile", "0"], dir.path()),
+        "--tile-size",
+    );
+    let o = Command::new(bin("trevi-submit"))
+        .arg("two.xml")
+        .env("TREVI_TILE_SIZE", "0")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    refused(o, "--tile-size");
     assert_eq!(files_in(dir.path()), vec!["two.xml"]);
+}
+
+/// A still camera and a sequence camera in one scene: both render without
+/// --camera, the still to its file and the sequence to its frames.
+#[test]
+fn a_scene_with_a_still_and_a_sequence_renders_both() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = TWO_CAMERAS.replace(
+        r#"output="out/b.exr""#,
+        r#"frames="3-4" output="out/b.#.exr""#,
+    );
+    assert_ne!(scene, TWO_CAMERAS);
+    std::fs::write(dir.path().join("mixed.xml"), scene).unwrap();
+    let o = submit(&["mixed.xml", "-q"], dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        files_in(&dir.path().join("out")),
+        vec!["a.png", "b.3.exr", "b.4.exr"]
+    );
+}
+
+/// `-o` follows the scene parser's rule for `#`: one run, in the file name,
+/// only for a sequence. Nothing is made for a refused pattern (no `d#`).
+#[test]
+fn an_output_pattern_follows_the_parser_s_rule_for_hash() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("two.xml"), TWO_CAMERAS).unwrap();
+    for (args, says) in [
+        (
+            &["--frames", "1-2", "-o", "d#/f.#.png"][..],
+            "# may only be in the file name",
+        ),
+        (&["--frames", "1-2", "-o", "f.#.#.png"][..], "one run of #"),
+        (&["-o", "d#/f.png"][..], "# may only be in the file name"),
+        (&["-o", "f.#.png"][..], "only for a sequence"),
+    ] {
+        let all = [&["two.xml", "--camera", "a", "-q"][..], args].concat();
+        let o = submit(&all, dir.path());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} accepted");
+        assert!(
+            err.contains(says) || err.contains("one run of #"),
+            "{args:?}: {err}"
+        );
+    }
+    assert_eq!(files_in(dir.path()), vec!["two.xml"]);
+}
+
+/// A mistyped subcommand is not read as a scene file: the closest
+/// subcommand is suggested, exit status 2. A missing scene is still named
+/// as a missing file.
+#[test]
+fn a_mistyped_subcommand_suggests_the_closest_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = submit(&["lsit"], dir.path());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("did you mean `trevi-submit list`"), "{err}");
+    let o = submit(&["canel", "3"], dir.path());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("did you mean `trevi-submit cancel`"), "{err}");
+    let o = submit(&["missing.xml"], dir.path());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("missing.xml") && !err.contains("did you mean"),
+        "{err}"
+    );
+}
+
+/// Subcommand help shows what the subcommand takes: a required
+/// --coordinator (no "render on this machine"), its <ID> described, and
+/// --preview / --quiet only where they do something.
+#[test]
+fn subcommand_help_describes_what_each_takes() {
+    let dir = tempfile::tempdir().unwrap();
+    let help = |cmd: &str| {
+        let o = submit(&[cmd, "--help"], dir.path());
+        assert!(o.status.success(), "{cmd}");
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    for cmd in ["status", "list", "cancel", "fetch", "wait"] {
+        let h = help(cmd);
+        assert!(!h.contains("render on this machine"), "{cmd}: {h}");
+        assert!(h.contains("--coordinator <COORDINATOR>"), "{cmd}: {h}");
+        assert!(!h.contains("--tile"), "{cmd}: {h}");
+        if cmd != "list" {
+            assert!(h.contains("The job's id"), "{cmd}: {h}");
+        }
+        assert_eq!(h.contains("--preview"), cmd == "status", "{cmd}: {h}");
+        assert_eq!(
+            h.contains("--quiet"),
+            cmd == "fetch" || cmd == "wait",
+            "{cmd}: {h}"
+        );
+    }
+    // Without a coordinator, a farm command says it needs one.
+    let o = Command::new(bin("trevi-submit"))
+        .args(["status", "1"])
+        .env_remove("TREVI_COORDINATOR")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--coordinator"));
+    // Every flag of a render has its environment variable.
+    let o = submit(&["--help"], dir.path());
+    let h = String::from_utf8_lossy(&o.stdout);
+    for env in [
+        "TREVI_COORDINATOR",
+        "TREVI_SUBMIT_TOKEN",
+        "TREVI_JOB_PRIORITY",
+        "TREVI_DETACH",
+        "TREVI_CAMERA",
+        "TREVI_OUTPUT",
+        "TREVI_FRAMES",
+        "TREVI_THREADS",
+        "TREVI_TILE_SIZE",
+        "TREVI_QUIET",
+        "TREVI_PREVIEW",
+        "TREVI_TLS_CA",
+        "TREVI_TLS_DOMAIN",
+    ] {
+        assert!(h.contains(&format!("[env: {env}")), "{env}: {h}");
+    }
+}
+
+/// TREVI_TOKEN named two different secrets (trevi-submit's and
+/// trevi-worker's): both now refuse it, naming the variable to set, rather
+/// than send the wrong one.
+#[test]
+fn the_ambiguous_trevi_token_is_refused_naming_the_new_variables() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(bin("trevi-submit"))
+        .args(["list", "--coordinator", "http://127.0.0.1:9"])
+        .env("TREVI_TOKEN", "x")
+        .env_remove("TREVI_SUBMIT_TOKEN")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("set TREVI_SUBMIT_TOKEN"),
+        "{err}"
+    );
+    let o = Command::new(bin("trevi-worker"))
+        .args(["--coordinator", "http://127.0.0.1:9"])
+        .env("TREVI_TOKEN", "x")
+        .env_remove("TREVI_WORKER_TOKEN")
+        .env_remove("TREVI_WORKER_TOKEN_FILE")
+        .env_remove("TREVI_TOKEN_FILE")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("set TREVI_WORKER_TOKEN"),
+        "{err}"
+    );
+}
+
+/// The worker's CPU class is --cpu-priority (a job's priority is
+/// trevi-submit's --priority); a memory limit that rounds to 0 bytes is
+/// refused, not taken as "no limit".
+#[test]
+fn worker_flags_have_names_of_their_own_and_tiny_sizes_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(bin("trevi-worker"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    let h = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        h.contains("--cpu-priority") && h.contains("TREVI_CPU_PRIORITY"),
+        "{h}"
+    );
+    assert!(!h.contains("--priority <"), "{h}");
+    assert!(h.contains("TREVI_WORKER_TOKEN"), "{h}");
+    let o = Command::new(bin("trevi-worker"))
+        .args([
+            "--coordinator",
+            "http://127.0.0.1:9",
+            "--max-memory",
+            "0.0000001K",
+        ])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--max-memory") && err.contains("not a size"),
+        "{err}"
+    );
+}
+
+/// A sequence of two 16×16 frames.
+const TWO_FRAMES: &str = r#"<scene version="1">
+  <sphere id="ball" center="0 1 0" radius="1"> <surface diffuse="0.8 0.3 0.2"/> </sphere>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="16" height="16" frames="1-2" output="shot.#.png"/>
+  </camera>
+</scene>
+"#;
+
+/// The farm commands on a finished sequence: `list --header` has a header
+/// and columns; `fetch -o` of a sequence needs a pattern or a directory
+/// (`-o x.png` makes no directory `x.png`); reflection answers v1alpha,
+/// which most gRPC clients still ask, as well as v1.
+#[test]
+fn farm_commands_on_a_sequence_and_reflection_v1alpha() {
+    use common::*;
+    let dir = Dir::new();
+    let scene = dir.write("scene/two.xml", TWO_FRAMES);
+    let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
+    let _w = worker_with(&dir, &c.url, "worker", &[], &[]);
+    let rt = runtime();
+    let id = submit_and_wait(&dir, &rt, &c, &scene, &[], 60)
+        .id
+        .to_string();
+    let o = common::submit(&dir, &["list", "--header", "--coordinator", &c.url]);
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines.len(), 2, "{out}");
+    for col in [
+        "ID", "STATE", "CAMERA", "SIZE", "TILES", "PRIORITY", "OUTPUT",
+    ] {
+        assert!(lines[0].contains(col), "{out}");
+    }
+    assert!(
+        lines[1].contains("shot.#.png") && lines[1].contains("2 done"),
+        "{out}"
+    );
+    // Without --header, and not on a terminal: the rows alone.
+    let o = common::submit(&dir, &["list", "--coordinator", &c.url]);
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 1);
+    // One file's name for a sequence is refused, and nothing is made.
+    let x = dir.path().join("x.png");
+    let o = common::submit(
+        &dir,
+        &[
+            "fetch",
+            &id,
+            "--coordinator",
+            &c.url,
+            "-o",
+            x.to_str().unwrap(),
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("names one file"),
+        "{err}"
+    );
+    assert!(!x.exists());
+    // A device is one file too; a pattern under it fails once, saying why
+    // once (not "Not a directory: Not a directory").
+    let o = common::submit(
+        &dir,
+        &["fetch", &id, "--coordinator", &c.url, "-o", "/dev/full"],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("names one file"),
+        "{err}"
+    );
+    let o = common::submit(
+        &dir,
+        &[
+            "fetch",
+            &id,
+            "--coordinator",
+            &c.url,
+            "-o",
+            "/dev/full/x.#.png",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert_eq!(err.matches("Not a directory").count(), 1, "{err}");
+    // A directory takes the frames.
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    let o = common::submit(
+        &dir,
+        &[
+            "fetch",
+            &id,
+            "--coordinator",
+            &c.url,
+            "-o",
+            frames.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert_eq!(files_in(&frames), vec!["shot.1.png", "shot.2.png"]);
+    rt.block_on(async {
+        use tonic_reflection::pb::v1alpha::{
+            server_reflection_client::ServerReflectionClient,
+            server_reflection_request::MessageRequest, server_reflection_response::MessageResponse,
+            ServerReflectionRequest,
+        };
+        let mut r = ServerReflectionClient::new(channel(&c).await);
+        let req = ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(MessageRequest::ListServices(String::new())),
+        };
+        let mut stream = r
+            .server_reflection_info(tokio_stream::iter([req]))
+            .await
+            .expect("reflection v1alpha")
+            .into_inner();
+        let msg = stream.message().await.unwrap().unwrap();
+        let Some(MessageResponse::ListServicesResponse(list)) = msg.message_response else {
+            panic!("unexpected reflection answer {msg:?}");
+        };
+        assert!(list.service.iter().any(|s| s.name == "trevi.v1.Jobs"));
+    });
 }
