@@ -21,7 +21,7 @@ impl<'a> View<'a> {
     /// Calls `f` for hits along `origin + t·dir`, `t ∈ (0, t_max)`, nearest
     /// boxes first (`ORDERED`; else in the trees' slot order, for visitors
     /// whose answer does not depend on the order), honouring
-    /// `sided="front"`. `f` decides, as in [`Bvh::traverse`], whether the
+    /// `sided="front"`. `f` decides, as in [`Bvh::traverse`](crate::bvh::Bvh::traverse), whether the
     /// ray shortens or stops.
     #[inline]
     fn for_each_hit<F: FnMut(Hit) -> Visit, const ORDERED: bool>(
@@ -137,7 +137,7 @@ impl<'a> View<'a> {
     /// answer of [`View::intersect`] cannot depend on the order in which the
     /// traversal meets them: the smaller `t` wins; at equal `t` (two
     /// triangles sharing an edge or coincident, two instances of one mesh in
-    /// the same place) the smaller [`TieKey`] wins: the earlier model
+    /// the same place) the smaller `TieKey` wins: the earlier model
     /// (models, then spheres, then planes, each in document order), then
     /// the earlier triangle of the mesh as loaded. See docs/performance.md.
     #[inline]

@@ -167,10 +167,10 @@ fn unit(v: Vec3) -> Vec3 {
     }
 }
 
-/// [`unit`] for the normals of a hit (`View::surface_point`, once or twice a
+/// [`unit()`] for the normals of a hit (`View::surface_point`, once or twice a
 /// hit): `v · (1/|v|)`, one square root and one division, when `|v|²` is a
 /// normal f32 far from overflow and underflow (every normal of an ordinary
-/// scene); otherwise [`unit`]'s scaled form, which is right at every
+/// scene); otherwise [`unit()`]'s scaled form, which is right at every
 /// magnitude. Two to four divisions fewer on the hit's critical path.
 #[inline]
 fn unit_shading(v: Vec3) -> Vec3 {
