@@ -12,6 +12,7 @@
 use crate::error::{read_error_kind, Location, SceneError};
 use crate::scene::aisxml::parse_scene;
 use crate::scene::SceneDesc;
+use crate::world::Scene;
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::io::{self, Read};
@@ -358,6 +359,21 @@ impl<'a> Reader<'a> {
     fn string(&mut self) -> Result<String, BundleError> {
         let n = self.u64()? as usize;
         String::from_utf8(self.take(n)?.to_vec()).map_err(|_| BundleError::NotUtf8)
+    }
+}
+
+/// Parsing and building in one call, for tests, tools and the fuzzers. The
+/// farm parses once and keeps the description ([`ParsedBundle`], then
+/// [`Scene::build`]); the build step itself never sees a file.
+impl Scene {
+    /// Parses and builds the scene in `bundle`.
+    pub fn from_bundle(bundle: &Bundle) -> Result<Scene, SceneError> {
+        Scene::from_source(&bundle.scene, bundle)
+    }
+
+    /// Parses and builds scene file `scene` read through `source`.
+    pub fn from_source(scene: &str, source: &dyn FileSource) -> Result<Scene, SceneError> {
+        Ok(Scene::build(parse_scene(scene, source)?))
     }
 }
 

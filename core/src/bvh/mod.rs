@@ -15,7 +15,7 @@
 //! `simd.rs` (the only `unsafe` code) tests a node's four boxes, or a leaf's
 //! four triangles, at once.
 //!
-//! Layout: a [`Node`] holds its four children's boxes plane by plane (one
+//! Layout: a `Node` holds its four children's boxes plane by plane (one
 //! SSE register per plane: 96 bytes) and their references, 128 bytes, two
 //! cache lines. The binary tree is dropped once collapsed.
 //!

@@ -9,7 +9,7 @@
 //! (a subtraction then a multiplication, never fused: Rust does not
 //! contract, and no path uses FMA), then `maxps`/`minps`, whose semantics
 //! (`a > b ? a : b`, `a < b ? a : b`: the second operand when either is NaN)
-//! [`max_ps`] and [`min_ps`] spell out. So every entry distance, every mask
+//! `max_ps` and `min_ps` spell out. So every entry distance, every mask
 //! bit, and with them the walk's visit order, are the same bits on every
 //! path and every machine; `core/tests/simd.rs` renders scenes through each
 //! path and compares the bytes.
@@ -267,7 +267,8 @@ impl Tri4 {
     }
 }
 
-/// The watertight test of [`triangle::intersect`] on four triangles at once:
+/// The watertight test of
+/// [`triangle::intersect`](crate::geometry::triangle::intersect) on four triangles at once:
 /// the `n` lanes of a leaf's copies `p` (laid out as `leaves.rs` describes:
 /// `p[(3·v + axis)·n + lane]`; lanes past `n` are computed on whatever
 /// floats follow and must be masked off), every lane against `t_max`. It

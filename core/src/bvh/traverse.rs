@@ -1,6 +1,6 @@
 //! Walking the wide tree: closest-hit, any-hit and every-hit queries through
 //! one generic walk, nearest child first, a node's four boxes tested at once
-//! on the path chosen in [`simd`](super::simd) (the same bits on each).
+//! on the path chosen in [`simd`] (the same bits on each).
 //! Queries whose answer cannot depend on the visit order (opaque shadow
 //! rays: is anything hit at all?) skip the sort and take the entered
 //! children in slot order ([`Bvh::traverse_unordered`]).

@@ -11,7 +11,7 @@
 //! *pending rows*: rows that have received at least one pixel and have not yet
 //! been handed to the encoder. Rows are handed over in file order (top to
 //! bottom) as soon as their 16-row group is complete: PNG one segment of
-//! [`SEGMENT_ROWS`] rows at a time (see [`png`](self::png): each segment is
+//! [`SEGMENT_ROWS`] rows at a time (see `png.rs`: each segment is
 //! filtered and compressed alone, so the file is the same whoever encodes
 //! which segment), EXR one 16-row scanline block at a time (the block size of
 //! ZIP compression).

@@ -22,7 +22,7 @@
 //! run of chunks per segment in order (a segment over [`IDAT_MAX`] bytes is
 //! split at multiples of it), then a chunk with the final empty deflate
 //! block and the stream's Adler-32 combined from the segments' with
-//! [`adler32_combine`](super::adler32_combine); then IEND.
+//! [`adler32_combine`]; then IEND.
 //!
 //! The bytes are a pure function of the pixels: nothing depends on the tile
 //! size, the order in which segments complete, the thread count or the
