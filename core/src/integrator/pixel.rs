@@ -119,7 +119,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
     /// Whether the pixel is to stop: set for good once the flag is seen.
     #[inline(always)]
     fn stopping(&self, ctx: &mut PixelContext) -> bool {
-        if ctx.rays % CANCEL_EVERY == 0 && self.cancel.load(Ordering::Relaxed) {
+        if ctx.rays.is_multiple_of(CANCEL_EVERY) && self.cancel.load(Ordering::Relaxed) {
             ctx.stopped = true;
         }
         ctx.stopped
