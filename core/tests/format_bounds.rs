@@ -283,12 +283,17 @@ fn a_scene_with_a_hostile_jpeg_is_refused_naming_the_file() {
 <model id="a" mesh="q"><surface diffuse-texture="t/x.jpg"/></model>
 <camera id="c" position="0 0 5" lookat="0 0 0" fov="50"><render width="4" height="3"/></camera></scene>"#;
     let b = bundle(scene, vec![("t/x.jpg", progressive_jpeg(256, 256, 1_000))]);
-    let e = parse_scene("s.xml", &b).unwrap_err();
     let line2 = scene.lines().nth(1).unwrap();
     let col = line2.find("diffuse-texture").unwrap() as u32 + 1;
-    assert_eq!((e.location.line, e.location.column), (2, col), "{e}");
-    assert!(e.message.contains("\"t/x.jpg\""), "{e}");
-    assert!(e.message.contains("more than 64 scans"), "{e}");
+    // The full parse (a worker, trevi-submit) and the headers-only one (the
+    // coordinator's admission) refuse it by the same rule, at the same place.
+    let full = parse_scene("s.xml", &b).unwrap_err();
+    let headers = trevi_core::scene::aisxml::parse_scene_headers("s.xml", &b).unwrap_err();
+    for e in [full, headers] {
+        assert_eq!((e.location.line, e.location.column), (2, col), "{e}");
+        assert!(e.message.contains("\"t/x.jpg\""), "{e}");
+        assert!(e.message.contains("more than 64 scans"), "{e}");
+    }
 }
 
 fn crc32(bytes: &[u8]) -> u32 {

@@ -1,8 +1,8 @@
 //! What a texture file says about itself before any pixel is decoded: its
 //! format and the size of **every** image it holds (an OpenEXR file may
 //! hold several parts, each with its own header), read from the headers
-//! alone: a PNG's IHDR chunk, a JPEG's frame header (through the `image`
-//! crate's header reader, which stops at the first SOF marker), every part
+//! alone: a PNG's IHDR chunk (and its chunks' lengths, [`super::png_scan`]),
+//! a JPEG's frame header and scan count ([`super::jpeg_scan`]), every part
 //! header of an OpenEXR file (through `exr`'s meta-data reader, which reads
 //! the headers and none of the pixel data).
 //!
@@ -91,14 +91,23 @@ pub fn probe(bytes: &[u8]) -> Result<TextureHeader, TextureError> {
         Some(image::ImageFormat::Jpeg) => ImageFormat::Jpeg,
         _ => return Err(TextureError::Format),
     };
-    let (w, h) = match super::png_size(bytes) {
+    let (w, h) = match format {
         // PNG: straight from IHDR (the decoder reads on to the first data
-        // chunk before it says).
-        Some(wh) => wh,
-        // JPEG: the frame header (SOF), read by the decoder's header reader.
-        None => reader
-            .into_dimensions()
-            .map_err(|e| TextureError::Decode(e.to_string()))?,
+        // chunk before it says); the image data the chunks hold is bounded
+        // by what that image can need (the decoder inflates all of it).
+        ImageFormat::Png => {
+            let wh = super::png_size(bytes).ok_or_else(|| {
+                TextureError::Decode("the PNG does not start with its IHDR chunk".into())
+            })?;
+            super::png_scan::check(bytes)?;
+            wh
+        }
+        // JPEG: the frame's size and the scan count from the markers; a
+        // decode costs a pass over the image per scan.
+        _ => {
+            let shape = super::jpeg_scan::scan(bytes, super::jpeg_scan::MAX_JPEG_SCANS)?;
+            (shape.width, shape.height)
+        }
     };
     Ok(TextureHeader {
         format,

@@ -123,36 +123,16 @@ impl Texture {
         if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
             return decode_exr(bytes, budget);
         }
-        let reader = image::io::Reader::new(Cursor::new(bytes))
-            .with_guessed_format()
-            .map_err(|e| TextureError::Decode(e.to_string()))?;
-        match reader.format() {
-            Some(image::ImageFormat::Png | image::ImageFormat::Jpeg) => {}
-            _ => return Err(TextureError::Format),
-        }
-        let format = reader.format();
-        let (w, h) = match png_size(bytes) {
-            // PNG: straight from IHDR (the decoder reads on to the first
-            // data chunk before it says).
-            Some(wh) => wh,
-            None if format == Some(image::ImageFormat::Jpeg) => {
-                // JPEG: the frame's size and the scan count from the
-                // markers; a decode costs a pass over the image per scan.
-                let shape = jpeg_scan::scan(bytes, jpeg_scan::MAX_JPEG_SCANS)?;
-                (shape.width, shape.height)
-            }
-            None => reader
-                .into_dimensions()
-                .map_err(|e| TextureError::Decode(e.to_string()))?,
+        // Every bound the header allows to check, before anything is
+        // decoded (the same rule the coordinator admits a job by).
+        let head = header::probe(bytes)?;
+        let (w, h) = head.check(budget)?;
+        let format = match head.format {
+            header::ImageFormat::Png => image::ImageFormat::Png,
+            _ => image::ImageFormat::Jpeg,
         };
-        check_size(u64::from(w), u64::from(h), budget)?;
-        if format == Some(image::ImageFormat::Png) {
-            png_scan::check(bytes)?;
-        }
         let mut reader = image::io::Reader::new(Cursor::new(bytes));
-        if let Some(f) = format {
-            reader.set_format(f);
-        }
+        reader.set_format(format);
         let mut limits = image::io::Limits::default();
         limits.max_image_width = Some(MAX_TEXTURE_SIDE);
         limits.max_image_height = Some(MAX_TEXTURE_SIDE);
