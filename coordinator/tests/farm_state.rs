@@ -221,11 +221,15 @@ fn new_jobs_never_take_an_existing_job_directory() {
                 .unwrap();
         }
     }
-    // The database is lost; the job directories 1..=3 are still there.
+    // The database is lost; the job directories 1..=3 are still there (a
+    // job's directory is made when its output is first written: made here,
+    // as rendering would have).
     for f in ["state.db", "state.db-wal", "state.db-shm"] {
         let _ = std::fs::remove_file(dir.path().join(f));
     }
-    assert!(dir.path().join("jobs/3").is_dir());
+    for d in 1..=3 {
+        std::fs::create_dir_all(dir.path().join(format!("jobs/{d}"))).unwrap();
+    }
     let f = Farm::new(config(dir.path(), true, keep_none)).unwrap();
     let id = f
         .submit(spec(16, 16, 16), SubmitOptions::default())

@@ -135,7 +135,7 @@ fn a_multi_part_exr_claiming_65536_squared_is_refused_and_the_farm_keeps_serving
     // The coordinator, sent the bundle directly, refuses the job from the
     // texture's headers.
     let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
-    let _w = worker_with(&dir, &c.url, "worker0", &["--threads", "1"], &[]);
+    let _w = worker_with(&dir, &c.url, "worker0", &[], &[]);
     let rt = runtime();
     let hash = upload_bundle(&rt, &c, &[("s.xml", scene.as_bytes()), ("t.exr", &exr)]);
     let e = rt.block_on(submit_job(&c, &hash)).unwrap_err();
