@@ -403,15 +403,19 @@ fn render_threads_run_at_idle_priority_unless_asked_for_normal() {
     for t in threads {
         assert_eq!(t, (0, 0), "SCHED_OTHER at nice 0\n{}", dir.logs());
     }
-    let o = std::process::Command::new(common::bin("trevi-worker"))
-        .args(["--coordinator", &c.url, "--priority", "low"])
-        .env_clear()
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        err.contains("--priority") && err.contains("idle or normal"),
-        "{err}"
-    );
+    // The flag's name, and the old one (a hidden alias), both name the
+    // flag in the refusal.
+    for flag in ["--cpu-priority", "--priority"] {
+        let o = std::process::Command::new(common::bin("trevi-worker"))
+            .args(["--coordinator", &c.url, flag, "low"])
+            .env_clear()
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("--cpu-priority") && err.contains("idle or normal"),
+            "{err}"
+        );
+    }
 }
