@@ -150,7 +150,8 @@ say "step 2: trevi-submit scene.xml --coordinator $url (768x512, 96 tiles)"
 submit_pid=$!
 
 job_line() { "$submit" list --coordinator "$url" 2>/dev/null | tail -n1; }
-tiles_done() { job_line | sed -nE 's|.* ([0-9]+)/([0-9]+) tiles.*|\1|p'; }
+# list's row: ID STATE CAMERA WxH DONE/TOTAL ... (submit/src/cli.rs, list_row)
+tiles_done() { job_line | sed -nE 's|.*[0-9]x[0-9]+ +([0-9]+)/[0-9]+ .*|\1|p'; }
 deadline=$(($(date +%s) + 120))
 while :; do
     kill -0 "$submit_pid" 2>/dev/null || fail "trevi-submit ended before the workers were disturbed"
