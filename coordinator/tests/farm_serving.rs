@@ -100,6 +100,28 @@ fn one_user_s_sequence_does_not_delete_another_s_unfetched_output() {
     assert!(f.info(seq).is_ok());
 }
 
+/// A sequence is one ended job however many frames it has: with
+/// `--keep-ended 2`, a fetched still and a 12-frame sequence are two, so the
+/// still (fetched, which the count may remove) stays.
+#[test]
+fn a_sequence_counts_as_one_ended_job_however_many_frames_it_has() {
+    let dir = tempfile::tempdir().unwrap();
+    let retention = Retention {
+        keep_ended: 2,
+        keep_ended_for: None,
+        ..Retention::default()
+    };
+    let f = farm(dir.path(), retention);
+    let mine = still(&f);
+    render_all(&f);
+    f.fetched(mine, None);
+    let seq = sequence(&f, 1, 12);
+    render_all(&f);
+    assert_eq!(f.info(seq).unwrap().state, JobState::Done);
+    assert!(f.info(mine).is_ok(), "the sequence's frames were counted as jobs");
+    assert!(f.output_file(mine).unwrap().is_file());
+}
+
 /// Issue 36: each queued job held its output's temporary file open (two
 /// descriptors), so 600 queued jobs ran a coordinator with 1024 out of
 /// descriptors. A queued job holds no file: none is even created.
