@@ -118,7 +118,10 @@ fn a_sequence_counts_as_one_ended_job_however_many_frames_it_has() {
     let seq = sequence(&f, 1, 12);
     render_all(&f);
     assert_eq!(f.info(seq).unwrap().state, JobState::Done);
-    assert!(f.info(mine).is_ok(), "the sequence's frames were counted as jobs");
+    assert!(
+        f.info(mine).is_ok(),
+        "the sequence's frames were counted as jobs"
+    );
     assert!(f.output_file(mine).unwrap().is_file());
 }
 
