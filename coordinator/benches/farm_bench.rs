@@ -434,6 +434,8 @@ fn farm(args: &[String]) {
             height: h,
             tile_size: tile,
             output_name: "bench.png".into(),
+            scene: String::new(),
+            submitter: String::new(),
         };
         let start = Instant::now();
         let job = if sink == "png" {

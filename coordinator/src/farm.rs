@@ -382,6 +382,8 @@ impl Farm {
                 tile_size
             },
             output_name,
+            scene: summary.scene.clone(),
+            submitter: String::new(),
         })
     }
 
@@ -397,6 +399,10 @@ impl Farm {
     /// Queues a job; its tiles go where `opts` says.
     pub fn submit(&self, spec: JobSpec, opts: SubmitOptions) -> Result<JobInfo, FarmError> {
         let SubmitOptions { who, sink: make } = opts;
+        let spec = JobSpec {
+            submitter: who.to_string(),
+            ..spec
+        };
         if spec.width == 0 || spec.height == 0 {
             return Err(FarmError::BadScene("the frame is empty".into()));
         }
@@ -466,7 +472,7 @@ impl Farm {
                 parent,
                 ..SeqLink::default()
             };
-            let stored = StoredJob::submitted(id, info.spec.clone(), who, info.state, seq);
+            let stored = StoredJob::submitted(id, info.spec.clone(), info.state, seq);
             if let Err(e) = store.insert_job(&stored) {
                 st.sched.finish(id, Err(e.to_string()), now);
                 return Err(e);
@@ -1014,10 +1020,10 @@ impl Farm {
         let j = StoredJob {
             id: info.id,
             spec: info.spec.clone(),
-            submitter: String::new(),
             state: info.state,
             submitted_ms: 0,
             elapsed: Some(info.elapsed),
+            render: Some(info.elapsed.saturating_sub(info.queued)),
             error: info.error.clone(),
             finish_order: info.finish_order,
             tiles_done: info.tiles_done,

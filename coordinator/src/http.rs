@@ -313,7 +313,13 @@ struct JobView {
     tiles_total: u64,
     tiles_done: u64,
     rays: u64,
+    /// Since submission: `queued_ms` waiting, then `render_ms` rendering.
     elapsed_ms: u64,
+    queued_ms: u64,
+    render_ms: u64,
+    /// The scene file's name, and who submitted the job.
+    scene: String,
+    submitter: String,
     /// Remaining time at the pace so far; `null` unless running with
     /// tiles done.
     eta_ms: Option<u64>,
@@ -340,7 +346,7 @@ pub fn eta_ms(info: &JobInfo) -> Option<u64> {
         return None;
     }
     let left = info.tiles_total.saturating_sub(info.tiles_done);
-    let per_tile = info.elapsed.as_secs_f64() / info.tiles_done as f64;
+    let per_tile = info.render().as_secs_f64() / info.tiles_done as f64;
     Some((per_tile * left as f64 * 1000.0).round() as u64)
 }
 
@@ -358,6 +364,10 @@ impl From<&JobInfo> for JobView {
             tiles_done: j.tiles_done,
             rays: j.rays,
             elapsed_ms: j.elapsed.as_millis() as u64,
+            queued_ms: j.queued.as_millis() as u64,
+            render_ms: j.render().as_millis() as u64,
+            scene: j.spec.scene.clone(),
+            submitter: j.spec.submitter.clone(),
             eta_ms: eta_ms(j),
             error: j.error.clone(),
             frames: j.frames.map(|f| FramesView {

@@ -108,7 +108,17 @@ pub struct JobSpec {
     /// For one frame of a sequence: the frame the workers render (see
     /// `crate::farm::sequences`); `None` for a still.
     pub frame: Option<u32>,
+    /// The scene file's name in its bundle (what `list` shows).
+    pub scene: String,
+    /// Who submitted the job: the client's address, as the farm counts
+    /// jobs per submitter (empty when unknown).
+    pub submitter: String,
 }
+
+/// The first id of the frame jobs of sequences. Stills and sequences take
+/// ids from 1 on, one after the other; a sequence's frames are jobs of
+/// their own, numbered from here so they use none of those ids up.
+pub const FRAME_IDS: JobId = 1 << 40;
 
 /// For the scheduler's tests: a still of `width` × `height` in tiles of
 /// `tile`, written to `output` (its extension picks the format), of bundle
@@ -125,6 +135,8 @@ pub(crate) fn test_spec(width: u32, height: u32, tile: u32, output: &str) -> Job
         tile_size: tile,
         output_name: output.into(),
         frame: None,
+        scene: "scene.xml".into(),
+        submitter: String::new(),
     }
 }
 
@@ -151,12 +163,25 @@ pub struct JobInfo {
     pub tiles_total: u64,
     pub tiles_done: u64,
     pub rays: u64,
+    /// From submission to the end, or to now while unfinished: `queued`
+    /// and then the render.
     pub elapsed: Duration,
+    /// The part of `elapsed` spent waiting in the queue: until the first
+    /// tile was leased (all of it for a job that never started).
+    pub queued: Duration,
     pub error: Option<String>,
     /// 1 for the first job to finish, and so on; 0 while unfinished.
     pub finish_order: u64,
     /// For a sequence: its frames' progress.
     pub frames: Option<FramesInfo>,
+}
+
+impl JobInfo {
+    /// The part of `elapsed` spent rendering: from the first tile leased to
+    /// the end, or to now while unfinished (zero for a job still queued).
+    pub fn render(&self) -> Duration {
+        self.elapsed.saturating_sub(self.queued)
+    }
 }
 
 /// A sequence's progress (see `crate::farm::sequences`).
@@ -240,6 +265,9 @@ pub struct Restored {
     pub submitted: Instant,
     /// For a finished job: how long it took.
     pub elapsed: Option<Duration>,
+    /// For a finished job: how much of `elapsed` it rendered (the rest it
+    /// waited in the queue).
+    pub render: Option<Duration>,
     pub error: Option<String>,
     pub finish_order: u64,
     /// For a finished job: how many tiles it had done.
@@ -300,6 +328,8 @@ struct Job {
     done: u64,
     rays: u64,
     submitted: Instant,
+    /// When its first tile was leased.
+    started: Option<Instant>,
     finished: Option<Instant>,
     error: Option<String>,
     finish_order: u64,
@@ -498,6 +528,8 @@ pub struct Scheduler {
     workers: Workers,
     counters: Counters,
     next_job: JobId,
+    /// The next id of a sequence's frame job (from [`FRAME_IDS`] on).
+    next_frame: JobId,
     next_lease: LeaseId,
     finished: u64,
     /// Jobs failed by their tiles' failures, for the caller to wind up.
@@ -520,6 +552,7 @@ impl Scheduler {
             workers: Workers::new(worker_id_base),
             counters: Counters::default(),
             next_job: 1,
+            next_frame: FRAME_IDS,
             // Like worker ids: a result under a lease of an earlier run
             // never matches a lease of this one.
             next_lease: worker_id_base.max(1),
@@ -594,9 +627,17 @@ impl Scheduler {
     }
 
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
+    /// A frame of a sequence (`spec.frame` set) takes its id from
+    /// [`FRAME_IDS`] on, so the ids users see (stills and sequences) follow
+    /// one another.
     pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
-        let id = self.next_job;
-        self.next_job += 1;
+        let id = if spec.frame.is_some() {
+            self.next_frame += 1;
+            self.next_frame - 1
+        } else {
+            self.next_job += 1;
+            self.next_job - 1
+        };
         // An unfinished job of the same scene and camera that has a
         // measured cost (another frame of a sequence, the same scene again)
         // gives the new one its first estimate (see [`lease_size`]).
@@ -619,7 +660,7 @@ impl Scheduler {
     /// Puts back a job of an earlier run (see [`Restored`]).
     pub fn restore(&mut self, r: Restored, now: Instant) {
         let mut job = self.new_job(r.spec, r.submitted.min(now));
-        self.next_job = self.next_job.max(r.id + 1);
+        self.skip_ids_through(r.id);
         if r.state.is_final() {
             self.finished = self.finished.max(r.finish_order);
             job.state = r.state;
@@ -627,7 +668,11 @@ impl Scheduler {
             job.rays = r.rays;
             job.error = r.error;
             job.finish_order = r.finish_order;
-            job.finished = Some(job.submitted + r.elapsed.unwrap_or_default());
+            let end = job.submitted + r.elapsed.unwrap_or_default();
+            job.finished = Some(end);
+            job.started = r
+                .render
+                .map(|d| end.checked_sub(d).unwrap_or(job.submitted));
             job.retire();
             self.jobs.insert(r.id, job);
             return;
@@ -661,6 +706,7 @@ impl Scheduler {
             done: 0,
             rays: 0,
             submitted: now,
+            started: None,
             finished: None,
             error: None,
             finish_order: 0,
@@ -793,6 +839,7 @@ impl Scheduler {
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
             }
+            job.started.get_or_insert(now);
             let deadline = now + self.cfg.lease_ttl;
             self.earliest_deadline = Some(earliest(self.earliest_deadline, deadline));
             // A span's tiles are consecutive: the table derives each
@@ -1404,7 +1451,12 @@ impl Scheduler {
     /// Never gives an id up to `id` (ids of an earlier run, or whose output
     /// directory exists).
     pub fn skip_ids_through(&mut self, id: JobId) {
-        self.next_job = self.next_job.max(id.saturating_add(1));
+        let next = if id >= FRAME_IDS {
+            &mut self.next_frame
+        } else {
+            &mut self.next_job
+        };
+        *next = (*next).max(id.saturating_add(1));
     }
 
     /// Cancels an unfinished job; its leases are dropped at the workers' next
@@ -1442,6 +1494,7 @@ impl Scheduler {
 
     pub fn info(&self, job: JobId, now: Instant) -> Option<JobInfo> {
         let j = self.jobs.get(&job)?;
+        let end = j.finished.unwrap_or(now);
         Some(JobInfo {
             id: job,
             spec: j.spec.clone(),
@@ -1449,9 +1502,11 @@ impl Scheduler {
             tiles_total: j.window.tiles_total() as u64,
             tiles_done: j.done,
             rays: j.rays,
-            elapsed: j
-                .finished
-                .unwrap_or(now)
+            elapsed: end.saturating_duration_since(j.submitted),
+            queued: j
+                .started
+                .unwrap_or(end)
+                .min(end)
                 .saturating_duration_since(j.submitted),
             error: j.error.clone(),
             finish_order: j.finish_order,
@@ -1846,6 +1901,76 @@ mod tests {
         assert_eq!((ib.state, ib.finish_order), (JobState::Done, 1));
         assert_eq!((ia.state, ia.finish_order), (JobState::Failed, 2));
         assert_eq!(ia.error.as_deref(), Some("disk full"));
+    }
+
+    /// Frames of sequences use none of the ids users see: the still after
+    /// a sequence's frames gets the next id, also after a restart.
+    #[test]
+    fn frames_take_ids_of_their_own() {
+        let (mut s, t0, _) = sched();
+        let seq = s.reserve_id();
+        let frame = |f| JobSpec {
+            frame: Some(f),
+            ..spec(0, 4, 4, 4)
+        };
+        let frames: Vec<JobId> = (1..=3).map(|f| s.submit(frame(f), t0)).collect();
+        let still = s.submit(spec(0, 4, 4, 4), t0);
+        assert_eq!((seq, still), (1, 2));
+        assert_eq!(frames, [FRAME_IDS, FRAME_IDS + 1, FRAME_IDS + 2]);
+        let mut again = test_scheduler(Limits::default());
+        for id in [still, frames[2]] {
+            again.skip_ids_through(id);
+        }
+        assert_eq!(again.submit(spec(0, 4, 4, 4), t0), 3);
+        assert_eq!(again.submit(frame(4), t0), FRAME_IDS + 3);
+    }
+
+    /// A job's time splits at its first lease: before it the job waited
+    /// in the queue, after it it rendered; a job that never started only
+    /// waited, and the split survives a restart.
+    #[test]
+    fn queue_wait_and_render_time_split_at_the_first_lease() {
+        let (mut s, t0, w) = sched();
+        let sec = Duration::from_secs;
+        let busy = s.submit(spec(5, 4, 4, 4), t0);
+        let waiting = s.submit(spec(0, 4, 4, 4), t0);
+        let never = s.submit(spec(-1, 4, 4, 4), t0);
+        assert_eq!(s.lease(w, t0 + sec(1)).unwrap().unwrap().job, busy);
+        assert_eq!(s.lease(w, t0 + sec(4)).unwrap().unwrap().job, waiting);
+        s.finish(busy, Ok(()), t0 + sec(9));
+        s.finish(waiting, Ok(()), t0 + sec(10));
+        let now = t0 + sec(20);
+        let (b, wt) = (s.info(busy, now).unwrap(), s.info(waiting, now).unwrap());
+        assert_eq!((b.elapsed, b.queued, b.render()), (sec(9), sec(1), sec(8)));
+        assert_eq!(
+            (wt.elapsed, wt.queued, wt.render()),
+            (sec(10), sec(4), sec(6))
+        );
+        let n = s.info(never, now).unwrap();
+        assert_eq!(
+            (n.elapsed, n.queued, n.render()),
+            (sec(20), sec(20), sec(0))
+        );
+        // As restored from the database: elapsed and render kept.
+        let mut again = test_scheduler(Limits::default());
+        again.restore(
+            Restored {
+                id: waiting,
+                spec: spec(0, 4, 4, 4),
+                state: JobState::Done,
+                submitted: t0,
+                elapsed: Some(sec(10)),
+                render: Some(sec(6)),
+                error: None,
+                finish_order: 1,
+                tiles_done: 1,
+                rays: 0,
+                done_tiles: Vec::new(),
+            },
+            now,
+        );
+        let r = again.info(waiting, now).unwrap();
+        assert_eq!((r.elapsed, r.queued, r.render()), (sec(10), sec(4), sec(6)));
     }
 
     #[test]

@@ -64,13 +64,16 @@ use std::time::Duration;
 #[derive(Debug, Clone)]
 pub struct StoredJob {
     pub id: JobId,
+    /// What to render; its `submitter` is stored as the row's submitter.
     pub spec: JobSpec,
-    pub submitter: String,
     pub state: JobState,
     /// Wall-clock submission time, milliseconds since the Unix epoch.
     pub submitted_ms: u64,
     /// Set for finished jobs.
     pub elapsed: Option<Duration>,
+    /// Set for finished jobs that started: the part of `elapsed` after the
+    /// first tile was leased.
+    pub render: Option<Duration>,
     pub error: Option<String>,
     pub finish_order: u64,
     pub tiles_done: u64,
@@ -80,22 +83,15 @@ pub struct StoredJob {
 }
 
 impl StoredJob {
-    /// The row of a job submitted now by `submitter`: nothing rendered,
-    /// nothing finished.
-    pub fn submitted(
-        id: JobId,
-        spec: JobSpec,
-        submitter: &str,
-        state: JobState,
-        seq: SeqLink,
-    ) -> StoredJob {
+    /// The row of a job submitted now: nothing rendered, nothing finished.
+    pub fn submitted(id: JobId, spec: JobSpec, state: JobState, seq: SeqLink) -> StoredJob {
         StoredJob {
             id,
             spec,
-            submitter: submitter.to_string(),
             state,
             submitted_ms: wall_ms(),
             elapsed: None,
+            render: None,
             error: None,
             finish_order: 0,
             tiles_done: 0,
@@ -277,15 +273,19 @@ impl Store {
             )
             .map_err(db_err)?;
         }
-        for col in [
-            "frame",
-            "parent",
-            "first_frame",
-            "last_frame",
-            "frames_done",
+        // Then the time a job rendered (without its queue wait) and its
+        // scene file's name.
+        for (col, decl) in [
+            ("frame", "INTEGER"),
+            ("parent", "INTEGER"),
+            ("first_frame", "INTEGER"),
+            ("last_frame", "INTEGER"),
+            ("frames_done", "INTEGER"),
+            ("render_ms", "INTEGER"),
+            ("scene", "TEXT NOT NULL DEFAULT ''"),
         ] {
             if !have.iter().any(|h| h == col) {
-                conn.execute(&format!("ALTER TABLE jobs ADD COLUMN {col} INTEGER"), [])
+                conn.execute(&format!("ALTER TABLE jobs ADD COLUMN {col} {decl}"), [])
                     .map_err(db_err)?;
             }
         }
@@ -384,8 +384,8 @@ impl Store {
             .execute(
                 "INSERT INTO jobs (id, bundle_hash, camera, priority, width, height, tile_size,
                      output_name, submitter, state, submitted_ms, frame, parent, first_frame,
-                     last_frame)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
+                     last_frame, scene)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)",
                 params![
                     j.id as i64,
                     s.bundle_hash,
@@ -395,13 +395,14 @@ impl Store {
                     s.height,
                     s.tile_size,
                     s.output_name,
-                    j.submitter,
+                    s.submitter,
                     j.state.name(),
                     j.submitted_ms as i64,
                     s.frame,
                     j.seq.parent.map(|p| p as i64),
                     j.seq.frames.map(|f| f.0),
                     j.seq.frames.map(|f| f.1),
+                    s.scene,
                 ],
             )
             .map_err(db_err)?;
@@ -576,7 +577,7 @@ impl Store {
         }
         tx.execute(
             "UPDATE jobs SET state = ?2, elapsed_ms = ?3, error = ?4, finish_order = ?5,
-                 tiles_done = ?6, rays = ?7, frames_done = ?8 WHERE id = ?1",
+                 tiles_done = ?6, rays = ?7, frames_done = ?8, render_ms = ?9 WHERE id = ?1",
             params![
                 j.id as i64,
                 j.state.name(),
@@ -586,6 +587,7 @@ impl Store {
                 j.tiles_done as i64,
                 j.rays as i64,
                 j.seq.frames_done,
+                j.render.map(|d| d.as_millis() as i64),
             ],
         )
         .map_err(db_err)?;
@@ -605,7 +607,7 @@ impl Store {
             .prepare(
                 "SELECT id, bundle_hash, camera, priority, width, height, tile_size, output_name,
                      submitter, state, submitted_ms, elapsed_ms, error, finish_order, tiles_done,
-                     rays, frame, parent, first_frame, last_frame, frames_done
+                     rays, frame, parent, first_frame, last_frame, frames_done, render_ms, scene
                  FROM jobs ORDER BY id",
             )
             .map_err(db_err)?;
@@ -624,12 +626,16 @@ impl Store {
                         tile_size: r.get(6)?,
                         output_name: r.get(7)?,
                         frame: r.get(16)?,
+                        scene: r.get(22)?,
+                        submitter: r.get(8)?,
                     },
-                    submitter: r.get(8)?,
                     state: JobState::Queued,
                     submitted_ms: r.get::<_, i64>(10)? as u64,
                     elapsed: r
                         .get::<_, Option<i64>>(11)?
+                        .map(|ms| Duration::from_millis(ms.max(0) as u64)),
+                    render: r
+                        .get::<_, Option<i64>>(21)?
                         .map(|ms| Duration::from_millis(ms.max(0) as u64)),
                     error: r.get(12)?,
                     finish_order: r.get::<_, i64>(13)? as u64,
@@ -956,11 +962,13 @@ mod tests {
                 height: 8,
                 tile_size: 4,
                 output_name: "o.png".into(),
+                scene: "s.xml".into(),
+                submitter: "client".into(),
             },
-            submitter: String::new(),
             state: JobState::Running,
             submitted_ms: 1,
             elapsed: None,
+            render: None,
             error: None,
             finish_order: 0,
             tiles_done: 0,
@@ -977,6 +985,44 @@ mod tests {
         })
         .unwrap();
         out
+    }
+
+    /// What `list` shows of a job outlives a restart: its scene, its
+    /// submitter and, once it ended, how long it rendered.
+    #[test]
+    fn scene_submitter_and_render_time_are_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let s = Store::open(dir.path()).unwrap();
+            s.insert_job(&job(1)).unwrap();
+            s.insert_job(&job(2)).unwrap();
+            s.finish_job(&StoredJob {
+                state: JobState::Done,
+                elapsed: Some(Duration::from_millis(5000)),
+                render: Some(Duration::from_millis(3250)),
+                ..job(1)
+            })
+            .unwrap();
+        }
+        let jobs = Store::open(dir.path()).unwrap().jobs().unwrap();
+        let got: Vec<_> = jobs
+            .iter()
+            .map(|j| {
+                (
+                    j.id,
+                    j.spec.scene.as_str(),
+                    j.spec.submitter.as_str(),
+                    j.render,
+                )
+            })
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (1, "s.xml", "client", Some(Duration::from_millis(3250))),
+                (2, "s.xml", "client", None)
+            ]
+        );
     }
 
     #[test]

@@ -35,6 +35,8 @@ pub struct CameraSummary {
 /// The cameras of a scene, in document order.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SceneSummary {
+    /// The scene file's name in its bundle.
+    pub scene: String,
     pub cameras: Vec<CameraSummary>,
     /// What the scene needs once built, in bytes
     /// ([`trevi_core::scene::estimate`]): which workers can take its jobs.
@@ -42,19 +44,24 @@ pub struct SceneSummary {
 }
 
 impl SceneSummary {
-    /// The summary of a fully parsed scene.
-    pub fn of(desc: &SceneDesc) -> SceneSummary {
-        Self::with_memory(desc, trevi_core::scene::estimate::estimate(desc).total())
+    /// The summary of a fully parsed scene, `scene` its file's name.
+    pub fn of(scene: &str, desc: &SceneDesc) -> SceneSummary {
+        Self::with_memory(
+            scene,
+            desc,
+            trevi_core::scene::estimate::estimate(desc).total(),
+        )
     }
 
     /// The summary of a scene read by the headers-only parse (see
     /// [`crate::farm::admission`]).
-    pub fn of_headers(h: &SceneHeaders) -> SceneSummary {
-        Self::with_memory(&h.desc, h.estimate().total())
+    pub fn of_headers(scene: &str, h: &SceneHeaders) -> SceneSummary {
+        Self::with_memory(scene, &h.desc, h.estimate().total())
     }
 
-    fn with_memory(desc: &SceneDesc, memory: u64) -> SceneSummary {
+    fn with_memory(scene: &str, desc: &SceneDesc, memory: u64) -> SceneSummary {
         SceneSummary {
+            scene: scene.to_string(),
             cameras: desc
                 .cameras
                 .iter()
@@ -161,8 +168,9 @@ impl Summaries {
     /// Keeps the summary of a scene already parsed elsewhere (the
     /// submitter's own parse, in a local render), so that no job of
     /// bundle `hash` parses it again.
-    pub fn prime(&self, hash: &str, desc: &SceneDesc) {
-        self.put(hash, Arc::new(SceneSummary::of(desc)));
+    /// `scene` is the scene file's name in the bundle.
+    pub fn prime(&self, hash: &str, scene: &str, desc: &SceneDesc) {
+        self.put(hash, Arc::new(SceneSummary::of(scene, desc)));
     }
 
     /// How many summaries were made by parsing a bundle so far.
@@ -177,6 +185,7 @@ mod tests {
 
     fn summary(n: u32) -> Arc<SceneSummary> {
         Arc::new(SceneSummary {
+            scene: "s.xml".into(),
             cameras: vec![CameraSummary {
                 id: format!("c{n}"),
                 width: n,
@@ -344,7 +353,8 @@ mod tests {
     fn a_primed_summary_spares_the_parse() {
         let (_tmp, farm, hash, bundle) = farm_with_the_scene();
         let parsed = trevi_core::ParsedBundle::parse(bundle).unwrap();
-        farm.summaries().prime(&hash, &parsed.desc);
+        farm.summaries()
+            .prime(&hash, &parsed.bundle.scene, &parsed.desc);
         assert_eq!(farm.job_spec(&hash, "b", 0, 0).unwrap().width, 4);
         assert_eq!(farm.summaries().parses(), 0);
     }

@@ -23,6 +23,8 @@ fn spec() -> JobSpec {
         height: 16,
         tile_size: 16,
         output_name: "shot.png".into(),
+        scene: String::new(),
+        submitter: String::new(),
     }
 }
 

@@ -60,26 +60,45 @@ fn edit_distance(a: &str, b: &str) -> usize {
     prev[b.len()]
 }
 
-/// The header of `list`'s table (see [`list_row`]).
+/// The header of `list`'s table (see [`list_row`]). `QUEUED` is the time a
+/// job waited for its first tile to be leased, `RENDER` the time since.
 pub fn list_header() -> String {
     format!(
-        "{:>6}  {:<9}  {:<12}  {:>11}  {:>13}  {:>8}  {:>9}  {:<12}  OUTPUT",
-        "ID", "STATE", "CAMERA", "SIZE", "TILES", "PRIORITY", "TIME", "BUNDLE"
+        "{:>6}  {:<9}  {:<16}  {:<12}  {:>11}  {:>13}  {:>8}  {:>9}  {:>9}  {:<15}  {:<12}  OUTPUT",
+        "ID",
+        "STATE",
+        "SCENE",
+        "CAMERA",
+        "SIZE",
+        "TILES",
+        "PRIORITY",
+        "QUEUED",
+        "RENDER",
+        "SUBMITTER",
+        "BUNDLE"
     )
+}
+
+/// Seconds of `ms` milliseconds, as `list` and `status` show them.
+pub fn seconds(ms: u64) -> String {
+    format!("{:.1} s", ms as f64 / 1e3)
 }
 
 /// One job of `list`: its id first (scripts read it), the columns of
 /// [`list_header`], then a sequence's frames and an error if any.
 pub fn list_row(s: &pb::JobStatus) -> String {
     let mut line = format!(
-        "{:>6}  {:<9}  {:<12}  {:>11}  {:>13}  {:>8}  {:>9}  {:<12}  {}",
+        "{:>6}  {:<9}  {:<16}  {:<12}  {:>11}  {:>13}  {:>8}  {:>9}  {:>9}  {:<15}  {:<12}  {}",
         s.id,
         s.state().label(),
+        or_dash(&s.scene),
         s.camera,
         format!("{}x{}", s.width, s.height),
         format!("{}/{}", s.tiles_done, s.tiles_total),
         s.priority,
-        format!("{:.1} s", s.elapsed_ms as f64 / 1e3),
+        seconds(s.queued_ms),
+        seconds(s.render_ms),
+        or_dash(&s.submitter),
         s.bundle_hash.get(..12).unwrap_or(&s.bundle_hash),
         s.output_name,
     );
@@ -93,6 +112,15 @@ pub fn list_row(s: &pb::JobStatus) -> String {
         line.push_str(&format!("  error: {}", s.error));
     }
     line
+}
+
+/// `s`, or "-" when it is empty (a column must not vanish).
+fn or_dash(s: &str) -> &str {
+    if s.is_empty() {
+        "-"
+    } else {
+        s
+    }
 }
 
 /// A submitter interrupted while it followed farm jobs: the jobs go on
@@ -239,10 +267,20 @@ mod tests {
         let s = pb::JobStatus {
             id: 7,
             camera: "main".into(),
+            scene: "shot.xml".into(),
+            submitter: "10.0.0.7".into(),
+            queued_ms: 2500,
+            render_ms: 12_000,
             ..Default::default()
         };
         let (h, r) = (list_header(), list_row(&s));
         assert_eq!(h.find("STATE"), r.find(s.state().label()));
+        assert_eq!(h.find("SCENE"), r.find("shot.xml"));
+        assert_eq!(h.find("SUBMITTER"), r.find("10.0.0.7"));
+        // The times are right-aligned under their headers.
+        let end = |hay: &str, needle: &str| hay.find(needle).map(|i| i + needle.len());
+        assert_eq!(end(&h, "QUEUED"), end(&r, "2.5 s"));
+        assert_eq!(end(&h, "RENDER"), end(&r, "12.0 s"));
         assert_eq!(r.split_whitespace().next(), Some("7"));
     }
 }

@@ -19,18 +19,21 @@ use trevi_worker::{Preloaded, WorkerConfig};
 /// the submitter parsed, with its bundle's hash.
 pub struct Built {
     hash: String,
+    /// The scene file's name in the bundle.
+    name: String,
     scene: Arc<Scene>,
 }
 
 impl Built {
     /// Builds `desc`, the parsed scene of the bundle whose hash is `hash`,
     /// off the async threads.
-    pub async fn new(hash: String, desc: SceneDesc) -> Result<Built> {
+    pub async fn new(hash: String, name: String, desc: SceneDesc) -> Result<Built> {
         let scene = tokio::task::spawn_blocking(move || Scene::build(desc))
             .await
             .context("building the scene")?;
         Ok(Built {
             hash,
+            name,
             scene: Arc::new(scene),
         })
     }
@@ -133,7 +136,8 @@ impl Embedded {
         // The data directory dies with this process: nothing to resume.
         cfg.durable = false;
         let farm = Arc::new(Farm::new(cfg).context("cannot start the embedded coordinator")?);
-        farm.summaries().prime(&scene.hash, &scene.scene.desc);
+        farm.summaries()
+            .prime(&scene.hash, &scene.name, &scene.scene.desc);
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .context("cannot listen on 127.0.0.1")?;

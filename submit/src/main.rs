@@ -295,6 +295,7 @@ fn run(args: Args) -> Result<()> {
         trevi_core::ParsedBundle::from_scene_file(&scene_path)
             .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
     // Encoded and hashed once, for the upload and the embedded worker.
+    let scene_name = bundle.scene.clone();
     let bundle = client::Encoded::new(&bundle);
     let cameras: Vec<usize> = match &args.camera {
         Some(id) => vec![desc
@@ -378,7 +379,8 @@ fn run(args: Args) -> Result<()> {
         let data = data.as_ref().expect("made for a local render");
         let threads = args.threads.unwrap_or(0);
         if !targets.is_empty() {
-            let scene = local::Built::new(bundle.hash.clone(), desc.clone()).await?;
+            let scene =
+                local::Built::new(bundle.hash.clone(), scene_name.clone(), desc.clone()).await?;
             let farm = local::Embedded::start(threads, args.tile_size, data.path(), scene).await?;
             let render = async {
                 let mut client = client::Client::connect(&farm.url, None).await?;

@@ -586,7 +586,8 @@ const TWO_FRAMES: &str = r#"<scene version="1">
 "#;
 
 /// The farm commands on a finished sequence: `list --header` has a header
-/// and columns; `fetch -o` of a sequence needs a pattern or a directory
+/// and columns (the scene file and the submitter among them), and the
+/// still submitted after a sequence takes the next id (frames use none); `fetch -o` of a sequence needs a pattern or a directory
 /// (`-o x.png` makes no directory `x.png`); reflection answers v1alpha,
 /// which most gRPC clients still ask, as well as v1.
 #[test]
@@ -597,15 +598,33 @@ fn farm_commands_on_a_sequence_and_reflection_v1alpha() {
     let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
     let _w = worker_with(&dir, &c.url, "worker", &[], &[]);
     let rt = runtime();
-    let id = submit_and_wait(&dir, &rt, &c, &scene, &[], 60)
-        .id
-        .to_string();
+    let seq = submit_and_wait(&dir, &rt, &c, &scene, &[], 60).id;
+    let id = seq.to_string();
+    let still = dir.write(
+        "scene/still.xml",
+        &TWO_FRAMES.replace(
+            r#"frames="1-2" output="shot.#.png""#,
+            r#"output="still.png""#,
+        ),
+    );
+    let after = submit_and_wait(&dir, &rt, &c, &still, &[], 60).id;
+    assert_eq!(after, seq + 1, "the sequence's frames used ids up");
     let o = common::submit(&dir, &["list", "--header", "--coordinator", &c.url]);
     let out = String::from_utf8_lossy(&o.stdout).into_owned();
     let lines: Vec<&str> = out.lines().collect();
-    assert_eq!(lines.len(), 2, "{out}");
+    assert_eq!(lines.len(), 3, "{out}");
     for col in [
-        "ID", "STATE", "CAMERA", "SIZE", "TILES", "PRIORITY", "OUTPUT",
+        "ID",
+        "STATE",
+        "SCENE",
+        "CAMERA",
+        "SIZE",
+        "TILES",
+        "PRIORITY",
+        "QUEUED",
+        "RENDER",
+        "SUBMITTER",
+        "OUTPUT",
     ] {
         assert!(lines[0].contains(col), "{out}");
     }
@@ -613,9 +632,19 @@ fn farm_commands_on_a_sequence_and_reflection_v1alpha() {
         lines[1].contains("shot.#.png") && lines[1].contains("2 done"),
         "{out}"
     );
+    assert!(
+        lines[1].contains("two.xml") && lines[2].contains("still.xml"),
+        "{out}"
+    );
+    // Submitted over loopback: the submitter is the client's address,
+    // under its column.
+    let col = lines[0].find("SUBMITTER").unwrap();
+    for row in &lines[1..] {
+        assert_eq!(row.get(col..col + 9), Some("127.0.0.1"), "{out}");
+    }
     // Without --header, and not on a terminal: the rows alone.
     let o = common::submit(&dir, &["list", "--coordinator", &c.url]);
-    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 1);
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 2);
     // One file's name for a sequence is refused, and nothing is made.
     let x = dir.path().join("x.png");
     let o = common::submit(

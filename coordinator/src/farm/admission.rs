@@ -143,7 +143,7 @@ pub fn summarize(
     drop(bytes);
     let headers = trevi_core::scene::aisxml::parse_scene_headers(&bundle.scene, &bundle)
         .map_err(|e| FarmError::BadScene(e.to_string()))?;
-    Ok(SceneSummary::of_headers(&headers))
+    Ok(SceneSummary::of_headers(&bundle.scene, &headers))
 }
 
 #[cfg(test)]

@@ -74,6 +74,7 @@ impl Farm {
                     state: j.state,
                     submitted,
                     elapsed: j.elapsed,
+                    render: j.render,
                     error: j.error.clone(),
                     finish_order: j.finish_order,
                     tiles_done: j.tiles_done,
@@ -85,7 +86,7 @@ impl Farm {
             let info = st.sched.info(id, now).expect("just restored");
             st.watchers.insert(id, watch::channel(info.clone()).0);
             if !j.state.is_final() && j.seq.parent.is_none() {
-                st.submitters.insert(id, j.submitter.clone());
+                st.submitters.insert(id, j.spec.submitter.clone());
             }
             drop(st);
             if j.state.is_final() {

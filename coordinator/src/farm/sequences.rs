@@ -53,13 +53,15 @@ pub struct Sequence {
     pub(super) running: BTreeMap<u32, JobId>,
     pub(super) state: JobState,
     pub(super) submitted: Instant,
+    /// When its first frame got its first tile leased, once a frame that
+    /// started has ended (frames in progress say it until then).
+    pub(super) started: Option<Instant>,
     pub(super) finished: Option<Instant>,
     pub(super) error: Option<String>,
     /// Why a frame failed: the sequence fails at its next step.
     pub(super) failed: Option<String>,
     /// Rays of the frames done.
     pub(super) rays: u64,
-    pub(super) who: String,
     /// The highest frame done, and its job (whose last preview stands for
     /// the sequence once no frame is in progress), when known: what a
     /// download without a frame fetches, found without looking at the
@@ -84,14 +86,17 @@ impl Sequence {
         let mut rays = self.rays;
         let mut current = None;
         let mut started = self.done > 0;
+        let mut began = self.started;
         for (&f, &job) in &self.running {
             if let Some(i) = sched.info(job, now) {
                 tiles_done += i.tiles_done;
                 rays = rays.saturating_add(i.rays);
                 started |= i.state != JobState::Queued;
+                began = earliest_start(began, &i, now);
                 current.get_or_insert((f, i.tiles_done, i.tiles_total));
             }
         }
+        let end = self.finished.unwrap_or(now);
         let state = match self.state {
             JobState::Queued if started => JobState::Running,
             s => s,
@@ -103,9 +108,10 @@ impl Sequence {
             tiles_total: u64::from(self.count()) * per,
             tiles_done,
             rays,
-            elapsed: self
-                .finished
-                .unwrap_or(now)
+            elapsed: end.saturating_duration_since(self.submitted),
+            queued: began
+                .unwrap_or(end)
+                .clamp(self.submitted, end.max(self.submitted))
                 .saturating_duration_since(self.submitted),
             error: self.error.clone(),
             finish_order: 0,
@@ -118,6 +124,17 @@ impl Sequence {
             }),
         }
     }
+}
+
+/// The earlier of `began` and the time frame `info` (as of `at`, when it
+/// ended or now) got its first tile, if it did.
+fn earliest_start(began: Option<Instant>, info: &JobInfo, at: Instant) -> Option<Instant> {
+    let rendered = info.elapsed.saturating_sub(info.queued);
+    if info.state == JobState::Queued && rendered.is_zero() {
+        return began;
+    }
+    let start = at.checked_sub(rendered).unwrap_or(at);
+    Some(began.map_or(start, |b| b.min(start)))
 }
 
 /// The output pattern of a sequence from its camera's output name: kept
@@ -146,6 +163,9 @@ impl State {
         };
         if let Some(f) = ending.spec.frame {
             s.running.remove(&f);
+        }
+        if ending.tiles_done > 0 {
+            s.started = earliest_start(s.started, ending, Instant::now());
         }
         if counted {
             s.done += 1;
@@ -229,6 +249,7 @@ impl Farm {
         self.check_memory(&spec)?;
         spec.output_name = sequence_pattern(&spec.output_name);
         spec.frame = None;
+        spec.submitter = who.to_string();
         let now = Instant::now();
         let mut st = self.state.lock();
         Self::check_submitter(&st, who, self.cfg.limits.max_jobs_per_submitter)?;
@@ -241,7 +262,6 @@ impl Farm {
             store.insert_job(&StoredJob::submitted(
                 id,
                 spec.clone(),
-                who,
                 JobState::Queued,
                 link,
             ))?;
@@ -255,11 +275,11 @@ impl Farm {
             running: BTreeMap::new(),
             state: JobState::Queued,
             submitted: now,
+            started: None,
             finished: None,
             error: None,
             failed: None,
             rays: 0,
-            who: who.to_string(),
             latest: None,
         };
         let info = seq.info(id, &st.sched, now);
@@ -307,7 +327,7 @@ impl Farm {
                 output_name: frame_output(&s.spec.output_name, f),
                 ..s.spec.clone()
             };
-            let who = s.who.clone();
+            let who = s.spec.submitter.clone();
             let queued = self.submit_locked(&mut st, spec, None, &who, Some(seq));
             let s = st.seqs.get_mut(&seq).expect("checked above");
             s.next = f + 1;
@@ -550,6 +570,10 @@ impl Farm {
             };
             let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
             let submitted = now.checked_sub(ago).unwrap_or(now);
+            let finished = j
+                .elapsed
+                .filter(|_| j.state.is_final())
+                .map(|e| submitted + e);
             let seq = Sequence {
                 spec: j.spec.clone(),
                 first,
@@ -559,19 +583,18 @@ impl Farm {
                 running: BTreeMap::new(),
                 state: j.state,
                 submitted,
-                finished: j
-                    .elapsed
-                    .filter(|_| j.state.is_final())
-                    .map(|e| submitted + e),
+                started: finished
+                    .zip(j.render)
+                    .map(|(end, r)| end.checked_sub(r).unwrap_or(submitted)),
+                finished,
                 error: j.error.clone(),
                 failed: None,
                 rays: j.rays,
-                who: j.submitter.clone(),
                 latest: None,
             };
             st.sched.skip_ids_through(j.id);
             if !seq.state.is_final() {
-                st.submitters.insert(j.id, j.submitter.clone());
+                st.submitters.insert(j.id, j.spec.submitter.clone());
             }
             st.seqs.insert(j.id, seq);
         }

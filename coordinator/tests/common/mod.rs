@@ -19,6 +19,8 @@ pub fn spec(w: u32, h: u32, tile: u32, name: &str) -> JobSpec {
         height: h,
         tile_size: tile,
         output_name: name.into(),
+        scene: String::new(),
+        submitter: String::new(),
     }
 }
 
