@@ -37,6 +37,16 @@ fn sched() -> (Scheduler, Instant, WorkerId) {
 
 use trevi_core::tile::band_order_tiles;
 
+/// The database keeps these words, and the API and the metrics show them:
+/// they are the wire states' labels, and must never change.
+#[test]
+fn job_state_names_are_the_stored_words() {
+    assert_eq!(
+        JobState::ALL.map(JobState::name),
+        ["queued", "running", "done", "failed", "cancelled"]
+    );
+}
+
 #[test]
 fn jobs_run_by_priority_then_submission_order() {
     let (mut s, now, w) = sched();

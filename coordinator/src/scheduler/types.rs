@@ -7,6 +7,7 @@
 use crate::workers::WorkerId;
 use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
+use trevi_proto::pb;
 
 pub type JobId = u64;
 pub type LeaseId = u64;
@@ -38,14 +39,22 @@ impl JobState {
         JobState::Cancelled,
     ];
 
-    /// The state's name, as the database, the API and the metrics use it.
+    /// The state's name, as the database, the API and the metrics use it:
+    /// the wire state's label, so the two are one table (the database keeps
+    /// these words: they never change).
     pub fn name(self) -> &'static str {
-        match self {
-            JobState::Queued => "queued",
-            JobState::Running => "running",
-            JobState::Done => "done",
-            JobState::Failed => "failed",
-            JobState::Cancelled => "cancelled",
+        pb::JobState::from(self).label()
+    }
+}
+
+impl From<JobState> for pb::JobState {
+    fn from(s: JobState) -> Self {
+        match s {
+            JobState::Queued => pb::JobState::Queued,
+            JobState::Running => pb::JobState::Running,
+            JobState::Done => pb::JobState::Done,
+            JobState::Failed => pb::JobState::Failed,
+            JobState::Cancelled => pb::JobState::Cancelled,
         }
     }
 }
