@@ -25,7 +25,6 @@
 //!   hung or was cut off), so a tile that kills every worker that takes it
 //!   cannot keep its job running for ever. A lease the worker gives back
 //!   without an error (it is stopping) re-queues the tile and counts nothing.
-
 //!
 //! Where each part lives:
 //! - `scheduler/types.rs`: the values (jobs, leases, states, errors,

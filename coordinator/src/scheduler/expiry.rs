@@ -99,7 +99,9 @@ impl Scheduler {
     }
 
     /// Fails the jobs no live worker can hold once their grace has passed
-    /// (see [`memory`](super::memory)).
+    /// (see [`memory`]).
+    ///
+    /// [`memory`]: super::memory
     fn fail_jobs_too_big(&mut self, now: Instant) {
         let live = self.workers.live(self.cfg.lease_ttl, now);
         let limits: Vec<u64> = live.iter().map(|&w| self.workers.memory_limit(w)).collect();

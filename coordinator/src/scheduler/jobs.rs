@@ -21,7 +21,9 @@ pub(super) fn same_shot(a: &JobSpec, b: &JobSpec) -> bool {
 
 impl Scheduler {
     /// Records that `job`'s scene needs about `bytes` once built (the
-    /// larger of what is known wins); see [`memory`](super::memory).
+    /// larger of what is known wins); see [`memory`].
+    ///
+    /// [`memory`]: super::memory
     pub fn set_memory_estimate(&mut self, job: JobId, bytes: u64, now: Instant) {
         if self.jobs.contains_key(&job) {
             self.memory.set(job, bytes, now);
@@ -40,7 +42,7 @@ impl Scheduler {
 
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
     /// A frame of a sequence (`spec.frame` set) takes its id from
-    /// [`FRAME_IDS`](super::FRAME_IDS) on, so the ids users see (stills and sequences) follow
+    /// [`FRAME_IDS`] on, so the ids users see (stills and sequences) follow
     /// one another.
     pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
         let id = if spec.frame.is_some() {
@@ -52,7 +54,7 @@ impl Scheduler {
         };
         // An unfinished job of the same scene and camera that has a
         // measured cost (another frame of a sequence, the same scene again)
-        // gives the new one its first estimate (see [`lease_size`](super::lease_size)).
+        // gives the new one its first estimate (see [`lease_size`]).
         let seed = self.queue.iter().find_map(|&(_, other)| {
             let o = self.jobs.get(&other)?;
             same_shot(&o.spec, &spec)
@@ -69,7 +71,7 @@ impl Scheduler {
         id
     }
 
-    /// Puts back a job of an earlier run (see [`Restored`](super::Restored)).
+    /// Puts back a job of an earlier run (see [`Restored`]).
     pub fn restore(&mut self, r: Restored, now: Instant) {
         let mut job = self.new_job(r.spec, r.submitted.min(now));
         self.skip_ids_through(r.id);

@@ -33,7 +33,7 @@ pub(super) fn is_png(spec: &JobSpec) -> bool {
 }
 
 /// Whether rows `y0..y1` of a `height`-row frame are whole PNG segments:
-/// they start on a multiple of [`SEGMENT_ROWS`](trevi_core::output::SEGMENT_ROWS) and end on one or at the
+/// they start on a multiple of [`SEGMENT_ROWS`] and end on one or at the
 /// frame's bottom.
 pub(super) fn whole_segments(y0: u32, y1: u32, height: u32) -> bool {
     y0 % SEGMENT_ROWS == 0 && (y1 % SEGMENT_ROWS == 0 || y1 == height)
@@ -125,7 +125,7 @@ impl Scheduler {
             }
             let spans = self.sizer.takes_spans(worker);
             // Whether this lease may ask for encoded PNG segments: then the
-            // window lets it run further ahead (see [`window`](super::window)).
+            // window lets it run further ahead (see [`window`]).
             let may_encode = spans && self.sizer.takes_segments(worker) && is_png(&job.spec);
             if !self.memory.fits(id, limit) {
                 too_small |= job.window.next_tile(may_encode).is_some();

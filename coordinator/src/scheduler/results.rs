@@ -40,7 +40,9 @@ pub fn ray_shares(rays: u64, pixels: &[u64]) -> Vec<u64> {
 
 /// Whether a result for `rect` of `job` under `lease` may come from
 /// `worker` (anyone when `None`), `holder` being who holds the lease
-/// ([`Job::holder`](super::job::Job::holder)); the error says it is not `worker`'s.
+/// ([`Job::holder`]); the error says it is not `worker`'s.
+///
+/// [`Job::holder`]: super::job::Job::holder
 pub(super) fn check_holder(
     holder: Option<WorkerId>,
     worker: Option<WorkerId>,
@@ -121,14 +123,18 @@ impl Scheduler {
     /// The tiles of `job` that a result for `rect` brings, in band order:
     /// `rect` itself when it is one tile, or the tiles of a span: adjacent
     /// tiles of one band, or whole full-width bands one after the other,
-    /// band by band and left to right (see [`lease_size`](super::lease_size)), at most
-    /// [`MAX_SPAN_TILES`](super::lease_size::MAX_SPAN_TILES) of them. Its pixels are at most
-    /// [`Limits::max_segment_lease_pixels`](crate::limits::Limits::max_segment_lease_pixels) when it could be a segment lease
+    /// band by band and left to right (see [`lease_size`]), at most
+    /// [`MAX_SPAN_TILES`] of them. Its pixels are at most
+    /// [`Limits::max_segment_lease_pixels`] when it could be a segment lease
     /// (a PNG frame's whole bands that are whole segments,
-    /// [`Lease::png_segments`](super::Lease::png_segments)), [`Limits::max_lease_pixels`](crate::limits::Limits::max_lease_pixels) otherwise;
+    /// [`Lease::png_segments`]), [`Limits::max_lease_pixels`] otherwise;
     /// [`Scheduler::span_tiles_as`] applies the cap of the upload's kind
     /// once it is known. A job that is over: `rect` alone (the result will
     /// be ignored anyway).
+    ///
+    /// [`Lease::png_segments`]: super::Lease::png_segments
+    /// [`Limits::max_lease_pixels`]: crate::limits::Limits::max_lease_pixels
+    /// [`Limits::max_segment_lease_pixels`]: crate::limits::Limits::max_segment_lease_pixels
     pub fn span_tiles(&self, job: JobId, rect: Rect) -> Result<Vec<Rect>, SchedError> {
         self.span_tiles_capped(job, rect, None)
     }
@@ -136,8 +142,11 @@ impl Scheduler {
     /// [`Scheduler::span_tiles`] for an upload of encoded segments
     /// (`png_segments`) or of floats: a segment upload must be whole
     /// segments of whole full-width bands of a PNG frame, at most
-    /// [`Limits::max_segment_lease_pixels`](crate::limits::Limits::max_segment_lease_pixels); a float upload at most
-    /// [`Limits::max_lease_pixels`](crate::limits::Limits::max_lease_pixels) (a single tile may be bigger).
+    /// [`Limits::max_segment_lease_pixels`]; a float upload at most
+    /// [`Limits::max_lease_pixels`] (a single tile may be bigger).
+    ///
+    /// [`Limits::max_lease_pixels`]: crate::limits::Limits::max_lease_pixels
+    /// [`Limits::max_segment_lease_pixels`]: crate::limits::Limits::max_segment_lease_pixels
     pub fn span_tiles_as(
         &self,
         job: JobId,

@@ -1,7 +1,7 @@
 //! The scheduler's values: what a job renders ([`JobSpec`]) and where it
 //! stands ([`JobState`], [`JobInfo`], [`FramesInfo`]), what a worker is
 //! handed ([`Lease`]), what became of a result ([`Accepted`]), a job of an
-//! earlier run ([`Restored`](super::Restored)), why something was refused ([`SchedError`]),
+//! earlier run ([`Restored`]), why something was refused ([`SchedError`]),
 //! and the totals for `/metrics` ([`Counters`], [`QueueDepth`]).
 
 use crate::workers::WorkerId;
@@ -47,6 +47,7 @@ impl JobState {
     }
 }
 
+/// The state on the wire (whose label is the state's name).
 impl From<JobState> for pb::JobState {
     fn from(s: JobState) -> Self {
         match s {
@@ -128,10 +129,12 @@ pub struct FramesInfo {
     pub current: Option<(u32, u64, u64)>,
 }
 
-/// A tile handed to a worker, or a span (see [`lease_size`](super::lease_size)): adjacent
+/// A tile handed to a worker, or a span (see [`lease_size`]): adjacent
 /// tiles of one band, or whole full-width bands one after the other. Then
 /// `rect` is their union and their leases are `id`, `id + 1`, … `id +
 /// tiles - 1`, in band order (band by band, left to right).
+///
+/// [`lease_size`]: super::lease_size
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Lease {
     pub id: LeaseId,
@@ -141,23 +144,31 @@ pub struct Lease {
     pub rect: Rect,
     /// How many tiles `rect` covers (1 for one tile).
     pub tiles: u32,
-    /// The job's memory estimate in bytes, 0 if none (see [`memory`](super::memory)).
+    /// The job's memory estimate in bytes, 0 if none (see [`memory`]).
+    ///
+    /// [`memory`]: super::memory
     pub memory_estimate: u64,
     /// The job's frame, for a frame of a sequence.
     pub frame: Option<u32>,
     /// The worker is to upload `rect` as encoded PNG segments (see
-    /// [`Scheduler::allow_segments`](super::Scheduler::allow_segments)). Set when the worker encodes with the
+    /// [`Scheduler::allow_segments`]). Set when the worker encodes with the
     /// coordinator's encoder and takes spans, the job's output is a PNG
     /// (its name's extension), and `rect` is whole full-width bands whose
     /// rows are whole segments: from a multiple of
-    /// [`SEGMENT_ROWS`](trevi_core::output::SEGMENT_ROWS) to a multiple of it or the frame's bottom (every
+    /// [`SEGMENT_ROWS`] to a multiple of it or the frame's bottom (every
     /// run of bands when the tile size is a multiple of 16). Such a lease
-    /// is at most [`Limits::max_segment_lease_pixels`](crate::limits::Limits::max_segment_lease_pixels); any other is
+    /// is at most [`Limits::max_segment_lease_pixels`]; any other is
     /// floats, as before.
+    ///
+    /// [`Limits::max_segment_lease_pixels`]: crate::limits::Limits::max_segment_lease_pixels
+    /// [`SEGMENT_ROWS`]: trevi_core::output::SEGMENT_ROWS
+    /// [`Scheduler::allow_segments`]: super::Scheduler::allow_segments
     pub png_segments: bool,
 }
 
-/// What became of a result handed to [`Scheduler::accept_tile`](super::Scheduler::accept_tile).
+/// What became of a result handed to [`Scheduler::accept_tile`].
+///
+/// [`Scheduler::accept_tile`]: super::Scheduler::accept_tile
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Accepted {
     /// The tile is now done; `last` says it was the job's last tile.
