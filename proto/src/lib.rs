@@ -145,7 +145,8 @@ impl pb::JobState {
         )
     }
 
-    /// Lower-case name for people.
+    /// Lower-case name for people. The coordinator's `JobState::name` is
+    /// this label, and its database keeps these words: they never change.
     pub fn label(self) -> &'static str {
         match self {
             pb::JobState::Unspecified => "unknown",

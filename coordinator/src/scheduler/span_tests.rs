@@ -4,6 +4,7 @@
 
 use super::*;
 use std::time::{Duration, Instant};
+use trevi_core::tile::Rect;
 
 /// A worker of `threads` threads that takes spans and encodes segments as
 /// asked.

@@ -6,8 +6,11 @@
 //! hundreds of tiles, and this is the part of ingest that runs under the
 //! farm's one lock (docs/benchmarks.md, "Stage 6").
 
-use super::{check_holder, ray_shares, LeaseId, SchedError, Scheduler, TileState, WorkerId};
-use crate::scheduler::JobId;
+use super::results::{check_holder, ray_shares};
+use super::types::{JobId, LeaseId, SchedError};
+use super::window::TileState;
+use super::Scheduler;
+use crate::workers::WorkerId;
 use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
 

@@ -1,0 +1,241 @@
+//! The scheduler's values: what a job renders ([`JobSpec`]) and where it
+//! stands ([`JobState`], [`JobInfo`], [`FramesInfo`]), what a worker is
+//! handed ([`Lease`]), what became of a result ([`Accepted`]), a job of an
+//! earlier run ([`Restored`]), why something was refused ([`SchedError`]),
+//! and the totals for `/metrics` ([`Counters`], [`QueueDepth`]).
+
+use crate::workers::WorkerId;
+use std::time::{Duration, Instant};
+use trevi_core::tile::Rect;
+use trevi_proto::pb;
+
+pub type JobId = u64;
+pub type LeaseId = u64;
+
+/// Where a job is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JobState {
+    Queued,
+    Running,
+    Done,
+    Failed,
+    Cancelled,
+}
+
+impl JobState {
+    /// Whether the job will not change any more.
+    pub fn is_final(self) -> bool {
+        matches!(
+            self,
+            JobState::Done | JobState::Failed | JobState::Cancelled
+        )
+    }
+
+    pub const ALL: [JobState; 5] = [
+        JobState::Queued,
+        JobState::Running,
+        JobState::Done,
+        JobState::Failed,
+        JobState::Cancelled,
+    ];
+
+    /// The state's name, as the database, the API and the metrics use it:
+    /// the wire state's label, so the two are one table (the database keeps
+    /// these words: they never change).
+    pub fn name(self) -> &'static str {
+        pb::JobState::from(self).label()
+    }
+}
+
+/// The state on the wire (whose label is the state's name).
+impl From<JobState> for pb::JobState {
+    fn from(s: JobState) -> Self {
+        match s {
+            JobState::Queued => pb::JobState::Queued,
+            JobState::Running => pb::JobState::Running,
+            JobState::Done => pb::JobState::Done,
+            JobState::Failed => pb::JobState::Failed,
+            JobState::Cancelled => pb::JobState::Cancelled,
+        }
+    }
+}
+
+/// What a job renders: one camera's frame of one bundle.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct JobSpec {
+    pub bundle_hash: String,
+    pub camera: String,
+    pub priority: i32,
+    pub width: u32,
+    pub height: u32,
+    pub tile_size: u32,
+    /// File name of the output; its extension selects the format.
+    pub output_name: String,
+    /// For one frame of a sequence: the frame the workers render (see
+    /// `crate::farm::sequences`); `None` for a still.
+    pub frame: Option<u32>,
+    /// The scene file's name in its bundle (what `list` shows).
+    pub scene: String,
+    /// Who submitted the job: the client's address, as the farm counts
+    /// jobs per submitter (empty when unknown).
+    pub submitter: String,
+}
+
+/// The first id of the frame jobs of sequences. Stills and sequences take
+/// ids from 1 on, one after the other; a sequence's frames are jobs of
+/// their own, numbered from here so they use none of those ids up.
+pub const FRAME_IDS: JobId = 1 << 40;
+
+/// A snapshot of a job, for status and progress.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobInfo {
+    pub id: JobId,
+    pub spec: JobSpec,
+    pub state: JobState,
+    pub tiles_total: u64,
+    pub tiles_done: u64,
+    pub rays: u64,
+    /// From submission to the end, or to now while unfinished: `queued`
+    /// and then the render.
+    pub elapsed: Duration,
+    /// The part of `elapsed` spent waiting in the queue: until the first
+    /// tile was leased (all of it for a job that never started).
+    pub queued: Duration,
+    pub error: Option<String>,
+    /// 1 for the first job to finish, and so on; 0 while unfinished.
+    pub finish_order: u64,
+    /// For a sequence: its frames' progress.
+    pub frames: Option<FramesInfo>,
+}
+
+impl JobInfo {
+    /// The part of `elapsed` spent rendering: from the first tile leased to
+    /// the end, or to now while unfinished (zero for a job still queued).
+    pub fn render(&self) -> Duration {
+        self.elapsed.saturating_sub(self.queued)
+    }
+}
+
+/// A sequence's progress (see `crate::farm::sequences`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct FramesInfo {
+    pub first: u32,
+    pub last: u32,
+    /// Frames finished.
+    pub done: u32,
+    /// Frames rendering now.
+    pub in_progress: u32,
+    /// The earliest frame in progress: its number, tiles done and tiles.
+    pub current: Option<(u32, u64, u64)>,
+}
+
+/// A tile handed to a worker, or a span (see [`lease_size`]): adjacent
+/// tiles of one band, or whole full-width bands one after the other. Then
+/// `rect` is their union and their leases are `id`, `id + 1`, … `id +
+/// tiles - 1`, in band order (band by band, left to right).
+///
+/// [`lease_size`]: super::lease_size
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Lease {
+    pub id: LeaseId,
+    pub job: JobId,
+    pub bundle_hash: String,
+    pub camera: String,
+    pub rect: Rect,
+    /// How many tiles `rect` covers (1 for one tile).
+    pub tiles: u32,
+    /// The job's memory estimate in bytes, 0 if none (see [`memory`]).
+    ///
+    /// [`memory`]: super::memory
+    pub memory_estimate: u64,
+    /// The job's frame, for a frame of a sequence.
+    pub frame: Option<u32>,
+    /// The worker is to upload `rect` as encoded PNG segments (see
+    /// [`Scheduler::allow_segments`]). Set when the worker encodes with the
+    /// coordinator's encoder and takes spans, the job's output is a PNG
+    /// (its name's extension), and `rect` is whole full-width bands whose
+    /// rows are whole segments: from a multiple of
+    /// [`SEGMENT_ROWS`] to a multiple of it or the frame's bottom (every
+    /// run of bands when the tile size is a multiple of 16). Such a lease
+    /// is at most [`Limits::max_segment_lease_pixels`]; any other is
+    /// floats, as before.
+    ///
+    /// [`Limits::max_segment_lease_pixels`]: crate::limits::Limits::max_segment_lease_pixels
+    /// [`SEGMENT_ROWS`]: trevi_core::output::SEGMENT_ROWS
+    /// [`Scheduler::allow_segments`]: super::Scheduler::allow_segments
+    pub png_segments: bool,
+}
+
+/// What became of a result handed to [`Scheduler::accept_tile`].
+///
+/// [`Scheduler::accept_tile`]: super::Scheduler::accept_tile
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Accepted {
+    /// The tile is now done; `last` says it was the job's last tile.
+    New { last: bool },
+    /// Late or duplicate (the tile was already done, or the job is over).
+    Ignored,
+}
+
+/// A job of an earlier run, as the coordinator's database kept it.
+#[derive(Debug, Clone)]
+pub struct Restored {
+    pub id: JobId,
+    pub spec: JobSpec,
+    pub state: JobState,
+    pub submitted: Instant,
+    /// For a finished job: how long it took.
+    pub elapsed: Option<Duration>,
+    /// For a finished job: how much of `elapsed` it rendered (the rest it
+    /// waited in the queue).
+    pub render: Option<Duration>,
+    pub error: Option<String>,
+    pub finish_order: u64,
+    /// For a finished job: how many tiles it had done.
+    pub tiles_done: u64,
+    pub rays: u64,
+    /// For an unfinished job: the tiles already stored (not leased again).
+    pub done_tiles: Vec<u32>,
+}
+
+/// Why the scheduler refused something.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SchedError {
+    #[error("no job {0}")]
+    UnknownJob(JobId),
+    #[error("unknown worker {0}")]
+    UnknownWorker(WorkerId),
+    #[error("{0:?} is not a tile of job {1}")]
+    NotATile(Rect, JobId),
+    #[error("lease {0} is not worker {1}'s lease on tile {2:?} of job {3}")]
+    NotYourLease(LeaseId, WorkerId, Rect, JobId),
+    #[error("job {0} is over")]
+    JobOver(JobId),
+}
+
+/// Running totals since the coordinator started (for `/metrics`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counters {
+    pub jobs_submitted: u64,
+    pub leases_granted: u64,
+    /// First valid results (each tile is counted once).
+    pub tiles_accepted: u64,
+    /// Valid results that lost to an earlier one, or came after the job ended.
+    pub tiles_ignored: u64,
+    /// Invalid results (wrong size, not finite, wrong tile).
+    pub tiles_rejected: u64,
+    /// Tiles put back in the queue (an expired lease or an invalid result).
+    pub tiles_requeued: u64,
+    pub lease_expiries: u64,
+    /// Rays of the accepted tiles.
+    pub rays: u64,
+}
+
+/// Work waiting in the queue.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct QueueDepth {
+    /// Jobs not finished (queued or running).
+    pub jobs: u64,
+    /// Their tiles neither done nor leased.
+    pub tiles: u64,
+}
