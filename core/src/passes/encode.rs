@@ -165,7 +165,7 @@ fn check_pixel(p: &PixelState, next: u32) -> Result<(), &'static str> {
         return Err("a sum of squares is negative or NaN");
     }
     let zero3 = |v: &[f32; 3]| v.iter().all(|&c| c == 0.0);
-    if p.count % SUM_BLOCK == 0 && !zero3(&p.block) {
+    if p.count.is_multiple_of(SUM_BLOCK) && !zero3(&p.block) {
         return Err("the open block has a sum at a block boundary");
     }
     if p.count == 0 && !(p.total.iter().chain(&p.sum_sq).all(|&c| c == 0.0)) {
