@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs the parsers' fuzz targets with libFuzzer (docs/numerics.md, "Fuzzing").
+# Runs the parsers' and decoders' fuzz targets with libFuzzer (docs/numerics.md, "Fuzzing").
 #
 #   fuzz/run.sh [SECONDS] [TARGET...]     # default: 60 s each of every target
 #
@@ -18,7 +18,7 @@ cd "$(dirname "$0")"
 secs=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr)
+[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr state)
 rss_mb=${RSS_MB:-2048}
 timeout=${TIMEOUT:-10}
 
@@ -35,7 +35,7 @@ seed() {
     find ../examples ../core/tests ../../shared/meshes -maxdepth 2 -name "$pattern" \
         -size -256k 2>/dev/null | while read -r f; do
         cp "$f" "corpus/$target/"
-    done
+    done || true # a missing directory (../../shared outside the main checkout) is no failure
 }
 seed aisxml '*.xml'
 # A scene using every textured file of the aisxml target's bundle (see
@@ -63,6 +63,12 @@ for t in jpeg exr; do
     [ -n "$(ls -A "corpus/$t")" ] || cp seeds/out/$t/* "corpus/$t/"
 done
 mkdir -p corpus/bundle
+# The state decoder starts from a valid state: a header and one empty pixel.
+mkdir -p corpus/state
+[ -n "$(ls -A corpus/state)" ] || python3 -c '
+import struct, sys
+h = b"TVPS" + struct.pack("<HHIIIIII", 1, 0, 0, 0, 1, 1, 0, 0)
+sys.stdout.buffer.write(h + bytes(64))' > corpus/state/empty-pixel
 
 export RUSTC_BOOTSTRAP=1
 for t in "${targets[@]}"; do

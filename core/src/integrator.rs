@@ -17,6 +17,7 @@
 //! | `integrator/area.rs` | area lights in Whitted mode |
 //! | `integrator/path.rs` | the path tracer (`integrator="path"`) |
 //! | `integrator/sum.rs` | the sample sums every estimate averages with |
+//! | `integrator/accumulate.rs` | a pixel's sums so far, to continue over more samples |
 //!
 //! "Model only what a scene requires": every effect is skipped outright when
 //! its settings make it a no-op (no AO rays when the ambient term is zero or
@@ -27,6 +28,7 @@
 //! the ray tree they are used at (see `sampling`), so a pixel is a pure
 //! function of its coordinates.
 
+mod accumulate;
 mod area;
 mod effects;
 mod path;
@@ -34,7 +36,8 @@ mod pixel;
 mod sum;
 mod whitted;
 
-pub use pixel::{Cancelled, CANCEL_EVERY};
+pub use accumulate::PixelState;
+pub use pixel::{samples_per_pixel, Cancelled, CANCEL_EVERY};
 pub use sum::SUM_BLOCK;
 pub use whitted::MIN_BRANCH_WEIGHT;
 

@@ -34,6 +34,7 @@ pub mod lights;
 pub mod math;
 pub mod mesh;
 pub mod output;
+pub mod passes;
 pub mod sampling;
 pub mod scene;
 #[cfg(test)]

@@ -1,4 +1,5 @@
-//! Test helpers shared by the parsers' unit tests (compiled for tests only).
+//! Test helpers shared by the unit tests (compiled for tests only): the
+//! parsers' error and mutation helpers, a scene from XML, a small stack.
 
 use crate::error::SceneError;
 use crate::mesh::Mesh;
@@ -85,4 +86,25 @@ pub fn apply_edits(mut bytes: Vec<u8>, edits: &[Edit]) -> Vec<u8> {
         }
     }
     bytes
+}
+
+/// The scene of the single-file bundle `s.xml` = `xml` (panics if it does
+/// not load: the tests' scenes are valid).
+pub fn scene(xml: &str) -> crate::Scene {
+    crate::Scene::from_bundle(&crate::Bundle {
+        scene: "s.xml".into(),
+        files: [("s.xml".to_string(), xml.as_bytes().to_vec())].into(),
+    })
+    .unwrap()
+}
+
+/// Runs `f` on a thread with a 256 KiB stack: what a recursion as deep as
+/// the scene allows would overflow (and abort the process).
+pub fn on_a_small_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+    std::thread::Builder::new()
+        .stack_size(256 << 10)
+        .spawn(f)
+        .unwrap()
+        .join()
+        .unwrap()
 }

@@ -4,7 +4,7 @@
 //! band by band (top to bottom, left to right inside a band) so that an output
 //! writer can let rows go as soon as a band is complete.
 
-use crate::integrator::{Integrator, RayObserver, RenderOptions};
+use crate::integrator::{Integrator, PixelState, RayObserver, RenderOptions};
 use crate::world::Scene;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -142,20 +142,71 @@ fn render_rows<O: RayObserver>(
 ) -> Result<TileResult, Cancelled> {
     let integrator = Integrator::observed(scene, camera, options, observer).cancelled_by(cancel);
     let mut pixels = vec![[0.0f32; 3]; rect.pixel_count()];
-    let rays = pixels
+    let rays = for_each_pixel(rect, &mut pixels, cancel, |x, y, px| {
+        let (v, r) = integrator.pixel(x, y)?;
+        *px = v;
+        Ok(r)
+    })?;
+    Ok(TileResult { pixels, rays })
+}
+
+/// Continues every pixel of `rect` of camera `camera`'s frame from its
+/// state in `states` (row by row, `rect.pixel_count()` of them) up to
+/// sample index `end` (see [`Integrator::pixel_samples`]), on the current
+/// rayon pool; returns the rays traced. Gives up soon after `cancel` turns
+/// true, and then some states have moved on and others not: the caller
+/// keeps a copy (as `passes::TileState::render` does). With every state new
+/// and `end` the samples per pixel, [`finish_tile`] of the states is
+/// [`render_tile`]'s pixels, byte for byte, and so is any split into
+/// consecutive ranges of sample indices.
+///
+/// # Panics
+/// If `states` is not `rect.pixel_count()` long (a caller's error, never
+/// input's).
+pub fn render_tile_samples(
+    scene: &Scene,
+    camera: usize,
+    rect: Rect,
+    end: u32,
+    states: &mut [PixelState],
+    cancel: &AtomicBool,
+) -> Result<u64, Cancelled> {
+    assert_eq!(states.len(), rect.pixel_count(), "one state a pixel");
+    let integrator =
+        Integrator::observed(scene, camera, RenderOptions::default(), &()).cancelled_by(cancel);
+    for_each_pixel(rect, states, cancel, |x, y, state| {
+        integrator.pixel_samples(x, y, end, state)
+    })
+}
+
+/// The pixels of accumulated states (see [`PixelState::finish`]).
+pub fn finish_tile(states: &[PixelState]) -> Vec<[f32; 3]> {
+    states.iter().map(PixelState::finish).collect()
+}
+
+/// Runs `pixel(x, y, item)` on every pixel of `rect` with its item of
+/// `items` (row by row), rows in parallel; the sum of the rays it returns.
+/// Stops at the first cancelled pixel of each row, and is [`Cancelled`]
+/// once the flag is set.
+fn for_each_pixel<T: Send>(
+    rect: Rect,
+    items: &mut [T],
+    cancel: &AtomicBool,
+    pixel: impl Fn(u32, u32, &mut T) -> Result<u64, Cancelled> + Sync,
+) -> Result<u64, Cancelled> {
+    let rays = items
         .par_chunks_mut(rect.w.max(1) as usize)
         .enumerate()
         .map(|(row, out)| {
             let y = rect.y + row as u32;
             let mut rays = 0;
-            for (i, px) in out.iter_mut().enumerate() {
+            for (i, item) in out.iter_mut().enumerate() {
                 if cancel.load(Ordering::Relaxed) {
                     break;
                 }
-                let Ok((v, r)) = integrator.pixel(rect.x + i as u32, y) else {
+                let Ok(r) = pixel(rect.x + i as u32, y, item) else {
                     break;
                 };
-                *px = v;
                 rays += r;
             }
             rays
@@ -164,7 +215,7 @@ fn render_rows<O: RayObserver>(
     if cancel.load(Ordering::Relaxed) {
         return Err(Cancelled);
     }
-    Ok(TileResult { pixels, rays })
+    Ok(rays)
 }
 
 #[cfg(test)]

@@ -1,5 +1,7 @@
-//! A pixel's estimate (the n×n box-filtered grid, or adaptive sampling) and
-//! the two doors every ray goes through, where a render is cancelled.
+//! A pixel's estimate (the n×n box-filtered grid, or adaptive sampling),
+//! over all its samples or over a range of them continuing a
+//! [`PixelState`] (docs/progressive.md), and the two doors every ray goes
+//! through, where a render is cancelled.
 //!
 //! One pixel may cost hours (`supersample="65535"` is 2³² camera samples,
 //! `max-bounces="10000"` or `diffuse-samples="65536"` multiply that), so a
@@ -13,8 +15,10 @@
 //! is never returned. An uncancelled pixel is computed by exactly the same
 //! arithmetic as before the flag existed (the checks change no value).
 
-use super::{saturate, Integrator, PixelContext, RayObserver, Sum, STREAM_PIXEL};
+use super::accumulate::PixelState;
+use super::{Integrator, PixelContext, RayObserver, STREAM_PIXEL};
 use crate::sampling::{pixel_seed, PixelSampler};
+use crate::scene::RenderSettings;
 use crate::world::Hit;
 use glam::Vec3;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -33,6 +37,17 @@ pub(super) static NEVER: AtomicBool = AtomicBool::new(false);
 #[error("the render of the tile was cancelled")]
 pub struct Cancelled;
 
+/// How many samples a pixel of a camera with settings `r` takes at most:
+/// supersample² on the grid, `max-samples` with adaptive sampling (which may
+/// stop a pixel sooner).
+pub fn samples_per_pixel(r: &RenderSettings) -> u32 {
+    match r.adaptive {
+        // n ≤ MAX_SUPERSAMPLE, so n² fits in a u32 (the parser's bound).
+        None => r.supersample * r.supersample,
+        Some(a) => a.max_samples,
+    }
+}
+
 impl<'a, O: RayObserver> Integrator<'a, O> {
     /// This integrator, stopping any pixel soon after `cancel` turns true
     /// (see the module's documentation).
@@ -43,8 +58,36 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
 
     /// The linear RGB value of pixel (column `x`, row `y`), and rays traced;
     /// [`Cancelled`] once the integrator's flag is set (see
-    /// [`Integrator::cancelled_by`]; never without it).
+    /// [`Integrator::cancelled_by`]; never without it). Every sample of the
+    /// pixel in one range: [`Integrator::pixel_samples`] from no samples,
+    /// finished.
     pub fn pixel(&self, x: u32, y: u32) -> Result<([f32; 3], u64), Cancelled> {
+        let mut state = PixelState::default();
+        let rays = self.pixel_samples(x, y, u32::MAX, &mut state)?;
+        Ok((state.finish(), rays))
+    }
+
+    /// How many samples a pixel takes at most: supersample² on the grid,
+    /// `max-samples` with adaptive sampling (which may stop a pixel
+    /// sooner).
+    pub fn samples_per_pixel(&self) -> u32 {
+        samples_per_pixel(&self.desc.render)
+    }
+
+    /// Continues pixel (`x`, `y`) from `state` up to sample index `end`
+    /// (exclusive; past [`Integrator::samples_per_pixel`] it stops there):
+    /// samples `state.count()..end`, fewer if adaptive sampling stops the
+    /// pixel. Returns the rays traced. Sample `i` is the same whatever
+    /// range it falls in, and the sums go on exactly where they stopped, so
+    /// any split of a pixel's samples into ranges finishes to the bytes of
+    /// [`Integrator::pixel`]. On [`Cancelled`] `state` is left as it was.
+    pub fn pixel_samples(
+        &self,
+        x: u32,
+        y: u32,
+        end: u32,
+        state: &mut PixelState,
+    ) -> Result<u64, Cancelled> {
         let r = &self.desc.render;
         let mut ctx = PixelContext {
             sampler: PixelSampler {
@@ -57,12 +100,13 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             pending: Vec::new(),
             links: Vec::new(),
         };
-        let value = match r.adaptive {
+        let end = end.min(self.samples_per_pixel());
+        let mut run = state.running();
+        match r.adaptive {
             None => {
-                // n ≤ MAX_SUPERSAMPLE, so n² fits in a u32 (the parser's bound).
                 let n = r.supersample;
-                let mut sum = Sum::<Vec3>::default();
-                for s in 0..n * n {
+                while run.count < end {
+                    let s = run.count;
                     if ctx.stopped {
                         return Err(Cancelled);
                     }
@@ -78,42 +122,30 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                             ((s / n) as f32 + 0.5) / n as f32,
                         )
                     };
-                    sum.add(self.camera_sample(&mut ctx, x, y, s, sx, sy));
+                    run.add_grid(self.camera_sample(&mut ctx, x, y, s, sx, sy));
                 }
-                saturate(sum.mean(u64::from(n * n)))
             }
             Some(a) => {
                 // Sample until the standard error of the mean (largest over the
                 // channels) is under the threshold, between min and max samples.
-                let mut sum = glam::DVec3::ZERO;
-                let mut sum_sq = glam::DVec3::ZERO;
-                let mut n = 0u32;
-                while n < a.max_samples {
+                // A pixel that stopped in an earlier range stops again at once:
+                // the rule sees the same sums.
+                while run.count < end && !run.converged(&a) {
+                    let n = run.count;
                     if ctx.stopped {
                         return Err(Cancelled);
                     }
                     let [sx, sy] = ctx.sampler.get2(STREAM_PIXEL, n);
-                    let v = self.camera_sample(&mut ctx, x, y, n, sx, sy).as_dvec3();
-                    sum += v;
-                    sum_sq += v * v;
-                    n += 1;
-                    if n >= a.min_samples.max(2) {
-                        let nf = n as f64;
-                        let var = ((sum_sq - sum * sum / nf) / (nf - 1.0)).max(glam::DVec3::ZERO);
-                        let err = (var / nf).max_element().sqrt();
-                        if err <= a.threshold as f64 {
-                            break;
-                        }
-                    }
+                    run.add_adaptive(self.camera_sample(&mut ctx, x, y, n, sx, sy));
                 }
-                saturate((sum / n as f64).as_vec3())
             }
-        };
+        }
         // The last sample may have been cut short too.
         if ctx.stopped {
             return Err(Cancelled);
         }
-        Ok((value.to_array(), ctx.rays))
+        *state = run.state();
+        Ok(ctx.rays)
     }
 
     /// Whether the pixel is to stop: set for good once the flag is seen.
@@ -166,7 +198,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
 mod tests {
     use super::*;
     use crate::integrator::RenderOptions;
-    use crate::{Bundle, Scene};
+    use crate::testing::scene;
     use std::sync::atomic::AtomicU64;
     use std::sync::{mpsc, Arc};
     use std::time::{Duration, Instant};
@@ -182,14 +214,6 @@ mod tests {
         fn shadow(&self, _: Vec3, _: Vec3, _: f32) {
             self.0.fetch_add(1, Ordering::Relaxed);
         }
-    }
-
-    fn scene(xml: &str) -> Scene {
-        Scene::from_bundle(&Bundle {
-            scene: "s.xml".into(),
-            files: [("s.xml".to_string(), xml.as_bytes().to_vec())].into(),
-        })
-        .unwrap()
     }
 
     /// Renders the one pixel of `xml` on its own thread, sets the flag once

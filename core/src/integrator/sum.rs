@@ -70,6 +70,32 @@ impl<T: Wide> Sum<T> {
         }
     }
 
+    /// Adds `w` straight to the `f64` total, past the blocks (adaptive
+    /// sampling's sum, which has always been plain `f64`).
+    #[inline]
+    pub(super) fn add_wide(&mut self, w: T::Wide) {
+        self.total += w;
+    }
+
+    /// The sum that has taken `count` samples (`count mod SUM_BLOCK` of
+    /// them in the open block `block`, the rest in `total`): exactly the
+    /// `Sum` those `add`s left, so adding goes on where it stopped.
+    #[inline]
+    pub(super) fn resume(block: T, total: T::Wide, count: u32) -> Self {
+        Sum {
+            block,
+            in_block: count % SUM_BLOCK,
+            total,
+        }
+    }
+
+    /// The open block's sum and the closed blocks' total (see
+    /// [`Sum::resume`]).
+    #[inline]
+    pub(super) fn parts(&self) -> (T, T::Wide) {
+        (self.block, self.total)
+    }
+
     /// The sum divided by `n` (the number of samples, counting those that
     /// added nothing).
     #[inline]

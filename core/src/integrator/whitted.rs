@@ -311,29 +311,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
 mod tests {
     use crate::integrator::{Integrator, RenderOptions};
     use crate::scene::MAX_DEPTH;
-    use crate::{Bundle, Scene};
-    use std::collections::BTreeMap;
-
-    fn scene(xml: &str) -> Scene {
-        let mut files = BTreeMap::new();
-        files.insert("s.xml".to_string(), xml.as_bytes().to_vec());
-        Scene::from_bundle(&Bundle {
-            scene: "s.xml".into(),
-            files,
-        })
-        .unwrap()
-    }
-
-    /// Runs `f` on a thread with a 256 KiB stack: what a recursion as deep
-    /// as the scene allows would overflow (and abort the process).
-    fn on_a_small_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
-        std::thread::Builder::new()
-            .stack_size(256 << 10)
-            .spawn(f)
-            .unwrap()
-            .join()
-            .unwrap()
-    }
+    use crate::testing::{on_a_small_stack, scene};
 
     /// A perfect mirror sphere round the camera at the largest max-depth:
     /// a recursion per bounce would overflow a thread's stack. The walk is MAX_DEPTH + 1 rays deep on the heap;

@@ -4,18 +4,9 @@
 
 use super::*;
 use crate::integrator::RenderOptions;
-use crate::{Bundle, Scene};
-use std::collections::BTreeMap;
+use crate::Scene;
 
-pub(crate) fn scene(xml: &str) -> Scene {
-    let mut files = BTreeMap::new();
-    files.insert("s.xml".to_string(), xml.as_bytes().to_vec());
-    Scene::from_bundle(&Bundle {
-        scene: "s.xml".into(),
-        files,
-    })
-    .unwrap()
-}
+pub(crate) use crate::testing::scene;
 
 /// Every pixel of camera 0, row by row.
 pub(crate) fn pixels(s: &Scene) -> Vec<[f32; 3]> {
