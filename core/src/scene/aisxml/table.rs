@@ -51,3 +51,20 @@ pub(super) const fn extension(
         ..attr(name, ty, default, meaning)
     }
 }
+
+/// One element of AISXML: its name, its attribute table (empty when it
+/// takes none), the elements that may appear inside it, and whether its
+/// content is text. The reader's one table of these (`ELEMENTS` in
+/// `aisxml.rs`) is what the tree is checked against, what each element's
+/// attributes are looked up in, and how the root's children are read.
+#[derive(Debug, Clone, Copy)]
+pub struct Element<R: 'static> {
+    pub name: &'static str,
+    pub attributes: &'static [Attribute],
+    pub children: &'static [&'static str],
+    /// Its content is text (whitespace-separated numbers), not elements.
+    pub text: bool,
+    /// How the reader reads it where it is a child of the root (`None`:
+    /// its parent's reader reads it).
+    pub read: Option<R>,
+}
