@@ -4,7 +4,9 @@
 //! `El::check_attrs`, so an attribute missing from the table is refused as
 //! unknown; and docs/aisxml.md (with docs/aisxml-extensions.md for Trevi's
 //! extensions) is checked against the tables by a test, so the reference
-//! and the parser cannot drift apart.
+//! and the parser cannot drift apart. [`Element`] is the shape of the
+//! reader's one table of elements, which names each element with its
+//! attribute table and the elements it may hold.
 
 /// One attribute an element accepts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
