@@ -13,6 +13,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use trevi_core::alloc_meter::{self, AllocMeter};
+use trevi_core::math::{cos, sin};
 use trevi_core::scene::estimate::{estimate, human_bytes, ESTIMATE_FACTOR, FIXED_BYTES};
 use trevi_core::{Bundle, ParsedBundle, Rect, Scene};
 
@@ -36,13 +37,8 @@ fn lumpy_sphere(stacks: usize, slices: usize) -> Vec<u8> {
     use std::fmt::Write;
     let mut s = String::new();
     let v = |s: &mut String, th: f64, ph: f64| {
-        let r =
-            1.0 + 0.05 * (7.0 * th).sin() * (5.0 * ph).cos() + 0.02 * (31.0 * ph + 3.0 * th).sin();
-        let (x, y, z) = (
-            r * th.sin() * ph.cos(),
-            r * th.cos(),
-            r * th.sin() * ph.sin(),
-        );
+        let r = 1.0 + 0.05 * sin(7.0 * th) * cos(5.0 * ph) + 0.02 * sin(31.0 * ph + 3.0 * th);
+        let (x, y, z) = (r * sin(th) * cos(ph), r * cos(th), r * sin(th) * sin(ph));
         writeln!(s, "v {x:.6} {y:.6} {z:.6}").unwrap();
     };
     let pi = std::f64::consts::PI;
@@ -97,9 +93,9 @@ fn textured_cylinder(slices: usize, rows: usize, mtl: &str) -> Vec<u8> {
             writeln!(
                 s,
                 "v {:.6} {:.6} {:.6}",
-                a.cos(),
+                cos(a),
                 r as f64 / rows as f64,
-                a.sin()
+                sin(a)
             )
             .unwrap();
         }

@@ -187,7 +187,10 @@ pub fn whole_segments(rect: Rect, width: u32, height: u32) -> Result<(u32, u32),
             width,
         });
     }
-    if rect.h == 0 || rect.y % SEGMENT_ROWS != 0 || (end % SEGMENT_ROWS != 0 && end != height) {
+    if rect.h == 0
+        || !rect.y.is_multiple_of(SEGMENT_ROWS)
+        || (!end.is_multiple_of(SEGMENT_ROWS) && end != height)
+    {
         return Err(SegmentRectError::NotWholeSegments { y: rect.y, end });
     }
     let first = rect.y / SEGMENT_ROWS;
