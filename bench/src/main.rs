@@ -22,11 +22,11 @@
 //! in the order they were traced, with nothing else: the same ray mix.
 
 use glam::{DMat4, Vec3};
-use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
+use trevi_core::alloc_meter::{self, AllocMeter};
 use trevi_core::bvh::MeshBvh;
 use trevi_core::geometry::offset_ray_origin;
 use trevi_core::integrator::{RayObserver, RenderOptions};
@@ -37,35 +37,11 @@ use trevi_core::world::HitKind;
 use trevi_core::{Scene, SceneDesc};
 
 /// Counts live heap bytes, for the memory figures.
-struct Counting;
-
-static LIVE: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        LIVE.fetch_add(l.size(), Ordering::Relaxed);
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        LIVE.fetch_sub(l.size(), Ordering::Relaxed);
-        System.dealloc(p, l)
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        LIVE.fetch_add(l.size(), Ordering::Relaxed);
-        System.alloc_zeroed(l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
-        LIVE.fetch_sub(l.size(), Ordering::Relaxed);
-        LIVE.fetch_add(new, Ordering::Relaxed);
-        System.realloc(p, l, new)
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: AllocMeter = AllocMeter;
 
 fn live() -> usize {
-    LIVE.load(Ordering::Relaxed)
+    alloc_meter::held()
 }
 
 fn main() {
@@ -621,7 +597,7 @@ fn print_report(reports: &[MeshReport], threads: usize, reps: usize, embree: boo
     if !embree {
         return;
     }
-    // The table of issue 17 (and of docs/performance.md's goals): every
+    // The table of docs/performance.md's goals: every
     // ratio Trevi / Embree per CPU-second, from the figures above.
     writeln!(
         o,

@@ -1,5 +1,6 @@
 //! Per-frame set-up time of a sequence against a still's set-up, measured
-//! in one run (the figures are in docs/sequences.md).
+//! in one run (docs/farm.md, "Sequences", has the same set-ups measured in
+//! a worker).
 //!
 //! ```sh
 //! cargo run --release -p trevi-core --example frame_setup -- SCENE.xml [RUNS]

@@ -24,6 +24,7 @@
 // NaN as well, which is exactly what the hit tests must reject.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod alloc_meter;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;

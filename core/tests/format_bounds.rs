@@ -1,86 +1,17 @@
-//! Issue 36, class 2: every file format's parser has a cost bound in bytes
+//! Every file format's parser has a cost bound in bytes
 //! and CPU, checked before the work. Measured here, in one process with a
 //! counting allocator (the bytes a parse allocates in all, and the most it
 //! holds at once) and the thread's own CPU time (not wall-clock time, so
 //! that a busy machine does not fail the test).
 
 use std::collections::BTreeMap;
+use trevi_core::alloc_meter::{thread_cost, AllocMeter};
 use trevi_core::scene::aisxml::parse_scene;
 use trevi_core::texture::{Texture, TextureError};
 use trevi_core::Bundle;
 
-/// Counts every byte this thread allocates, and the most it holds.
-mod meter {
-    use std::alloc::{GlobalAlloc, Layout, System};
-    use std::cell::Cell;
-
-    pub struct Meter;
-
-    thread_local! {
-        static HELD: Cell<usize> = const { Cell::new(0) };
-        static PEAK: Cell<usize> = const { Cell::new(0) };
-        static TOTAL: Cell<usize> = const { Cell::new(0) };
-    }
-
-    fn add(n: usize) {
-        let _ = HELD.try_with(|h| {
-            let v = h.get().saturating_add(n);
-            h.set(v);
-            let _ = PEAK.try_with(|p| p.set(p.get().max(v)));
-        });
-        let _ = TOTAL.try_with(|t| t.set(t.get().saturating_add(n)));
-    }
-
-    fn sub(n: usize) {
-        let _ = HELD.try_with(|h| h.set(h.get().saturating_sub(n)));
-    }
-
-    unsafe impl GlobalAlloc for Meter {
-        unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-            let p = unsafe { System.alloc(l) };
-            if !p.is_null() {
-                add(l.size());
-            }
-            p
-        }
-        unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-            let p = unsafe { System.alloc_zeroed(l) };
-            if !p.is_null() {
-                add(l.size());
-            }
-            p
-        }
-        unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-            unsafe { System.dealloc(p, l) };
-            sub(l.size());
-        }
-        unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
-            let q = unsafe { System.realloc(p, l, new) };
-            if !q.is_null() {
-                sub(l.size());
-                add(new);
-            }
-            q
-        }
-    }
-
-    /// What `f` cost this thread: (result, bytes allocated in all, most
-    /// bytes held at once above what was held before).
-    pub fn cost<T>(f: impl FnOnce() -> T) -> (T, usize, usize) {
-        let base = HELD.with(|h| h.get());
-        PEAK.with(|p| p.set(base));
-        let total = TOTAL.with(|t| t.get());
-        let out = f();
-        (
-            out,
-            TOTAL.with(|t| t.get()) - total,
-            PEAK.with(|p| p.get()) - base,
-        )
-    }
-}
-
 #[global_allocator]
-static METER: meter::Meter = meter::Meter;
+static METER: AllocMeter = AllocMeter;
 
 /// This thread's CPU time in seconds (user + system), from
 /// `/proc/thread-self/stat`; `None` where there is no such file.
@@ -123,7 +54,7 @@ const SCENE: &str = r#"<scene version="1"><mesh id="o" file="o.obj"/><model id="
 
 const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
 
-/// Issue 36: each material of an `.mtl` copied the whole file (569 KB of
+/// Regression: each material of an `.mtl` copied the whole file (569 KB of
 /// 20,000 materials wanted 11.4 GB), and each repeat of its name on an
 /// `mtllib` line read and copied it again (a library named 50,000 times:
 /// 2.5 GB). Now a library is read and parsed once; what a parse allocates
@@ -145,7 +76,7 @@ fn material_libraries_cost_memory_linear_in_their_size() {
         SCENE,
         vec![("o.obj", obj.into_bytes()), ("lib.mtl", mtl.into_bytes())],
     );
-    let (d, total, peak) = meter::cost(|| parse_scene("s.xml", &b));
+    let (d, total, peak) = thread_cost(|| parse_scene("s.xml", &b));
     let d = d.unwrap();
     assert_eq!(d.models[0].surfaces.len(), n + 1);
     eprintln!("{input} bytes of OBJ and MTL: {total} bytes allocated, peak {peak}");
@@ -160,7 +91,7 @@ fn material_libraries_cost_memory_linear_in_their_size() {
     );
 }
 
-/// Issue 36: `usemtl` names were looked up linearly (100,000 names: 21 s,
+/// Regression: `usemtl` names were looked up linearly (100,000 names: 21 s,
 /// 200,000: 91 s) and the 65,534 limit checked after all of them. Now by
 /// hash, and the limit where the name that passes it is.
 #[test]
@@ -230,7 +161,7 @@ fn progressive_jpeg(w: u16, h: u16, ac_scans: usize) -> Vec<u8> {
     f
 }
 
-/// Issue 36: a 713 KB progressive JPEG of repeated scans cost 23 s of CPU
+/// Regression: a 713 KB progressive JPEG of repeated scans cost 23 s of CPU
 /// a decode. Its scans are counted from its markers first, and past
 /// `MAX_JPEG_SCANS` it is refused for the cost of that pass; within it,
 /// the decode of the largest image allowed is bounded.
@@ -337,7 +268,7 @@ fn png_with(w: u32, h: u32, zlib: &[u8], extra_kind: &[u8; 4], extra: usize) -> 
     f
 }
 
-/// Issue 36: a PNG's size is read from IHDR before decoding (the texel
+/// Regression: a PNG's size is read from IHDR before decoding (the texel
 /// budget), and the decoder inflates all of its image data, also past the
 /// last row: a 16 × 16 PNG of 65 KB inflated 64 MiB (a bundle-sized one,
 /// hundreds of GB). Compressed data beyond what the image can need is
@@ -350,7 +281,7 @@ fn a_png_costs_what_its_header_allows_however_its_data_inflate() {
     let zlib = miniz_oxide::deflate::compress_to_vec_zlib(&zeros, 9);
     drop(zeros);
     let bomb = png_with(16, 16, &zlib, b"tEXt", 0);
-    let ((r, total, peak), secs) = cpu(|| meter::cost(|| Texture::decode(&bomb)));
+    let ((r, total, peak), secs) = cpu(|| thread_cost(|| Texture::decode(&bomb)));
     eprintln!(
         "{} byte PNG inflating to 64 MiB: {:?}, {total} bytes allocated, peak {peak}, {secs} s",
         bomb.len(),
@@ -384,7 +315,7 @@ fn a_png_costs_what_its_header_allows_however_its_data_inflate() {
     // A million empty ancillary chunks after the image data.
     let zlib = miniz_oxide::deflate::compress_to_vec_zlib(&vec![0u8; 16 * 17], 9);
     let many = png_with(16, 16, &zlib, b"tEXt", 1_000_000);
-    let ((r, _, peak), secs) = cpu(|| meter::cost(|| Texture::decode(&many)));
+    let ((r, _, peak), secs) = cpu(|| thread_cost(|| Texture::decode(&many)));
     eprintln!(
         "{} byte PNG of 10⁶ chunks: ok {}, peak {peak}, {secs} s",
         many.len(),

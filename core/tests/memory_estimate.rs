@@ -12,72 +12,13 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use trevi_core::alloc_meter::{self, AllocMeter};
+use trevi_core::math::{cos, sin};
 use trevi_core::scene::estimate::{estimate, human_bytes, ESTIMATE_FACTOR, FIXED_BYTES};
 use trevi_core::{Bundle, ParsedBundle, Rect, Scene};
 
-mod meter {
-    use std::alloc::{GlobalAlloc, Layout, System};
-    use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
-
-    pub struct Meter;
-
-    static HELD: AtomicUsize = AtomicUsize::new(0);
-    static PEAK: AtomicUsize = AtomicUsize::new(0);
-
-    fn add(n: usize) {
-        let v = HELD.fetch_add(n, Relaxed) + n;
-        PEAK.fetch_max(v, Relaxed);
-    }
-
-    fn sub(n: usize) {
-        HELD.fetch_sub(n, Relaxed);
-    }
-
-    unsafe impl GlobalAlloc for Meter {
-        unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-            let p = unsafe { System.alloc(l) };
-            if !p.is_null() {
-                add(l.size());
-            }
-            p
-        }
-        unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-            let p = unsafe { System.alloc_zeroed(l) };
-            if !p.is_null() {
-                add(l.size());
-            }
-            p
-        }
-        unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-            unsafe { System.dealloc(p, l) };
-            sub(l.size());
-        }
-        unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
-            let q = unsafe { System.realloc(p, l, new) };
-            if !q.is_null() {
-                sub(l.size());
-                add(new);
-            }
-            q
-        }
-    }
-
-    pub fn held() -> usize {
-        HELD.load(Relaxed)
-    }
-
-    /// Starts a new peak from what is held now.
-    pub fn reset_peak() {
-        PEAK.store(HELD.load(Relaxed), Relaxed);
-    }
-
-    pub fn peak() -> usize {
-        PEAK.load(Relaxed)
-    }
-}
-
 #[global_allocator]
-static METER: meter::Meter = meter::Meter;
+static METER: AllocMeter = AllocMeter;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -96,13 +37,8 @@ fn lumpy_sphere(stacks: usize, slices: usize) -> Vec<u8> {
     use std::fmt::Write;
     let mut s = String::new();
     let v = |s: &mut String, th: f64, ph: f64| {
-        let r =
-            1.0 + 0.05 * (7.0 * th).sin() * (5.0 * ph).cos() + 0.02 * (31.0 * ph + 3.0 * th).sin();
-        let (x, y, z) = (
-            r * th.sin() * ph.cos(),
-            r * th.cos(),
-            r * th.sin() * ph.sin(),
-        );
+        let r = 1.0 + 0.05 * sin(7.0 * th) * cos(5.0 * ph) + 0.02 * sin(31.0 * ph + 3.0 * th);
+        let (x, y, z) = (r * sin(th) * cos(ph), r * cos(th), r * sin(th) * sin(ph));
         writeln!(s, "v {x:.6} {y:.6} {z:.6}").unwrap();
     };
     let pi = std::f64::consts::PI;
@@ -157,9 +93,9 @@ fn textured_cylinder(slices: usize, rows: usize, mtl: &str) -> Vec<u8> {
             writeln!(
                 s,
                 "v {:.6} {:.6} {:.6}",
-                a.cos(),
+                cos(a),
                 r as f64 / rows as f64,
-                a.sin()
+                sin(a)
             )
             .unwrap();
         }
@@ -334,19 +270,19 @@ fn the_estimate_bounds_the_peak_of_the_build_and_stays_within_its_factor_of_it()
         drop(parsed.bundle);
         let est = estimate(&desc).total();
         // What the description holds already counts: the built scene keeps it.
-        let before_desc = meter::held();
+        let before_desc = alloc_meter::held();
         let desc_copy = desc.clone();
-        let desc_bytes = meter::held() - before_desc;
+        let desc_bytes = alloc_meter::held() - before_desc;
         drop(desc_copy);
 
-        let base = meter::held();
-        meter::reset_peak();
+        let base = alloc_meter::held();
+        alloc_meter::reset_peak();
         let scene = Scene::build(desc);
         // The camera's view is built by its first render.
         let _ = trevi_core::render_tile(&scene, 0, Rect::new(0, 0, 1, 1));
         let _ = scene.world_view();
-        let built = meter::held() - base + desc_bytes;
-        let peak = meter::peak() - base + desc_bytes;
+        let built = alloc_meter::held() - base + desc_bytes;
+        let peak = alloc_meter::peak() - base + desc_bytes;
         drop(scene);
 
         let ratio = est as f64 / peak as f64;

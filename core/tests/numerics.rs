@@ -1,4 +1,4 @@
-//! Numerical stability at the extremes (issue 7): self-intersection at every
+//! Numerical stability at the extremes: self-intersection at every
 //! scene scale, scenes far from the origin, degenerate geometry, extreme
 //! parameters, and the parsers fed mutated inputs. Every rendered sample is
 //! checked to be finite. See docs/numerics.md for the measurements.
@@ -8,6 +8,7 @@
 
 mod common;
 use common::*;
+use trevi_core::alloc_meter::{thread_cost, AllocMeter};
 use trevi_core::output::linear_to_srgb8;
 use trevi_core::{render_tile, Rect, Scene};
 
@@ -553,72 +554,16 @@ fn tiles_of_a_far_scene_agree_with_the_whole_frame() {
 
 /// Counts the bytes each thread holds, and the peak, so a parse can be
 /// checked not to allocate beyond a bound (a header's claims must not turn
-/// into allocations). Const-initialised thread-locals without destructors:
-/// safe to touch from inside the allocator at any time.
-mod meter {
-    use std::alloc::{GlobalAlloc, Layout, System};
-    use std::cell::Cell;
-
-    pub struct Meter;
-
-    thread_local! {
-        static HELD: Cell<usize> = const { Cell::new(0) };
-        static PEAK: Cell<usize> = const { Cell::new(0) };
-    }
-
-    fn add(n: usize) {
-        let _ = HELD.try_with(|h| {
-            let v = h.get().saturating_add(n);
-            h.set(v);
-            let _ = PEAK.try_with(|p| p.set(p.get().max(v)));
-        });
-    }
-
-    fn sub(n: usize) {
-        let _ = HELD.try_with(|h| h.set(h.get().saturating_sub(n)));
-    }
-
-    unsafe impl GlobalAlloc for Meter {
-        unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-            let p = unsafe { System.alloc(l) };
-            if !p.is_null() {
-                add(l.size());
-            }
-            p
-        }
-        unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-            let p = unsafe { System.alloc_zeroed(l) };
-            if !p.is_null() {
-                add(l.size());
-            }
-            p
-        }
-        unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-            unsafe { System.dealloc(p, l) };
-            sub(l.size());
-        }
-        unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
-            let q = unsafe { System.realloc(p, l, new) };
-            if !q.is_null() {
-                sub(l.size());
-                add(new);
-            }
-            q
-        }
-    }
-
-    /// Runs `f` and returns the most bytes this thread held during it above
-    /// what it held before.
-    pub fn peak_during<T>(f: impl FnOnce() -> T) -> (T, usize) {
-        let base = HELD.with(|h| h.get());
-        PEAK.with(|p| p.set(base));
-        let out = f();
-        (out, PEAK.with(|p| p.get()) - base)
-    }
-}
-
+/// into allocations).
 #[global_allocator]
-static METER: meter::Meter = meter::Meter;
+static METER: AllocMeter = AllocMeter;
+
+/// Runs `f` and returns the most bytes this thread held during it above
+/// what it held before.
+fn peak_during<T>(f: impl FnOnce() -> T) -> (T, usize) {
+    let (out, _, peak) = thread_cost(f);
+    (out, peak)
+}
 
 struct Lcg(u64);
 
@@ -856,7 +801,7 @@ fn survive(name: &str, seeds: Vec<Vec<u8>>, count: usize, parse: fn(&[u8]) -> bo
             // CPU time of this thread: a busy machine stretches wall-clock
             // time, not the work a parse does.
             let t0 = thread_cpu();
-            let (r, peak) = meter::peak_during(|| {
+            let (r, peak) = peak_during(|| {
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| parse(&input)))
             });
             let took = thread_cpu().saturating_sub(t0);
@@ -958,11 +903,11 @@ fn headers_and_indices_that_claim_too_much_are_errors_not_allocations() {
         ("10^12 faces", huge_faces),
         ("a 4-billion-entry face", huge_list),
     ] {
-        let (r, peak) = meter::peak_during(|| trevi_core::mesh::ply::parse("m.ply", &data));
+        let (r, peak) = peak_during(|| trevi_core::mesh::ply::parse("m.ply", &data));
         assert!(r.is_err(), "{what}: accepted");
         assert!(peak < 1 << 20, "{what}: allocated {peak} bytes");
     }
-    let (r, peak) = meter::peak_during(|| {
+    let (r, peak) = peak_during(|| {
         trevi_core::mesh::obj::parse("m.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1000000000000\n")
     });
     assert!(
@@ -971,7 +916,7 @@ fn headers_and_indices_that_claim_too_much_are_errors_not_allocations() {
     );
     let xml = r#"<scene version="1"><mesh id="q"><vertices>0 0 0 1 0 0 0 1 0</vertices><triangles>0 1 1000000000000</triangles></mesh>
       <camera id="c" position="0 0 5" lookat="0 0 0" fov="50"><render width="1000000" height="1000000"/></camera></scene>"#;
-    let (r, peak) = meter::peak_during(|| Scene::from_bundle(&bundle(xml)).is_ok());
+    let (r, peak) = peak_during(|| Scene::from_bundle(&bundle(xml)).is_ok());
     assert!(!r && peak < 1 << 20, "inline index 10^12: {peak} bytes");
     // Deep nesting: an error, not a stack overflow.
     let deep = format!(

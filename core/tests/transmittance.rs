@@ -1,4 +1,4 @@
-//! Shadow-ray transmittance against the spec (issue 15 item 25): vis is the
+//! Shadow-ray transmittance against the spec: vis is the
 //! product of (1 − α) over every crossing of a surface between the point and
 //! the light, so a ray through a closed translucent object (a sphere, a
 //! closed mesh) counts two, a ray from inside one counts one, a plane one.

@@ -17,8 +17,8 @@ use crate::scheduler::{JobId, LeaseId, WorkerId};
 use std::path::Path;
 use std::time::{Duration, Instant};
 use trevi_core::output::{
-    adler32, adler32_combine, check_segment, segment_filtered_len, Format, PngSegment,
-    FINAL_EMPTY_BLOCK, SEGMENT_ROWS,
+    adler32, adler32_combine, check_segment, segment_filtered_len, whole_segments, Format,
+    PngSegment, SegmentError, FINAL_EMPTY_BLOCK, PNG_ENCODER,
 };
 use trevi_core::Rect;
 
@@ -64,6 +64,73 @@ impl SegmentPlan {
     }
 }
 
+/// What [`inflate_check`] found wrong with a segment's deflate bytes.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum InflateError {
+    #[error("segment {index} does not inflate to {expected} bytes (it inflates to more)")]
+    TooMuch { index: u32, expected: u64 },
+    #[error("segment {index}'s row {row} has filter type {filter}, not 0..={most}")]
+    Filter {
+        index: u32,
+        row: u64,
+        filter: u8,
+        most: u8,
+    },
+    #[error("segment {index} ends its deflate stream after {at} of its {len} bytes")]
+    EndsEarly { index: u32, at: usize, len: usize },
+    #[error("segment {index} does not inflate to {expected} bytes ({status} after {wrote})")]
+    Malformed {
+        index: u32,
+        expected: u64,
+        /// miniz_oxide's status where inflating stopped.
+        status: String,
+        wrote: u64,
+    },
+    #[error("segment {index} inflates to {wrote} bytes, not the {expected} it claims")]
+    Length {
+        index: u32,
+        wrote: u64,
+        expected: u64,
+    },
+    #[error(
+        "segment {index}'s bytes have Adler-32 {got:#010x}, not the {claimed:#010x} it claims"
+    )]
+    Adler { index: u32, got: u32, claimed: u32 },
+}
+
+/// Why an upload of encoded segments is refused ([`check_upload`], and the
+/// uploading worker's encoder); [`FarmError::BadTile`] says it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum UploadError {
+    #[error("{got} segments uploaded, but rows {y}..{end} are {count} segments")]
+    SegmentCount {
+        got: usize,
+        y: u32,
+        end: u32,
+        count: u32,
+    },
+    #[error(transparent)]
+    Framing(#[from] SegmentError),
+    #[error(
+        "{got} preview sums uploaded, but the rect overlaps {cells} preview cells of {scale} \
+         pixels: {} sums",
+        3 * .cells
+    )]
+    SumCount {
+        got: usize,
+        cells: usize,
+        scale: u32,
+    },
+    #[error("preview sum {k} (cell {}) is {value}: sums are finite and not negative", .k / 3)]
+    BadSum { k: usize, value: f32 },
+    #[error(transparent)]
+    Inflate(#[from] InflateError),
+    #[error(
+        "worker {worker} did not register with this coordinator's PNG encoder \"{PNG_ENCODER}\""
+    )]
+    Unregistered { worker: WorkerId },
+}
+
 /// Which of an upload's `count` segments is inflated in full: one per
 /// upload, picked by mixing the lease id (SplitMix64's finaliser), so that
 /// which one is not always the first, yet the same upload always gets the
@@ -90,7 +157,7 @@ pub fn sampled_segment(lease: LeaseId, count: u32) -> u32 {
 /// frame's segment inflates to hundreds of kilobytes, which zeroing and
 /// faulting in cost as much as inflating did (docs/benchmarks.md,
 /// "Stage 7").
-pub fn inflate_check(width: u32, index: u32, seg: &PngSegment) -> Result<(), String> {
+pub fn inflate_check(width: u32, index: u32, seg: &PngSegment) -> Result<(), InflateError> {
     use miniz_oxide::inflate::core::{decompress, inflate_flags, DecompressorOxide};
     use miniz_oxide::inflate::TINFLStatus;
     let expected = seg.filtered_len;
@@ -117,18 +184,19 @@ pub fn inflate_check(width: u32, index: u32, seg: &PngSegment) -> Result<(), Str
             input = &input[read..];
             let chunk = &ring[at..at + out];
             if wrote + out as u64 > expected {
-                return Err(format!(
-                    "segment {index} does not inflate to {expected} bytes (it inflates to more)"
-                ));
+                return Err(InflateError::TooMuch { index, expected });
             }
             while row_start < wrote + out as u64 {
                 let row = row_start / stride;
                 let most = if row == 0 { 1 } else { 4 };
                 let filter = chunk[(row_start - wrote) as usize];
                 if filter > most {
-                    return Err(format!(
-                        "segment {index}'s row {row} has filter type {filter}, not 0..={most}"
-                    ));
+                    return Err(InflateError::Filter {
+                        index,
+                        row,
+                        filter,
+                        most,
+                    });
                 }
                 row_start += stride;
             }
@@ -140,31 +208,36 @@ pub fn inflate_check(width: u32, index: u32, seg: &PngSegment) -> Result<(), Str
                 TINFLStatus::NeedsMoreInput if !last && input.is_empty() => break,
                 TINFLStatus::Done if last && input.is_empty() => break,
                 TINFLStatus::Done if !last => {
-                    return Err(format!(
-                        "segment {index} ends its deflate stream after {} of its {} bytes",
-                        seg.deflate.len() - input.len(),
-                        seg.deflate.len()
-                    ))
+                    return Err(InflateError::EndsEarly {
+                        index,
+                        at: seg.deflate.len() - input.len(),
+                        len: seg.deflate.len(),
+                    })
                 }
                 status => {
-                    return Err(format!(
-                        "segment {index} does not inflate to {expected} bytes \
-                         ({status:?} after {wrote})"
-                    ))
+                    return Err(InflateError::Malformed {
+                        index,
+                        expected,
+                        status: format!("{status:?}"),
+                        wrote,
+                    })
                 }
             }
         }
     }
     if wrote != expected {
-        return Err(format!(
-            "segment {index} inflates to {wrote} bytes, not the {expected} it claims"
-        ));
+        return Err(InflateError::Length {
+            index,
+            wrote,
+            expected,
+        });
     }
     if adler != seg.adler32 {
-        return Err(format!(
-            "segment {index}'s bytes have Adler-32 {adler:#010x}, not the {:#010x} it claims",
-            seg.adler32
-        ));
+        return Err(InflateError::Adler {
+            index,
+            got: adler,
+            claimed: seg.adler32,
+        });
     }
     Ok(())
 }
@@ -177,39 +250,38 @@ const INFLATE_RING: usize = 1 << 16;
 /// Checks an upload against its plan: the segments' count and framing
 /// (every one), one of them inflated in full ([`sampled_segment`],
 /// [`inflate_check`]), and the preview sums' count and values (finite,
-/// not negative). The message says what is wrong.
-pub fn check_upload(plan: &SegmentPlan, up: &SegmentUpload) -> Result<(), String> {
+/// not negative). The error says what is wrong.
+pub fn check_upload(plan: &SegmentPlan, up: &SegmentUpload) -> Result<(), UploadError> {
     if up.segments.len() != plan.count as usize {
-        return Err(format!(
-            "{} segments uploaded, but rows {}..{} are {} segments",
-            up.segments.len(),
-            up.rect.y,
-            up.rect.y + up.rect.h,
-            plan.count
-        ));
+        return Err(UploadError::SegmentCount {
+            got: up.segments.len(),
+            y: up.rect.y,
+            end: up.rect.y + up.rect.h,
+            count: plan.count,
+        });
     }
     for (i, seg) in (plan.first..).zip(up.segments) {
         check_segment(plan.width, plan.height, i, seg)?;
     }
     if up.sums.len() != 3 * plan.cells {
-        return Err(format!(
-            "{} preview sums uploaded, but the rect overlaps {} preview cells of {} pixels: {} \
-             sums",
-            up.sums.len(),
-            plan.cells,
-            plan.scale,
-            3 * plan.cells
-        ));
+        return Err(UploadError::SumCount {
+            got: up.sums.len(),
+            cells: plan.cells,
+            scale: plan.scale,
+        });
     }
     if let Some(k) = up.sums.iter().position(|v| !(0.0..=f32::MAX).contains(v)) {
-        return Err(format!(
-            "preview sum {k} (cell {}) is {}: sums are finite and not negative",
-            k / 3,
-            up.sums[k]
-        ));
+        return Err(UploadError::BadSum {
+            k,
+            value: up.sums[k],
+        });
     }
     let i = sampled_segment(up.lease, plan.count);
-    inflate_check(plan.width, plan.first + i, &up.segments[i as usize])
+    Ok(inflate_check(
+        plan.width,
+        plan.first + i,
+        &up.segments[i as usize],
+    )?)
 }
 
 /// The bytes a span's upload is stored as (and replayed from after a
@@ -341,33 +413,6 @@ pub(super) fn decode_stored(bytes: &[u8]) -> Result<StoredSpan, FarmError> {
     })
 }
 
-/// The rect of whole segments a span's plan covers, as a message when it
-/// is not one (`width` × `height` frame).
-fn whole_segments(rect: Rect, width: u32, height: u32) -> Result<(u32, u32), String> {
-    let end = rect.y.checked_add(rect.h).filter(|&e| e <= height);
-    let Some(end) = end else {
-        return Err(format!(
-            "rows {}..+{} are not in the {width}x{height} frame",
-            rect.y, rect.h
-        ));
-    };
-    if rect.x != 0 || rect.w != width {
-        return Err(format!(
-            "columns {}..{} are not the frame's full width {width}",
-            rect.x,
-            rect.x.saturating_add(rect.w)
-        ));
-    }
-    if rect.h == 0 || rect.y % SEGMENT_ROWS != 0 || (end % SEGMENT_ROWS != 0 && end != height) {
-        return Err(format!(
-            "rows {}..{end} are not whole {SEGMENT_ROWS}-row segments",
-            rect.y
-        ));
-    }
-    let first = rect.y / SEGMENT_ROWS;
-    Ok((first, end.div_ceil(SEGMENT_ROWS) - first))
-}
-
 impl Farm {
     /// What an upload of encoded segments for `rect` of `job` must hold
     /// (checked before any of it is read): `rect` is whole 16-row segments
@@ -388,8 +433,8 @@ impl Farm {
             )));
         }
         let (width, height) = (spec.width, spec.height);
-        let (first, count) = whole_segments(rect, width, height).map_err(|m| {
-            FarmError::BadTile(format!("an upload of encoded segments for job {job}: {m}"))
+        let (first, count) = whole_segments(rect, width, height).map_err(|e| {
+            FarmError::BadTile(format!("an upload of encoded segments for job {job}: {e}"))
         })?;
         let preview = Preview::new(width, height);
         let (_, _, cols, rows) = preview.cells(rect);
@@ -466,15 +511,14 @@ impl Farm {
         // Every lease checked, and the tiles found, in one pass.
         let span = st.sched.check_span(job, parts, up.lease, up.worker)?;
         let valid = valid.and_then(|()| match up.worker {
-            Some(w) if !st.segment_workers.contains(&w) => Err(format!(
-                "worker {w} did not register with this coordinator's PNG encoder \"{}\"",
-                trevi_core::output::PNG_ENCODER
-            )),
+            Some(worker) if !st.segment_workers.contains(&worker) => {
+                Err(UploadError::Unregistered { worker })
+            }
             _ => Ok(()),
         });
-        if let Err(m) = valid {
+        if let Err(e) = valid {
             drop(st);
-            return Err(self.reject_segments(up.lease, job, parts, up.worker, m));
+            return Err(self.reject_segments(up.lease, job, parts, up.worker, e.to_string()));
         }
         let out = st.outputs.get(&job).cloned();
         let (Some(out), true) = (out, span.open) else {
@@ -607,18 +651,31 @@ mod tests {
         // A wrong Adler-32.
         let mut bad = s.clone();
         bad.adler32 ^= 1;
-        assert!(inflate_check(9, 0, &bad).unwrap_err().contains("Adler-32"));
+        let e = inflate_check(9, 0, &bad).unwrap_err();
+        assert!(matches!(e, InflateError::Adler { index: 0, .. }), "{e}");
+        assert!(e.to_string().contains("Adler-32"));
         // A wrong length, either way.
         let mut bad = s.clone();
         bad.filtered_len -= 1;
-        assert!(inflate_check(9, 0, &bad)
-            .unwrap_err()
-            .contains("inflate to"));
+        assert_eq!(
+            inflate_check(9, 0, &bad),
+            Err(InflateError::TooMuch {
+                index: 0,
+                expected: 447
+            })
+        );
         let mut bad = s.clone();
         bad.filtered_len += 1;
-        assert!(inflate_check(9, 0, &bad)
-            .unwrap_err()
-            .contains("inflates to 448 bytes, not the 449"));
+        let e = inflate_check(9, 0, &bad).unwrap_err();
+        assert_eq!(
+            e,
+            InflateError::Length {
+                index: 0,
+                wrote: 448,
+                expected: 449
+            }
+        );
+        assert!(e.to_string().contains("inflates to 448 bytes, not the 449"));
         // Garbage in place of the deflate bytes, framed right.
         let mut bad = s.clone();
         bad.deflate = [&[0xffu8; 40][..], &trevi_core::output::SYNC_FLUSH].concat();
@@ -631,9 +688,9 @@ mod tests {
             &trevi_core::output::SYNC_FLUSH,
         ]
         .concat();
-        assert!(inflate_check(9, 0, &bad)
-            .unwrap_err()
-            .contains("ends its deflate stream"));
+        let e = inflate_check(9, 0, &bad).unwrap_err();
+        assert!(matches!(e, InflateError::EndsEarly { index: 0, .. }), "{e}");
+        assert!(e.to_string().contains("ends its deflate stream"));
     }
 
     #[test]
@@ -712,7 +769,9 @@ mod tests {
         for row in [0usize, 3, 9, 15] {
             let mut bad = raw.clone();
             bad[row * stride] = if row == 0 { 2 } else { 5 };
-            let err = inflate_check(width, 0, &good(&bad)).unwrap_err();
+            let err = inflate_check(width, 0, &good(&bad))
+                .unwrap_err()
+                .to_string();
             assert!(err.contains(&format!("row {row} has filter type")), "{err}");
         }
         // One byte changed deep in, under the original's Adler-32.
@@ -720,7 +779,7 @@ mod tests {
         let mut changed = raw.clone();
         changed[10 * stride + 5] ^= 0x40;
         bad.deflate = stored_blocks(&changed);
-        let err = inflate_check(width, 0, &bad).unwrap_err();
+        let err = inflate_check(width, 0, &bad).unwrap_err().to_string();
         assert!(err.contains("Adler-32"), "{err}");
         // A row short or a byte long, the length claimed unchanged.
         for len in [raw.len() - stride, raw.len() + 1] {
@@ -825,22 +884,5 @@ mod tests {
         let mut long = b.clone();
         long.push(0);
         assert!(matches!(decode_stored(&long), Err(FarmError::Damaged(_))));
-    }
-
-    #[test]
-    fn only_whole_segments_of_full_rows_make_a_plan() {
-        assert_eq!(whole_segments(Rect::new(0, 0, 10, 16), 10, 40), Ok((0, 1)));
-        assert_eq!(whole_segments(Rect::new(0, 16, 10, 24), 10, 40), Ok((1, 2)));
-        for (r, what) in [
-            (Rect::new(1, 0, 9, 16), "full width"),
-            (Rect::new(0, 0, 9, 16), "full width"),
-            (Rect::new(0, 8, 10, 16), "whole 16-row"),
-            (Rect::new(0, 0, 10, 8), "whole 16-row"),
-            (Rect::new(0, 0, 10, 0), "whole 16-row"),
-            (Rect::new(0, 32, 10, 16), "not in the"),
-        ] {
-            let m = whole_segments(r, 10, 40).unwrap_err();
-            assert!(m.contains(what), "{r:?}: {m}");
-        }
     }
 }

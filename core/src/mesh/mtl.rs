@@ -342,7 +342,7 @@ mod tests {
         fails("newmtl a\nd 1e39\n", 2, 3, "not finite in 32 bits");
     }
 
-    /// Issue 36: a negative or non-finite colour was accepted (Whitted
+    /// Regression: a negative or non-finite colour was accepted (Whitted
     /// then failed a job with an unlocated "pixel is negative"; path
     /// tracing rendered black), and `-s 1e39` said "expected u [v [w]]".
     #[test]
@@ -373,7 +373,7 @@ mod tests {
         assert_eq!(m[0].kd, Some(Vec3::ZERO));
     }
 
-    /// Issue 36: what a parse holds is bounded by the file, statement by
+    /// Regression: what a parse holds is bounded by the file, statement by
     /// statement (no token list of a whole line of a skipped statement),
     /// and the materials by a count.
     #[test]

@@ -805,7 +805,7 @@ f 1//3 2//3 3//3
         check_mesh_invariants(&m);
     }
 
-    /// Issue 36: `mtllib` names are kept once each (a library named 50,000
+    /// Regression: `mtllib` names are kept once each (a library named 50,000
     /// times on a line was read 50,000 times), at most
     /// [`MAX_OBJ_LIBRARIES`] of them, the error at the one that passes it.
     #[test]

@@ -69,7 +69,8 @@ pub use self::exr::read_exr_rgb;
 pub use self::png::{
     check_segment, decode_png, encode_segment, encode_segment_srgb, max_segment_deflate_len,
     png_from_segments, read_png_rgb8, segment_count, segment_filtered_len, segment_rows,
-    PngSegment, PngStream, IDAT_MAX, PNG_ENCODER, SEGMENT_ROWS,
+    whole_segments, PngSegment, PngStream, SegmentError, SegmentRectError, IDAT_MAX, PNG_ENCODER,
+    SEGMENT_ROWS,
 };
 pub use self::srgb::{linear_to_srgb8, Srgb8};
 
@@ -387,8 +388,10 @@ impl FrameWriter {
                 message: "the frame is an EXR file, which takes no PNG segments".to_string(),
             });
         };
-        check_segment(width, height, index, segment)
-            .map_err(|message| OutputError::BadSegment { index, message })?;
+        check_segment(width, height, index, segment).map_err(|e| OutputError::BadSegment {
+            index,
+            message: e.to_string(),
+        })?;
         let range = segment_rows(height, index);
         let overlaps = range.start < next_row
             || held.contains_key(&index)

@@ -35,6 +35,7 @@ use super::deflate::{
 };
 use super::srgb::Srgb8;
 use crate::error::OutputError;
+use crate::tile::Rect;
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Write};
 use std::ops::Range;
@@ -87,11 +88,33 @@ pub fn max_segment_deflate_len(filtered_len: u64) -> u64 {
         .saturating_add(64)
 }
 
+/// Why a segment's framing is not what segment `index` of an image must
+/// have ([`check_segment`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SegmentError {
+    #[error("segment {index} is not one of the image's {count} segments")]
+    NotInImage { index: u32, count: u32 },
+    #[error("segment {index} holds {got} filtered bytes, not {expected}")]
+    FilteredLen { index: u32, got: u64, expected: u64 },
+    #[error(
+        "segment {index} has {len} deflate bytes, more than the {most} its {filtered} \
+         filtered bytes can take"
+    )]
+    TooLong {
+        index: u32,
+        len: u64,
+        most: u64,
+        filtered: u64,
+    },
+    #[error("segment {index} does not end in a sync flush")]
+    NoSyncFlush { index: u32 },
+}
+
 /// Checks the framing of `segment` as segment `index` of a `width` ×
 /// `height` image, what can be checked without inflating it: the index is
 /// one of the image's segments, the filtered length is its rows', the
 /// deflate bytes are at most [`max_segment_deflate_len`] and end in a sync
-/// flush. The message says what is wrong. (Whether the bytes inflate to
+/// flush. The error says what is wrong. (Whether the bytes inflate to
 /// that many filtered bytes with that Adler-32, and the pixels are right,
 /// it cannot tell.)
 pub fn check_segment(
@@ -99,32 +122,79 @@ pub fn check_segment(
     height: u32,
     index: u32,
     segment: &PngSegment,
-) -> Result<(), String> {
+) -> Result<(), SegmentError> {
     let count = segment_count(height);
     if index >= count {
-        return Err(format!(
-            "segment {index} is not one of the image's {count} segments"
-        ));
+        return Err(SegmentError::NotInImage { index, count });
     }
     let expected = segment_filtered_len(width, height, index);
     if segment.filtered_len != expected {
-        return Err(format!(
-            "segment {index} holds {} filtered bytes, not {expected}",
-            segment.filtered_len
-        ));
+        return Err(SegmentError::FilteredLen {
+            index,
+            got: segment.filtered_len,
+            expected,
+        });
     }
     let most = max_segment_deflate_len(expected);
     if segment.deflate.len() as u64 > most {
-        return Err(format!(
-            "segment {index} has {} deflate bytes, more than the {most} its {expected} \
-             filtered bytes can take",
-            segment.deflate.len()
-        ));
+        return Err(SegmentError::TooLong {
+            index,
+            len: segment.deflate.len() as u64,
+            most,
+            filtered: expected,
+        });
     }
     if !segment.deflate.ends_with(&SYNC_FLUSH) {
-        return Err(format!("segment {index} does not end in a sync flush"));
+        return Err(SegmentError::NoSyncFlush { index });
     }
     Ok(())
+}
+
+/// Why a rect of a frame is not whole segments of full-width rows
+/// ([`whole_segments`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SegmentRectError {
+    #[error("rows {y}..+{h} are not in the {width}x{height} frame")]
+    OutsideFrame {
+        y: u32,
+        h: u32,
+        width: u32,
+        height: u32,
+    },
+    #[error("columns {x}..{end} are not the frame's full width {width}")]
+    NotFullWidth { x: u32, end: u32, width: u32 },
+    #[error("rows {y}..{end} are not whole {SEGMENT_ROWS}-row segments")]
+    NotWholeSegments { y: u32, end: u32 },
+}
+
+/// The segments `rect` of a `width` × `height` frame is, as (first, count),
+/// when it is whole segments: full-width rows from a multiple of
+/// [`SEGMENT_ROWS`] to a multiple of it or the frame's bottom, at least one
+/// row. The one rule for what a lease of encoded segments may cover.
+pub fn whole_segments(rect: Rect, width: u32, height: u32) -> Result<(u32, u32), SegmentRectError> {
+    let Some(end) = rect.y.checked_add(rect.h).filter(|&e| e <= height) else {
+        return Err(SegmentRectError::OutsideFrame {
+            y: rect.y,
+            h: rect.h,
+            width,
+            height,
+        });
+    };
+    if rect.x != 0 || rect.w != width {
+        return Err(SegmentRectError::NotFullWidth {
+            x: rect.x,
+            end: rect.x.saturating_add(rect.w),
+            width,
+        });
+    }
+    if rect.h == 0
+        || !rect.y.is_multiple_of(SEGMENT_ROWS)
+        || (!end.is_multiple_of(SEGMENT_ROWS) && end != height)
+    {
+        return Err(SegmentRectError::NotWholeSegments { y: rect.y, end });
+    }
+    let first = rect.y / SEGMENT_ROWS;
+    Ok((first, end.div_ceil(SEGMENT_ROWS) - first))
 }
 
 /// One segment, encoded: a piece of the image's zlib stream and what is
@@ -333,8 +403,8 @@ impl<W: Write> PngStream<W> {
     /// bytes do not end in a sync flush is refused (`InvalidInput`) and
     /// nothing is written: the framing a segment made elsewhere must have.
     pub fn push(&mut self, segment: &PngSegment) -> io::Result<()> {
-        if let Err(m) = check_segment(self.width, self.height, self.pushed, segment) {
-            return Err(io::Error::new(io::ErrorKind::InvalidInput, m));
+        if let Err(e) = check_segment(self.width, self.height, self.pushed, segment) {
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, e));
         }
         // The chunks cut `header ‖ deflate` every IDAT_MAX bytes.
         let header: &[u8] = if self.pushed == 0 { &ZLIB_HEADER } else { &[] };

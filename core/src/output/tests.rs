@@ -799,3 +799,92 @@ fn noise_deflates_under_the_stated_bound() {
         assert!(check_segment(width, 16, 0, &seg).is_ok());
     }
 }
+
+#[test]
+fn a_badly_framed_segment_is_refused_with_what_is_wrong() {
+    let px = vec![[0.25f32, 0.5, 0.75]; 5 * 16];
+    let seg = encode_segment(5, &px);
+    assert_eq!(check_segment(5, 20, 0, &seg), Ok(()));
+    assert_eq!(
+        check_segment(5, 20, 2, &seg),
+        Err(SegmentError::NotInImage { index: 2, count: 2 })
+    );
+    // Segment 1 of a 20-row frame has 4 rows.
+    assert_eq!(
+        check_segment(5, 20, 1, &seg),
+        Err(SegmentError::FilteredLen {
+            index: 1,
+            got: 16 * 16,
+            expected: 4 * 16
+        })
+    );
+    let mut long = seg.clone();
+    long.deflate = vec![0; 16 * 16 * 2];
+    assert!(matches!(
+        check_segment(5, 20, 0, &long),
+        Err(SegmentError::TooLong {
+            index: 0,
+            len: 512,
+            most: 448,
+            filtered: 256
+        })
+    ));
+    let mut cut = seg.clone();
+    cut.deflate.pop();
+    let e = check_segment(5, 20, 0, &cut).unwrap_err();
+    assert_eq!(e, SegmentError::NoSyncFlush { index: 0 });
+    assert_eq!(e.to_string(), "segment 0 does not end in a sync flush");
+}
+
+#[test]
+fn only_whole_segments_of_full_rows_are_whole_segments() {
+    assert_eq!(whole_segments(Rect::new(0, 0, 10, 16), 10, 40), Ok((0, 1)));
+    assert_eq!(whole_segments(Rect::new(0, 16, 10, 24), 10, 40), Ok((1, 2)));
+    assert_eq!(whole_segments(Rect::new(0, 32, 10, 8), 10, 40), Ok((2, 1)));
+    use SegmentRectError::*;
+    for (r, want) in [
+        (
+            Rect::new(1, 0, 9, 16),
+            NotFullWidth {
+                x: 1,
+                end: 10,
+                width: 10,
+            },
+        ),
+        (
+            Rect::new(0, 0, 9, 16),
+            NotFullWidth {
+                x: 0,
+                end: 9,
+                width: 10,
+            },
+        ),
+        (Rect::new(0, 8, 10, 16), NotWholeSegments { y: 8, end: 24 }),
+        (Rect::new(0, 0, 10, 8), NotWholeSegments { y: 0, end: 8 }),
+        (Rect::new(0, 0, 10, 0), NotWholeSegments { y: 0, end: 0 }),
+        (
+            Rect::new(0, 32, 10, 16),
+            OutsideFrame {
+                y: 32,
+                h: 16,
+                width: 10,
+                height: 40,
+            },
+        ),
+        (
+            Rect::new(0, u32::MAX, 10, 16),
+            OutsideFrame {
+                y: u32::MAX,
+                h: 16,
+                width: 10,
+                height: 40,
+            },
+        ),
+    ] {
+        assert_eq!(whole_segments(r, 10, 40), Err(want), "{r:?}");
+    }
+    assert_eq!(
+        NotWholeSegments { y: 8, end: 24 }.to_string(),
+        "rows 8..24 are not whole 16-row segments"
+    );
+}

@@ -21,8 +21,8 @@
 //! `light.rs`, `camera.rs` and its `render.rs`; `values.rs` reads typed
 //! values. The root `<scene>` is read here. The tables are what an element
 //! accepts (an attribute not in its table is an error) and what
-//! docs/aisxml.md is checked against (see [`ATTRIBUTE_TABLES`] and
-//! `doc_tests.rs`).
+//! docs/aisxml.md is checked against (see `ELEMENTS`, the one table of the
+//! elements, and `doc_tests.rs`).
 //!
 //! Paths: `file=` and `output=` are relative to the scene file's directory
 //! and must stay inside it; they are stored bundle-relative (prefixed with
@@ -52,6 +52,8 @@ mod animation_tests;
 #[cfg(test)]
 mod bounds_tests;
 #[cfg(test)]
+mod defaults_tests;
+#[cfg(test)]
 mod doc_tests;
 #[cfg(test)]
 mod headers_tests;
@@ -59,37 +61,133 @@ mod headers_tests;
 mod tests;
 
 use super::estimate::{estimate_sized, AssetSizes, MemoryEstimate};
-use super::source::FileSource;
+use super::source::{normalize_rel_path, FileSource, PathError};
 use super::{SceneDesc, MAX_OBJECTS};
 use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
 use glam::DVec3;
 use std::collections::{BTreeSet, HashMap};
-use table::{attr, Attribute, REQUIRED};
+use table::{attr, Attribute, Element, REQUIRED};
 use values::{El, Result};
 use xml::{excerpt, Attr, Elem, Src};
 
 /// The attributes of the root `<scene>`.
 const SCENE: &[Attribute] = &[attr("version", "\"1\"", REQUIRED, "the AISXML version")];
 
-/// Every element's attribute table, by element name (elements that take
-/// no attributes are not listed).
-pub const ATTRIBUTE_TABLES: &[(&str, &[Attribute])] = &[
-    ("scene", SCENE),
-    ("settings", settings::SETTINGS),
-    ("mesh", mesh::MESH),
-    ("model", model::MODEL),
-    ("surface", surface::SURFACE),
-    ("translate", transform::TRANSLATE),
-    ("rotate", transform::ROTATE),
-    ("scale", transform::SCALE),
-    ("matrix", transform::MATRIX),
-    ("sphere", sphere::SPHERE),
-    ("plane", plane::PLANE),
-    ("light", light::LIGHT),
-    ("camera", camera::CAMERA),
-    ("render", render::RENDER),
-    ("animate", animation::ANIMATE),
+/// How the reader reads an element that is a child of the root.
+type Reader = for<'a> fn(&mut Resolver<'a>, &'a Elem) -> Result<()>;
+
+/// `Some(read)`, with the closure coerced to a [`Reader`].
+const fn reads(read: Reader) -> Option<Reader> {
+    Some(read)
+}
+
+/// An element without attributes, read by its parent, holding `children`.
+const fn holding(name: &'static str, children: &'static [&'static str]) -> Element<Reader> {
+    Element {
+        name,
+        attributes: &[],
+        children,
+        text: false,
+        read: None,
+    }
+}
+
+/// An element read by its parent, with `attributes` and no children.
+const fn leaf(name: &'static str, attributes: &'static [Attribute]) -> Element<Reader> {
+    Element {
+        attributes,
+        ..holding(name, &[])
+    }
+}
+
+/// An element whose content is text (numbers), without attributes.
+const fn text(name: &'static str) -> Element<Reader> {
+    Element {
+        text: true,
+        ..holding(name, &[])
+    }
+}
+
+/// Every AISXML element, the root first: the one place an element is
+/// named. The tree is checked against its children (`xml.rs`), the root's
+/// children are read by its readers, and docs/aisxml.md is checked against
+/// its attribute tables (`doc_tests.rs`).
+const ELEMENTS: &[Element<Reader>] = &[
+    Element {
+        name: "scene",
+        attributes: SCENE,
+        children: &[
+            "settings", "mesh", "model", "sphere", "plane", "light", "camera",
+        ],
+        text: false,
+        read: None,
+    },
+    Element {
+        name: "settings",
+        attributes: settings::SETTINGS,
+        children: &[],
+        text: false,
+        read: reads(|r, e| r.settings(e)),
+    },
+    Element {
+        name: "mesh",
+        attributes: mesh::MESH,
+        children: &["vertices", "normals", "uvs", "triangles"],
+        text: false,
+        read: reads(|r, e| r.mesh(e)),
+    },
+    text("vertices"),
+    text("normals"),
+    text("uvs"),
+    text("triangles"),
+    Element {
+        name: "model",
+        attributes: model::MODEL,
+        children: &["transform", "surface", "animate"],
+        text: false,
+        read: reads(|r, e| r.model(e)),
+    },
+    holding("transform", &["translate", "rotate", "scale", "matrix"]),
+    leaf("surface", surface::SURFACE),
+    leaf("translate", transform::TRANSLATE),
+    leaf("rotate", transform::ROTATE),
+    leaf("scale", transform::SCALE),
+    leaf("matrix", transform::MATRIX),
+    Element {
+        name: "sphere",
+        attributes: sphere::SPHERE,
+        children: &["surface"],
+        text: false,
+        read: reads(|r, e| r.sphere(e)),
+    },
+    Element {
+        name: "plane",
+        attributes: plane::PLANE,
+        children: &["surface"],
+        text: false,
+        read: reads(|r, e| r.plane(e)),
+    },
+    Element {
+        name: "light",
+        attributes: light::LIGHT,
+        children: &["animate"],
+        text: false,
+        read: reads(|r, e| r.light(e)),
+    },
+    Element {
+        name: "camera",
+        attributes: camera::CAMERA,
+        children: &["render", "animate"],
+        text: false,
+        read: reads(|r, e| r.camera(e)),
+    },
+    leaf("render", render::RENDER),
+    leaf("animate", animation::ANIMATE),
 ];
+
+/// The element that reads meshes: they are read before the root's other
+/// children, so that models may refer to meshes defined later.
+const MESH_ELEMENT: &str = "mesh";
 
 /// Parses the scene file `scene` (bundle-relative) from `source`, loading the
 /// meshes it references, and returns the resolved, validated description.
@@ -173,7 +271,7 @@ fn parse_with(
     load: Load,
 ) -> Result<(SceneDesc, AssetSizes)> {
     let src = Src { file: scene, text };
-    let root = xml::parse_document(&src)?;
+    let root = xml::parse_document(&src, ELEMENTS)?;
     let scene_dir = match scene.rfind('/') {
         Some(i) => scene[..i].to_string(),
         None => String::new(),
@@ -192,6 +290,7 @@ fn parse_with(
         object_ids: HashMap::new(),
         light_ids: HashMap::new(),
         camera_ids: HashMap::new(),
+        settings_at: None,
         outputs: outputs::Outputs::default(),
         texture_ids: HashMap::new(),
         texels: 0,
@@ -229,6 +328,8 @@ struct Resolver<'a> {
     object_ids: HashMap<String, Claim>,
     light_ids: HashMap<String, Claim>,
     camera_ids: HashMap<String, Claim>,
+    /// The offset of the `<settings>` read, if one was.
+    settings_at: Option<usize>,
     /// Every camera's output, with the offset of its `<render>`.
     outputs: outputs::Outputs,
     /// Texture file (bundle path) → index in `desc.textures`.
@@ -242,6 +343,16 @@ struct Resolver<'a> {
 impl<'a> Resolver<'a> {
     fn el(&self, e: &'a Elem) -> El<'a> {
         El::new(self.src, e)
+    }
+
+    /// The path attribute `a` names (`file=`, `diffuse-texture=`,
+    /// `output=`), normalised and relative to the scene's directory, which
+    /// it must stay inside; otherwise an error at the attribute.
+    fn attr_path(el: &El, a: &Attr) -> Result<String> {
+        normalize_rel_path(&a.value).map_err(|e| {
+            el.attr_err(a, outside_scene(&e))
+                .with_kind(SceneErrorKind::Reference)
+        })
     }
 
     /// Prefixes a normalised scene-relative path with the scene's directory.
@@ -301,39 +412,21 @@ impl<'a> Resolver<'a> {
         el.check_attrs(SCENE)?;
 
         // Meshes first, so that models may refer to meshes defined later.
-        for c in root.children.iter().filter(|c| c.name == "mesh") {
-            self.mesh(c)?;
-        }
-        let mut settings_at: Option<usize> = None;
-        for c in &root.children {
-            match c.name.as_str() {
-                "settings" => {
-                    if let Some(first) = settings_at {
-                        return Err(self.src.err(
-                            c.pos,
-                            format!(
-                                "more than one <settings> (the first is at {}; expected at most one)",
-                                self.src.line_col(first)
-                            ),
-                        ).with_kind(SceneErrorKind::UnknownElement));
-                    }
-                    settings_at = Some(c.pos);
-                    self.settings(c)?;
-                }
-                "mesh" => {}
-                "model" => self.model(c)?,
-                "sphere" => self.sphere(c)?,
-                "plane" => self.plane(c)?,
-                "light" => self.light(c)?,
-                "camera" => self.camera(c)?,
+        let (meshes, others): (Vec<&'a Elem>, Vec<&'a Elem>) =
+            root.children.iter().partition(|c| c.name == MESH_ELEMENT);
+        for c in meshes.into_iter().chain(others) {
+            let read = ELEMENTS
+                .iter()
+                .find(|e| e.name == c.name)
+                .and_then(|e| e.read);
+            let Some(read) = read else {
                 // xml::parse_document admits no other children of <scene>.
-                other => {
-                    return Err(self
-                        .src
-                        .err(c.pos, format!("unknown element <{other}>"))
-                        .with_kind(SceneErrorKind::UnknownElement));
-                }
-            }
+                return Err(self
+                    .src
+                    .err(c.pos, format!("unknown element <{}>", c.name))
+                    .with_kind(SceneErrorKind::UnknownElement));
+            };
+            read(self, c)?;
         }
         if self.desc.cameras.is_empty() {
             return Err(el
@@ -342,6 +435,12 @@ impl<'a> Resolver<'a> {
         }
         Ok(())
     }
+}
+
+/// What a path a scene names is told when it is absolute, empty or leaves
+/// the scene's directory.
+fn outside_scene(e: &PathError) -> String {
+    format!("{e} (expected a relative path inside the scene's directory)")
 }
 
 /// A required `x y z` attribute.

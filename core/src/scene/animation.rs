@@ -292,16 +292,26 @@ pub fn frame_runs(path: &str) -> Option<usize> {
     (!in_dir && runs <= 1).then_some(runs)
 }
 
+/// An output path split at its first run of `#`: what comes before it, the
+/// run's length and what comes after it; a still's name (no `#`) is all
+/// prefix, with a run of 0.
+pub fn split_pattern(pattern: &str) -> (&str, usize, &str) {
+    match pattern.find('#') {
+        None => (pattern, 0, ""),
+        Some(i) => {
+            let n = pattern[i..].bytes().take_while(|&b| b == b'#').count();
+            (&pattern[..i], n, &pattern[i + n..])
+        }
+    }
+}
+
 /// An output pattern's name for one frame: its one run of `#` replaced by
 /// the frame number, zero-padded to the run's length (longer numbers are
 /// written in full).
 pub fn frame_output(pattern: &str, frame: u32) -> String {
-    match pattern.find('#') {
-        None => pattern.to_string(),
-        Some(i) => {
-            let n = pattern[i..].bytes().take_while(|&b| b == b'#').count();
-            format!("{}{frame:0n$}{}", &pattern[..i], &pattern[i + n..])
-        }
+    match split_pattern(pattern) {
+        (_, 0, _) => pattern.to_string(),
+        (prefix, n, suffix) => format!("{prefix}{frame:0n$}{suffix}"),
     }
 }
 

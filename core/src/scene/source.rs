@@ -255,7 +255,7 @@ mod tests {
         ));
     }
 
-    /// Issue 36: `models/x.obj` naming `../textures/x.png` stays inside
+    /// Regression: `models/x.obj` naming `../textures/x.png` stays inside
     /// the scene's directory and was refused as climbing out.
     #[test]
     fn references_resolve_from_the_folder_of_the_file_that_names_them() {

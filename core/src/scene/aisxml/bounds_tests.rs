@@ -1,4 +1,4 @@
-//! Tests of issue 36's scene-format items: references from a subfolder
+//! Tests of the scene format's bounds and references: references from a subfolder
 //! resolved against it, outputs of different cameras that would write one
 //! file, `fps` too small for 32 bits, a camera id with `#`, rect lights too
 //! large to render, and the `.mtl` libraries parsed once per scene.
@@ -42,7 +42,7 @@ fn cam(id: &str, render: &str) -> String {
 const QUAD_OBJ: &str = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
                         f 1/1 2/2 3/3 4/4\n";
 
-/// Issue 36: `models/x.obj` naming `../materials/x.mtl`, which names
+/// Regression: `models/x.obj` naming `../materials/x.mtl`, which names
 /// `../textures/x.png`, was refused as climbing out although every file is
 /// inside the scene's directory (the layout exporters write). Read from a
 /// directory as `trevi-submit` collects a bundle, and rendered: the quad
@@ -122,7 +122,7 @@ fn references_that_climb_out_of_the_scene_directory_are_refused() {
     assert!(e.message.contains("climbs out"), "{e}");
 }
 
-/// Issue 36: an `.mtl` named by many meshes and many times on one `mtllib`
+/// Regression: an `.mtl` named by many meshes and many times on one `mtllib`
 /// line is read and parsed once; its materials are shared.
 #[test]
 fn a_library_named_many_times_is_read_once() {
@@ -156,7 +156,7 @@ fn a_library_named_many_times_is_read_once() {
     assert_eq!(counting.1.lock().unwrap().get("m.mtl"), Some(&1));
 }
 
-/// Issue 36: `x.#.png` and `x.##.png` both write `x.10.png`; a still
+/// Regression: `x.#.png` and `x.##.png` both write `x.10.png`; a still
 /// `x.10.png` is frame 10 of `x.#.png`. Refused at the second `<render>`'s
 /// output, naming the file and the first.
 #[test]
@@ -204,7 +204,7 @@ fn outputs_that_write_one_file_are_refused_where_the_second_is() {
     parse(&cameras(&[&e, &f, &g, &h]), &[]).unwrap();
 }
 
-/// Issue 36: a run of `#` is bounded (the names are compared as numbers).
+/// Regression: a run of `#` is bounded (the names are compared as numbers).
 #[test]
 fn a_pattern_run_is_bounded() {
     let long = format!(r#"frames="1-2" output="x.{}.png""#, "#".repeat(33));
@@ -223,7 +223,7 @@ fn a_pattern_run_is_bounded() {
     parse(&cameras(&[&ok]), &[]).unwrap();
 }
 
-/// Issue 36: `fps="1e-300"` was refused as "not > 0".
+/// Regression: `fps="1e-300"` was refused as "not > 0".
 #[test]
 fn an_fps_too_small_for_32_bits_says_so() {
     let c = cam("c", r#"frames="1-2" fps="1e-300""#);
@@ -246,7 +246,7 @@ fn an_fps_too_small_for_32_bits_says_so() {
         .contains("> 0"));
 }
 
-/// Issue 36: a camera id with `#` failed later, without a place.
+/// Regression: a camera id with `#` failed later, without a place.
 #[test]
 fn a_camera_id_with_a_hash_is_refused_at_the_id() {
     for render in ["", r#"frames="1-3""#] {
@@ -279,7 +279,7 @@ fn lit_by_a_rect_of(edge: &str) -> super::Result<f32> {
     Ok(t.pixels.iter().map(|p| p[0] + p[1] + p[2]).sum::<f32>() / 48.0)
 }
 
-/// Issue 36: a rect light with edges of 1e18 vanished without an error
+/// Regression: a rect light with edges of 1e18 vanished without an error
 /// (its area's square overflowed 32 bits). Past `MAX_RECT_EDGE` it is
 /// refused at the edge; at the bound it lights the scene as a small one
 /// does at its own scale.

@@ -1,5 +1,5 @@
 //! docs/aisxml.md and docs/aisxml-extensions.md checked against the
-//! elements' attribute tables ([`super::ATTRIBUTE_TABLES`]): every attribute
+//! elements' attribute tables (`super::ELEMENTS`): every attribute
 //! a table holds is documented (an extension in the extensions document),
 //! and every attribute the documents show is in a table.
 //!
@@ -9,10 +9,18 @@
 //! column of a table under a heading that names the element (`<render>`).
 
 use super::table::Attribute;
-use super::ATTRIBUTE_TABLES;
+use super::ELEMENTS;
 use std::collections::{BTreeMap, BTreeSet};
 
 type Shown = BTreeMap<&'static str, BTreeSet<String>>;
+
+/// The elements that take attributes, each with its table.
+fn attribute_tables() -> impl Iterator<Item = (&'static str, &'static [Attribute])> {
+    ELEMENTS
+        .iter()
+        .filter(|e| !e.attributes.is_empty())
+        .map(|e| (e.name, e.attributes))
+}
 
 fn read_doc(name: &str) -> String {
     let path = format!("{}/../docs/{name}", env!("CARGO_MANIFEST_DIR"));
@@ -25,7 +33,7 @@ fn is_name_char(c: char) -> bool {
 
 /// The attribute names inside tags `<element ...>` of `text`, per element.
 fn in_tags(text: &str, shown: &mut Shown) {
-    for &(element, _) in ATTRIBUTE_TABLES {
+    for (element, _) in attribute_tables() {
         let open = format!("<{element}");
         let mut rest = text;
         while let Some(i) = rest.find(&open) {
@@ -63,9 +71,8 @@ fn in_tables(text: &str, shown: &mut Shown) {
     let mut rows = 0;
     for line in text.lines() {
         if line.starts_with('#') {
-            element = ATTRIBUTE_TABLES
-                .iter()
-                .map(|&(e, _)| e)
+            element = attribute_tables()
+                .map(|(e, _)| e)
                 .find(|e| line.contains(&format!("`<{e}>`")) || line.contains(&format!("`<{e} ")));
             rows = 0;
             continue;
@@ -101,7 +108,7 @@ fn the_attribute_tables_and_the_format_reference_agree() {
     let core = shown_in("aisxml.md");
     let ext = shown_in("aisxml-extensions.md");
     let mut problems = Vec::new();
-    for &(element, table) in ATTRIBUTE_TABLES {
+    for (element, table) in attribute_tables() {
         for &Attribute {
             name, extension, ..
         } in table
@@ -139,7 +146,7 @@ fn the_attribute_tables_and_the_format_reference_agree() {
 
 #[test]
 fn the_tables_name_each_attribute_once_with_a_meaning() {
-    for &(element, table) in ATTRIBUTE_TABLES {
+    for (element, table) in attribute_tables() {
         let mut seen = BTreeSet::new();
         for a in table {
             assert!(seen.insert(a.name), "<{element}> lists {} twice", a.name);
@@ -168,4 +175,42 @@ fn the_check_reads_tags_signatures_and_tables() {
         ["direction", "id", "lookat", "position", "up"]
     );
     assert_eq!(names("light"), ["position", "type"]);
+}
+
+#[test]
+fn the_element_table_names_each_element_once_and_every_child() {
+    let mut seen = BTreeSet::new();
+    for e in ELEMENTS {
+        assert!(seen.insert(e.name), "<{}> has two rows", e.name);
+        assert!(
+            !e.text || e.children.is_empty(),
+            "<{}> takes text and elements",
+            e.name
+        );
+    }
+    for e in ELEMENTS {
+        for c in e.children {
+            assert!(
+                seen.contains(c),
+                "<{}> holds <{c}>, which has no row",
+                e.name
+            );
+        }
+    }
+    // Every element but the root is inside another, and only the root's
+    // children are read by the root.
+    let (root, rest) = ELEMENTS.split_first().expect("a root");
+    for e in rest {
+        assert!(
+            ELEMENTS.iter().any(|p| p.children.contains(&e.name)),
+            "<{}> is inside no element",
+            e.name
+        );
+        assert_eq!(
+            e.read.is_some(),
+            root.children.contains(&e.name),
+            "<{}>: read by the root exactly when its child",
+            e.name
+        );
+    }
 }

@@ -14,12 +14,12 @@
 use std::collections::HashMap;
 use std::rc::Rc;
 
-use super::{Resolver, Result};
+use super::{outside_scene, Resolver, Result};
 use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
 use crate::mesh::mtl::{self, Material};
 use crate::mesh::obj::{ObjMaterials, MAX_OBJ_MATERIALS, NO_MATERIAL};
 use crate::mesh::Mesh;
-use crate::scene::source::{resolve_reference, PathError};
+use crate::scene::source::resolve_reference;
 use crate::scene::{Surface, TextureMap};
 use crate::texture::Wrap;
 
@@ -64,13 +64,7 @@ impl Resolver<'_> {
         let mut libs: Vec<Rc<MtlLibrary>> = Vec::with_capacity(m.libs.len());
         for (name, at) in &m.libs {
             let loc = || Location::at_offset(obj_path, obj, *at);
-            let path = self.referenced_path(obj_path, name).map_err(|e| {
-                SceneError::of_kind(
-                    SceneErrorKind::Reference,
-                    loc(),
-                    format!("{e} (expected a relative path inside the scene's directory)"),
-                )
-            })?;
+            let path = self.referenced_path(obj_path, name, loc)?;
             if let Some(lib) = self.mtl_libraries.get(&path) {
                 libs.push(lib.clone());
                 continue;
@@ -127,13 +121,7 @@ impl Resolver<'_> {
                         format!("map_Kd of material \"{name}\": the mesh \"{obj_path}\" has no texture coordinates (expected vt on every face corner)"),
                     ));
                 }
-                let path = self.referenced_path(&lib.path, &map.file).map_err(|e| {
-                    SceneError::of_kind(
-                        SceneErrorKind::Reference,
-                        at(),
-                        format!("{e} (expected a relative path inside the scene's directory)"),
-                    )
-                })?;
+                let path = self.referenced_path(&lib.path, &map.file, at)?;
                 let texture =
                     self.load_texture(&path, |msg, kind| SceneError::of_kind(kind, at(), msg))?;
                 s.texture = Some(TextureMap {
@@ -165,12 +153,14 @@ impl Resolver<'_> {
     /// The bundle path of `reference`, written in the bundle file
     /// `referrer` (an OBJ or a `.mtl`): resolved against the referrer's
     /// folder, and refused if it leaves the scene's directory (the one rule
-    /// of [`resolve_reference`]).
+    /// of [`resolve_reference`], as for a path an attribute names: an
+    /// error at `at`).
     fn referenced_path(
         &self,
         referrer: &str,
         reference: &str,
-    ) -> std::result::Result<String, PathError> {
+        at: impl Fn() -> Location,
+    ) -> Result<String> {
         let in_scene = if self.scene_dir.is_empty() {
             referrer
         } else {
@@ -180,7 +170,8 @@ impl Resolver<'_> {
                 .unwrap_or(referrer)
         };
         let from = in_scene.rfind('/').map_or("", |i| &in_scene[..i]);
-        let rel = resolve_reference(from, reference)?;
+        let rel = resolve_reference(from, reference)
+            .map_err(|e| SceneError::of_kind(SceneErrorKind::Reference, at(), outside_scene(&e)))?;
         Ok(self.bundle_path(&rel))
     }
 }

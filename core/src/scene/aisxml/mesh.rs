@@ -8,7 +8,6 @@ use super::{Load, Resolver, Result};
 use crate::error::{read_error_kind, SceneErrorKind};
 use crate::mesh::counts::MeshCounts;
 use crate::mesh::Mesh;
-use crate::scene::source::normalize_rel_path;
 use crate::scene::MAX_MESH_ELEMENTS;
 use glam::{DVec3, Vec2, Vec3};
 
@@ -113,14 +112,7 @@ impl<'a> Resolver<'a> {
     /// The bundle path of the mesh file `f` names, and its bytes; whether
     /// it is an OBJ (else a PLY).
     fn read_mesh_file(&self, el: &El<'a>, f: &'a Attr) -> Result<(String, Vec<u8>, bool)> {
-        let rel = normalize_rel_path(&f.value).map_err(|m| {
-            el.attr_err(
-                f,
-                format!("{m} (expected a relative path inside the scene's directory)"),
-            )
-            .with_kind(SceneErrorKind::Reference)
-        })?;
-        let path = self.bundle_path(&rel);
+        let path = self.bundle_path(&Self::attr_path(el, f)?);
         let lower = path.to_ascii_lowercase();
         let is_obj = lower.ends_with(".obj");
         if !is_obj && !lower.ends_with(".ply") {

@@ -19,7 +19,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::scene::animation::Frames;
+use crate::scene::animation::{split_pattern, Frames};
 
 /// The longest run of `#` in an output pattern: the frame numbers' digits
 /// are compared as integers of at most this many digits (10³² fits in an
@@ -41,25 +41,17 @@ impl Output {
     /// `path` (a still's name, or a pattern with one run of `#`, at most
     /// [`MAX_PATTERN_RUN`] long) and the frames of its `<render>`.
     pub fn new(path: &str, frames: Option<Frames>) -> Output {
-        let (first, last) = frames.map_or((0, 0), |f| (f.first, f.last));
-        match path.find('#') {
-            None => Output {
-                prefix: path.to_string(),
-                run: 0,
-                suffix: String::new(),
-                first: 0,
-                last: 0,
-            },
-            Some(i) => {
-                let run = path[i..].bytes().take_while(|&b| b == b'#').count();
-                Output {
-                    prefix: path[..i].to_string(),
-                    run,
-                    suffix: path[i + run..].to_string(),
-                    first,
-                    last,
-                }
-            }
+        let (prefix, run, suffix) = split_pattern(path);
+        let (first, last) = match frames {
+            Some(f) if run > 0 => (f.first, f.last),
+            _ => (0, 0),
+        };
+        Output {
+            prefix: prefix.to_string(),
+            run,
+            suffix: suffix.to_string(),
+            first,
+            last,
         }
     }
 

@@ -170,13 +170,7 @@ impl<'a> Resolver<'a> {
         let output_attr = el.get("output");
         let output = match output_attr {
             Some(a) => {
-                let rel = normalize_rel_path(&a.value).map_err(|m| {
-                    el.attr_err(
-                        a,
-                        format!("{m} (expected a relative path inside the scene's directory)"),
-                    )
-                    .with_kind(SceneErrorKind::Reference)
-                })?;
+                let rel = Self::attr_path(&el, a)?;
                 if !has_image_extension(&rel) {
                     return Err(el.expected(a, "a file name ending in .png or .exr"));
                 }

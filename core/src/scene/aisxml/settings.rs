@@ -4,6 +4,7 @@
 use super::table::{attr, Attribute};
 use super::xml::Elem;
 use super::{Resolver, Result};
+use crate::error::SceneErrorKind;
 use crate::scene::Settings;
 
 /// The attributes of `<settings>`.
@@ -18,7 +19,21 @@ pub(super) const SETTINGS: &[Attribute] = &[
 ];
 
 impl<'a> Resolver<'a> {
+    /// Reads the scene's `<settings>`; a second one is an error.
     pub(super) fn settings(&mut self, e: &'a Elem) -> Result<()> {
+        if let Some(first) = self.settings_at {
+            return Err(self
+                .src
+                .err(
+                    e.pos,
+                    format!(
+                        "more than one <settings> (the first is at {}; expected at most one)",
+                        self.src.line_col(first)
+                    ),
+                )
+                .with_kind(SceneErrorKind::UnknownElement));
+        }
+        self.settings_at = Some(e.pos);
         let el = self.el(e);
         el.check_attrs(SETTINGS)?;
         let d = Settings::default();

@@ -4,7 +4,9 @@
 //! `El::check_attrs`, so an attribute missing from the table is refused as
 //! unknown; and docs/aisxml.md (with docs/aisxml-extensions.md for Trevi's
 //! extensions) is checked against the tables by a test, so the reference
-//! and the parser cannot drift apart.
+//! and the parser cannot drift apart. [`Element`] is the shape of the
+//! reader's one table of elements, which names each element with its
+//! attribute table and the elements it may hold.
 
 /// One attribute an element accepts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -50,4 +52,21 @@ pub(super) const fn extension(
         extension: true,
         ..attr(name, ty, default, meaning)
     }
+}
+
+/// One element of AISXML: its name, its attribute table (empty when it
+/// takes none), the elements that may appear inside it, and whether its
+/// content is text. The reader's one table of these (`ELEMENTS` in
+/// `aisxml.rs`) is what the tree is checked against, what each element's
+/// attributes are looked up in, and how the root's children are read.
+#[derive(Debug, Clone, Copy)]
+pub struct Element<R: 'static> {
+    pub name: &'static str,
+    pub attributes: &'static [Attribute],
+    pub children: &'static [&'static str],
+    /// Its content is text (whitespace-separated numbers), not elements.
+    pub text: bool,
+    /// How the reader reads it where it is a child of the root (`None`:
+    /// its parent's reader reads it).
+    pub read: Option<R>,
 }

@@ -6,7 +6,6 @@ use super::values::El;
 use super::xml::Attr;
 use super::{Load, Resolver, Result};
 use crate::error::{read_error_kind, SceneErrorKind};
-use crate::scene::source::normalize_rel_path;
 use crate::scene::TextureMap;
 use crate::texture::jpeg_scan::JpegScanError;
 use crate::texture::{header, Texture, TextureError, Wrap, MAX_SCENE_TEXELS};
@@ -67,14 +66,7 @@ impl<'a> Resolver<'a> {
     /// Reads and decodes the image `f` names (once per scene), returning its
     /// index in `desc.textures` (and `sizes.textures`).
     pub(super) fn texture_file(&mut self, el: &El<'a>, f: &'a Attr) -> Result<u32> {
-        let rel = normalize_rel_path(&f.value).map_err(|m| {
-            el.attr_err(
-                f,
-                format!("{m} (expected a relative path inside the scene's directory)"),
-            )
-            .with_kind(SceneErrorKind::Reference)
-        })?;
-        let path = self.bundle_path(&rel);
+        let path = self.bundle_path(&Self::attr_path(el, f)?);
         self.load_texture(&path, |msg, kind| el.attr_err(f, msg).with_kind(kind))
     }
 

@@ -8,6 +8,7 @@
 //! element structure (which element may appear inside which), checked as the
 //! tree is built so that nesting depth is bounded by the schema.
 
+use super::table::Element;
 use crate::error::{Location, SceneError, SceneErrorKind};
 use quick_xml::events::Event;
 use quick_xml::Reader;
@@ -101,27 +102,23 @@ pub(super) struct Elem {
     pub text: Text,
 }
 
-/// Which elements may appear inside which (the AISXML structure). `""` is the
-/// document itself.
-fn allowed_children(parent: &str) -> &'static [&'static str] {
-    match parent {
-        "" => &["scene"],
-        "scene" => &[
-            "settings", "mesh", "model", "sphere", "plane", "light", "camera",
-        ],
-        "mesh" => &["vertices", "normals", "uvs", "triangles"],
-        "model" => &["transform", "surface", "animate"],
-        "transform" => &["translate", "rotate", "scale", "matrix"],
-        "sphere" | "plane" => &["surface"],
-        "camera" => &["render", "animate"],
-        "light" => &["animate"],
-        _ => &[],
+/// The elements that may appear inside `parent` (`""`: the document,
+/// whose one element is the table's first, the root).
+fn allowed_children<R>(elements: &'static [Element<R>], parent: &str) -> &'static [&'static str] {
+    if parent.is_empty() {
+        return elements
+            .first()
+            .map_or(&[], |root| std::slice::from_ref(&root.name));
     }
+    elements
+        .iter()
+        .find(|e| e.name == parent)
+        .map_or(&[], |e| e.children)
 }
 
-/// Elements whose content is text (whitespace-separated numbers).
-pub(super) fn takes_text(name: &str) -> bool {
-    matches!(name, "vertices" | "normals" | "uvs" | "triangles")
+/// Whether element `name`'s content is text (whitespace-separated numbers).
+fn takes_text<R>(elements: &[Element<R>], name: &str) -> bool {
+    elements.iter().any(|e| e.name == name && e.text)
 }
 
 /// XML whitespace (the only characters that separate numbers).
@@ -392,16 +389,20 @@ fn quick_xml_message(e: &quick_xml::Error) -> String {
 }
 
 /// Parses the document into its root element, checking XML well-formedness
-/// and the AISXML element structure.
-pub(super) fn parse_document(src: &Src) -> Result<Elem, SceneError> {
+/// and the AISXML element structure (`elements`: which element may appear
+/// inside which, and which take text).
+pub(super) fn parse_document<R>(
+    src: &Src,
+    elements: &'static [Element<R>],
+) -> Result<Elem, SceneError> {
     // Every error here is a syntax error unless it says otherwise.
-    parse_tree(src).map_err(|e| match e.kind {
+    parse_tree(src, elements).map_err(|e| match e.kind {
         SceneErrorKind::Invalid => e.with_kind(SceneErrorKind::Syntax),
         _ => e,
     })
 }
 
-fn parse_tree(src: &Src) -> Result<Elem, SceneError> {
+fn parse_tree<R>(src: &Src, elements: &'static [Element<R>]) -> Result<Elem, SceneError> {
     let mut reader = Reader::from_str(src.text);
     {
         let c = reader.config_mut();
@@ -439,7 +440,7 @@ fn parse_tree(src: &Src) -> Result<Elem, SceneError> {
                     )
                     .with_kind(SceneErrorKind::UnknownElement));
                 }
-                let allowed = allowed_children(parent);
+                let allowed = allowed_children(elements, parent);
                 if !allowed.contains(&name.as_str()) {
                     let msg = if parent.is_empty() {
                         format!(
@@ -493,7 +494,9 @@ fn parse_tree(src: &Src) -> Result<Elem, SceneError> {
                 let raw = std::str::from_utf8(t)
                     .map_err(|_| src.err(start, "malformed XML: text is not valid UTF-8"))?;
                 match stack.last_mut() {
-                    Some(p) if takes_text(&p.name) => p.text.push_escaped(src, raw, start)?,
+                    Some(p) if takes_text(elements, &p.name) => {
+                        p.text.push_escaped(src, raw, start)?
+                    }
                     p => {
                         only_whitespace(src, raw, start, false, p.map_or("", |p| p.name.as_str()))?
                     }
@@ -510,7 +513,9 @@ fn parse_tree(src: &Src) -> Result<Elem, SceneError> {
                     ));
                 }
                 match stack.last_mut() {
-                    Some(p) if takes_text(&p.name) => p.text.push_literal(raw, content_pos),
+                    Some(p) if takes_text(elements, &p.name) => {
+                        p.text.push_literal(raw, content_pos)
+                    }
                     p => only_whitespace(
                         src,
                         raw,

@@ -6,7 +6,7 @@ use crate::texture::{tests::png_rgb8, Texture, MAX_TEXTURE_TEXELS};
 /// written 1 × 1 RGB too and then its header patched to claim
 /// `side × side`, with zeros appended for the offset table the claim needs
 /// (so the file is as plausible as a real one of that size: about 33 KB
-/// for 65,536²). What the attack of issue 36 used.
+/// for 65,536²). The shape of a real attack on the size check.
 pub(crate) fn hostile_two_part_exr(side: i32) -> Vec<u8> {
     use exr::prelude::*;
     let rgb = |_: Vec2<usize>| (0.5f32, 0.25f32, 1.0f32);
