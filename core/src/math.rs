@@ -4,7 +4,7 @@
 //! system C library, and glibc picks its implementation at load time by CPU
 //! (`__powf_fma`, `__sincosf_fma`, ... when the CPU has FMA). The results may
 //! differ in the last bit between two workers with different instruction
-//! sets, and a pixel must be byte-identical on every worker (issue 17). The
+//! sets, and a pixel must be byte-identical on every worker. The
 //! functions here are the pure-Rust `libm` crate (a port of musl's libm): the
 //! same Rust source on every target, compiled without fused multiply-adds
 //! unless the target always has them, so the same bits everywhere.

@@ -1,11 +1,10 @@
 //! Scenes without area lights render byte-identically to before area lights
 //! reached Whitted mode: the hashes below were computed by this test on the
-//! commit before `integrator/area.rs` existed (h25's branch point), so a
-//! change that alters a Whitted image without emitters fails here. The
-//! Cornell hash was pinned again once, when transcendental functions moved
-//! from the system's libm to `crate::math` (issue 17: the same bits on every
-//! CPU); the effects scene's bytes did not change then. Both were pinned
-//! again for issue 17's third round, shading that costs less (whole Phong
+//! commit before `integrator/area.rs` existed, so a change that alters a
+//! Whitted image without emitters fails here. The Cornell hash was pinned
+//! again once, when transcendental functions moved from the system's libm to
+//! `crate::math` (the same bits on every CPU); the effects scene's bytes did
+//! not change then. Both were pinned again for shading that costs less (whole Phong
 //! exponents by multiplication, the sine and cosine of sampled angles by
 //! polynomial, fewer normalisations per hit: the last bits of pixels move;
 //! docs/performance.md, "Third round: shading").
