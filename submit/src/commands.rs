@@ -6,7 +6,8 @@ use anyhow::{bail, Result};
 use std::io::IsTerminal;
 
 use crate::cli::{self, LeftRunning};
-use crate::client::{self, Progress};
+use crate::client;
+use crate::progress::Progress;
 use crate::{local, Command};
 
 pub async fn run(cmd: Command) -> Result<()> {
@@ -64,13 +65,7 @@ pub async fn run(cmd: Command) -> Result<()> {
         Command::Wait {
             id, output, quiet, ..
         } => {
-            let progress = if quiet {
-                Progress::Quiet
-            } else if std::io::stderr().is_terminal() {
-                Progress::Bar
-            } else {
-                Progress::Lines
-            };
+            let progress = Progress::choose(quiet);
             let mut signals = local::Signals::catch()?;
             let work = async {
                 let end = client.watch(id, progress).await?;

@@ -1,10 +1,12 @@
 //! Rendering on this machine: an embedded coordinator on 127.0.0.1 (an
 //! ephemeral port, data in a temporary directory) and an in-process worker
 //! with every core, driven by the same client as a farm (`client.rs`), so
-//! the output is byte-identical to the farm's. The scene the submitter
-//! parsed is built here once and handed to both: the coordinator keeps its
-//! cameras and the worker starts with it in its scene cache, so neither
-//! parses the bundle again.
+//! the output is byte-identical to the farm's, stills and sequences alike.
+//! The scene the submitter parsed is handed to both: the coordinator keeps
+//! its cameras, so it does not parse the bundle again, and for stills it
+//! is built here once and the worker starts with it in its scene cache. A
+//! sequence's frames need a scene of their own to move from frame to
+//! frame: the worker builds that one from the bundle.
 
 use anyhow::{Context, Result};
 use std::path::Path;
@@ -15,27 +17,41 @@ use trevi_coordinator::{Farm, FarmConfig};
 use trevi_core::{Scene, SceneDesc};
 use trevi_worker::{Preloaded, WorkerConfig};
 
-/// The scene of a local render, built (BVHs included) from the description
-/// the submitter parsed, with its bundle's hash.
-pub struct Built {
+/// The scene of a local render, with its bundle's hash: the description
+/// the submitter parsed, built (BVHs included) when stills are rendered.
+pub struct Prepared {
     hash: String,
     /// The scene file's name in the bundle.
     name: String,
-    scene: Arc<Scene>,
+    scene: Ready,
 }
 
-impl Built {
-    /// Builds `desc`, the parsed scene of the bundle whose hash is `hash`,
-    /// off the async threads.
-    pub async fn new(hash: String, name: String, desc: SceneDesc) -> Result<Built> {
-        let scene = tokio::task::spawn_blocking(move || Scene::build(desc))
-            .await
-            .context("building the scene")?;
-        Ok(Built {
-            hash,
-            name,
-            scene: Arc::new(scene),
-        })
+/// How far [`Prepared`] took the scene.
+enum Ready {
+    Described(Box<SceneDesc>),
+    Built(Arc<Scene>),
+}
+
+impl Prepared {
+    /// `desc`, the parsed scene of the bundle whose hash is `hash`; with
+    /// `build`, built off the async threads.
+    pub async fn new(hash: String, name: String, desc: SceneDesc, build: bool) -> Result<Prepared> {
+        let scene = if build {
+            let scene = tokio::task::spawn_blocking(move || Scene::build(desc))
+                .await
+                .context("building the scene")?;
+            Ready::Built(Arc::new(scene))
+        } else {
+            Ready::Described(Box::new(desc))
+        };
+        Ok(Prepared { hash, name, scene })
+    }
+
+    fn desc(&self) -> &SceneDesc {
+        match &self.scene {
+            Ready::Described(desc) => desc,
+            Ready::Built(scene) => &scene.desc,
+        }
     }
 }
 
@@ -129,15 +145,20 @@ impl Signals {
 impl Embedded {
     /// `threads` render threads (0: every core); `tile` the default tile
     /// edge; `data` its data directory (see [`data_dir`]); `scene` the
-    /// scene about to be submitted, which neither side parses again.
-    pub async fn start(threads: usize, tile: u32, data: &Path, scene: Built) -> Result<Embedded> {
+    /// scene about to be submitted (see [`Prepared`]).
+    pub async fn start(
+        threads: usize,
+        tile: u32,
+        data: &Path,
+        scene: Prepared,
+    ) -> Result<Embedded> {
         let mut cfg = FarmConfig::new(data);
         cfg.default_tile = tile;
         // The data directory dies with this process: nothing to resume.
         cfg.durable = false;
         let farm = Arc::new(Farm::new(cfg).context("cannot start the embedded coordinator")?);
         farm.summaries()
-            .prime(&scene.hash, &scene.name, &scene.scene.desc);
+            .prime(&scene.hash, &scene.name, scene.desc());
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .context("cannot listen on 127.0.0.1")?;
@@ -158,10 +179,12 @@ impl Embedded {
         // The user asked for this render on this machine: it gets the
         // machine's normal share, not a spare machine's leftovers.
         wcfg.priority = trevi_worker::Priority::Normal;
-        wcfg.preloaded = vec![Preloaded {
-            hash: scene.hash,
-            scene: scene.scene,
-        }];
+        if let Ready::Built(built) = scene.scene {
+            wcfg.preloaded = vec![Preloaded {
+                hash: scene.hash,
+                scene: built,
+            }];
+        }
         let worker = tokio::spawn(async move {
             if let Err(e) = trevi_worker::run(wcfg, stop).await {
                 eprintln!("trevi-submit: embedded worker failed: {e}");

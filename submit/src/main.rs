@@ -20,11 +20,11 @@ mod cli;
 mod client;
 mod commands;
 mod local;
+mod progress;
 mod sequence;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -295,7 +295,7 @@ fn run(args: Args) -> Result<()> {
         trevi_core::ParsedBundle::from_scene_file(&scene_path)
             .map_err(|e| anyhow::anyhow!("{}", with_dir(&scene_path, e)))?;
     // Encoded and hashed once, for the upload and the embedded worker.
-    let scene_name = bundle.scene.clone();
+    let bundle_scene = bundle.scene.clone();
     let bundle = client::Encoded::new(&bundle);
     let cameras: Vec<usize> = match &args.camera {
         Some(id) => vec![desc
@@ -321,17 +321,10 @@ fn run(args: Args) -> Result<()> {
         .parent()
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("."));
-    let progress = if args.quiet {
-        client::Progress::Quiet
-    } else if std::io::stderr().is_terminal() {
-        client::Progress::Bar
-    } else {
-        client::Progress::Lines
-    };
+    let progress = progress::Progress::choose(args.quiet);
     // Every output is checked (format, pattern, not a device or directory)
     // before anything renders. A camera with frames (its own, or --frames)
-    // renders a sequence, the others a still, in one run.
-    let mut sequences = Vec::new();
+    // renders a sequence, the others a still, in one run: the stills first.
     let mut targets = Vec::new();
     for &cam in &cameras {
         let c = &desc.cameras[cam];
@@ -339,33 +332,26 @@ fn run(args: Args) -> Result<()> {
             Some(o) => o.clone(),
             None => scene_dir.join(&c.render.output),
         };
-        let context = || format!("camera \"{}\"", c.id);
-        match args.frames.or(c.render.frames) {
-            Some(frames) => sequences.push(
-                sequence::Sequence::new(cam, c.id.clone(), frames, out).with_context(context)?,
-            ),
-            None => targets.push(client::Target::new(c.id.clone(), out).with_context(context)?),
-        }
+        let frames = args.frames.or(c.render.frames);
+        targets.push(
+            client::Target::new(c.id.clone(), out, frames)
+                .with_context(|| format!("camera \"{}\"", c.id))?,
+        );
     }
+    targets.sort_by_key(|t| t.frames().is_some());
     runtime.block_on(async {
         if let Some(url) = &args.coordinator {
             drop(desc);
             let mut client = args.auth.connect(url).await?;
             client.preview = args.preview.clone();
-            let (tile, detach) = (args.tile_size, args.detach);
-            let work = async {
-                if !targets.is_empty() {
-                    client
-                        .render(&bundle, &targets, args.priority, tile, detach, progress)
-                        .await?;
-                }
-                for seq in &sequences {
-                    client
-                        .render_sequence(&bundle, seq, args.priority, tile, detach, progress)
-                        .await?;
-                }
-                anyhow::Ok(())
-            };
+            let work = client.render(
+                &bundle,
+                &targets,
+                args.priority,
+                args.tile_size,
+                args.detach,
+                progress,
+            );
             let signal = tokio::select! {
                 r = work => return r,
                 sig = signals.next() => sig,
@@ -376,59 +362,37 @@ fn run(args: Args) -> Result<()> {
                 url,
             )));
         }
+        // A local render: the same jobs on a farm embedded in this process.
         let data = data.as_ref().expect("made for a local render");
+        let stills = targets.iter().any(|t| t.frames().is_none());
+        let scene = local::Prepared::new(bundle.hash.clone(), bundle_scene, desc, stills).await?;
         let threads = args.threads.unwrap_or(0);
-        if !targets.is_empty() {
-            let scene =
-                local::Built::new(bundle.hash.clone(), scene_name.clone(), desc.clone()).await?;
-            let farm = local::Embedded::start(threads, args.tile_size, data.path(), scene).await?;
-            let render = async {
-                let mut client = client::Client::connect(&farm.url, None).await?;
-                client.announce = false;
-                client.preview = args.preview.clone();
-                client
-                    .render(
-                        &bundle,
-                        &targets,
-                        args.priority,
-                        args.tile_size,
-                        false,
-                        progress,
-                    )
-                    .await
-            };
-            // A signal drops the render, and with it the half-written
-            // output (see client::PartFile), and the embedded worker's
-            // render (its cancel flag, set when the task is dropped, stops
-            // even a pixel in progress); `data` goes after the runtime.
-            let result = tokio::select! {
-                r = render => r,
-                sig = signals.next() => Err(anyhow::Error::new(sig)),
-            };
-            farm.stop().await;
-            result?;
-        }
-        if sequences.is_empty() {
-            return Ok(());
-        }
-        let cancel = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let scene = tokio::task::spawn_blocking(move || trevi_core::Scene::build(desc))
-            .await
-            .context("building the scene")?;
-        let flag = cancel.clone();
-        let tile = args.tile_size;
-        let mut task = tokio::task::spawn_blocking(move || {
-            sequence::render(scene, &sequences, threads, tile, progress, &flag)
-        });
-        tokio::select! {
-            r = &mut task => r.context("the render thread")?,
-            sig = signals.next() => {
-                // The flag stops the render inside the pixel in progress.
-                cancel.store(true, std::sync::atomic::Ordering::Relaxed);
-                let _ = task.await;
-                Err(anyhow::Error::new(sig))
-            }
-        }
+        let farm = local::Embedded::start(threads, args.tile_size, data.path(), scene).await?;
+        let render = async {
+            let mut client = client::Client::connect(&farm.url, None).await?;
+            client.announce = false;
+            client.preview = args.preview.clone();
+            client
+                .render(
+                    &bundle,
+                    &targets,
+                    args.priority,
+                    args.tile_size,
+                    false,
+                    progress,
+                )
+                .await
+        };
+        // A signal drops the render, and with it the half-written output
+        // (see client::PartFile), and the embedded worker's render (its
+        // cancel flag, set when the task is dropped, stops even a pixel in
+        // progress); `data` goes after the runtime.
+        let result = tokio::select! {
+            r = render => r,
+            sig = signals.next() => Err(anyhow::Error::new(sig)),
+        };
+        farm.stop().await;
+        result
     })
 }
 

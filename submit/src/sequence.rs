@@ -1,22 +1,12 @@
-//! A sequence rendered on this machine: `trevi-submit SCENE.xml` on a scene
-//! whose `<render>` has `frames=`, or with `--frames`. The scene is built
-//! once; each frame moves it with `Scene::set_frame` (the mesh BVHs are
-//! kept, only instances, the top-level tree, cameras and lights are made
-//! again) and is rendered tile by tile into its own file through
-//! `FrameWriter`, like a still (band by band, under a temporary name renamed
-//! when the frame is complete). A frame's pixels depend only on the scene,
-//! the frame number and the pixel, as on a farm.
+//! A sequence's frames and files: `--frames` (or the scene's `frames=`)
+//! and the output pattern whose run of `#` is replaced by each frame's
+//! number. A sequence renders like a still, on a farm or on the embedded
+//! one, as one job of frames (see `client/submit.rs`).
 
 use anyhow::{bail, Context, Result};
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
-use std::time::{Duration, Instant};
+use trevi_core::output::Format;
 use trevi_core::scene::animation::{frame_output, Frames, MAX_FRAME};
-use trevi_core::tile::{band_order_tiles, render_tile_cancellable};
-use trevi_core::{FrameWriter, Scene};
-
-use crate::client::Progress;
 
 /// `--frames`: `first-last` or one frame number, in [0, MAX_FRAME].
 pub fn parse_frames(s: &str) -> Result<Frames, String> {
@@ -37,10 +27,9 @@ pub fn parse_frames(s: &str) -> Result<Frames, String> {
     Ok(Frames { first, last })
 }
 
-/// One camera's sequence: its frames and the pattern of its outputs.
+/// A sequence's frames and the pattern of their files.
+#[derive(Debug, Clone)]
 pub struct Sequence {
-    pub camera: usize,
-    pub id: String,
     pub frames: Frames,
     /// With one run of `#` in its file name (see [`frame_output`]).
     pub pattern: PathBuf,
@@ -49,7 +38,7 @@ pub struct Sequence {
 impl Sequence {
     /// Checks `pattern` (one run of `#` in the file name) and every frame's
     /// output (format, not a directory or device) before anything renders.
-    pub fn new(camera: usize, id: String, frames: Frames, pattern: PathBuf) -> Result<Sequence> {
+    pub fn new(frames: Frames, pattern: PathBuf) -> Result<Sequence> {
         let text = pattern
             .to_str()
             .with_context(|| format!("{}: not a path in UTF-8", pattern.display()))?;
@@ -61,12 +50,7 @@ impl Sequence {
                 pattern.display()
             );
         }
-        let s = Sequence {
-            camera,
-            id,
-            frames,
-            pattern,
-        };
+        let s = Sequence { frames, pattern };
         for f in frames.first..=frames.last {
             trevi_core::output::check_output(&s.output(f))?;
         }
@@ -83,146 +67,10 @@ impl Sequence {
         dir.join(frame_output(name, frame))
     }
 
-    fn count(&self) -> u64 {
-        u64::from(self.frames.last - self.frames.first) + 1
-    }
-}
-
-/// Renders every frame of every sequence with `threads` threads (0: every
-/// core) and `tile`-pixel tiles, stopping between pixels once `cancel` is
-/// set (the frame in progress leaves no file).
-pub fn render(
-    mut scene: Scene,
-    sequences: &[Sequence],
-    threads: usize,
-    tile: u32,
-    progress: Progress,
-    cancel: &AtomicBool,
-) -> Result<()> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("cannot start the render threads")?;
-    let total: u64 = sequences
-        .iter()
-        .map(|s| {
-            let r = &scene.desc.cameras[s.camera].render;
-            s.count() * u64::from(r.width) * u64::from(r.height)
-        })
-        .sum();
-    let frames_total: u64 = sequences.iter().map(Sequence::count).sum();
-    let mut shown = Shown::new(progress, total, frames_total);
-    pool.install(|| {
-        for s in sequences {
-            for f in s.frames.first..=s.frames.last {
-                scene
-                    .set_frame(s.camera, f)
-                    .with_context(|| format!("frame {f}"))?;
-                let r = &scene.desc.cameras[s.camera].render;
-                let (w, h) = (r.width, r.height);
-                let out = s.output(f);
-                let mut writer = FrameWriter::create(&out, w, h)?;
-                let frame_pixels = u64::from(w) * u64::from(h);
-                let mut done = 0u64;
-                for rect in band_order_tiles(w, h, tile) {
-                    let t = render_tile_cancellable(&scene, s.camera, rect, cancel)
-                        .map_err(|_| anyhow::anyhow!("the render was cancelled"))?;
-                    writer.write_tile(rect, &t.pixels)?;
-                    done += rect.pixel_count() as u64;
-                    shown.tile(&s.id, f, rect.pixel_count() as u64, done, frame_pixels);
-                }
-                writer.finish()?;
-                shown.frame(&s.id, f, &out);
-            }
-        }
-        shown.done();
-        Ok(())
-    })
-}
-
-/// Progress of a sequence: frames done, the current frame's share, an ETA.
-struct Shown {
-    mode: Progress,
-    start: Instant,
-    last: Option<Instant>,
-    total: u64,
-    done: u64,
-    frames_total: u64,
-    frames_done: u64,
-}
-
-impl Shown {
-    fn new(mode: Progress, total: u64, frames_total: u64) -> Shown {
-        Shown {
-            mode,
-            start: Instant::now(),
-            last: None,
-            total,
-            done: 0,
-            frames_total,
-            frames_done: 0,
-        }
-    }
-
-    fn eta(&self) -> String {
-        let elapsed = self.start.elapsed().as_secs_f64();
-        if self.done == 0 {
-            return "?".into();
-        }
-        let left = elapsed * (self.total - self.done) as f64 / self.done as f64;
-        let s = left.round() as u64;
-        format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
-    }
-
-    fn tile(&mut self, id: &str, frame: u32, pixels: u64, done: u64, of: u64) {
-        self.done += pixels;
-        if self.mode != Progress::Bar {
-            return;
-        }
-        let now = Instant::now();
-        if self
-            .last
-            .is_some_and(|l| now - l < Duration::from_millis(200))
-        {
-            return;
-        }
-        self.last = Some(now);
-        eprint!(
-            "\r{id}: {}/{} frames done, frame {frame} {:>3}%, ETA {}   ",
-            self.frames_done,
-            self.frames_total,
-            done * 100 / of.max(1),
-            self.eta()
-        );
-        let _ = std::io::stderr().flush();
-    }
-
-    fn frame(&mut self, id: &str, frame: u32, out: &Path) {
-        self.frames_done += 1;
-        match self.mode {
-            Progress::Quiet => {}
-            Progress::Bar => {
-                eprint!("\r\x1b[K");
-                eprintln!("{id}: frame {frame} -> {}", out.display());
-            }
-            Progress::Lines => eprintln!(
-                "{id}: {}/{} frames done (frame {frame} -> {}), ETA {}",
-                self.frames_done,
-                self.frames_total,
-                out.display(),
-                self.eta()
-            ),
-        }
-    }
-
-    fn done(&mut self) {
-        if self.mode != Progress::Quiet {
-            eprintln!(
-                "{} frames in {:.1} s",
-                self.frames_done,
-                self.start.elapsed().as_secs_f64()
-            );
-        }
+    /// The format of every frame's file, from the pattern's extension.
+    pub fn format(&self) -> Result<Format> {
+        Format::from_path(&self.pattern)
+            .with_context(|| format!("{} is not .png or .exr", self.pattern.display()))
     }
 }
 
@@ -248,20 +96,18 @@ mod tests {
     #[test]
     fn outputs_follow_the_pattern() {
         let s = Sequence::new(
-            0,
-            "c".into(),
             Frames { first: 9, last: 10 },
             PathBuf::from("out/shot.###.png"),
         )
         .unwrap();
         assert_eq!(s.output(9), PathBuf::from("out/shot.009.png"));
         assert_eq!(s.output(10), PathBuf::from("out/shot.010.png"));
-        let e = Sequence::new(0, "c".into(), s.frames, PathBuf::from("shot.png"));
+        let e = Sequence::new(s.frames, PathBuf::from("shot.png"));
         assert!(format!("{:#}", e.err().unwrap()).contains("one run of #"));
         // The parser's rule: a `#` in a directory is refused, not made into
         // a directory named `d#`.
         for bad in ["d#/f.#.png", "a/#/f.#.png", "f.#.#.png"] {
-            let e = Sequence::new(0, "c".into(), s.frames, PathBuf::from(bad));
+            let e = Sequence::new(s.frames, PathBuf::from(bad));
             assert!(e.is_err(), "{bad}");
         }
     }

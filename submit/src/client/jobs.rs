@@ -1,0 +1,60 @@
+//! A farm's jobs as they stand: one job's status, the list of them (every
+//! page, by id) and cancelling one.
+
+use anyhow::Result;
+use trevi_proto::pb;
+
+use super::connect::status_error;
+use super::Client;
+
+impl Client {
+    /// Job `id`'s status.
+    pub async fn status(&mut self, id: u64) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .get_job(pb::JobId { id, frame: None })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// The farm's jobs by id, page by page (at most `limit` of them).
+    pub async fn list(&mut self, limit: Option<usize>) -> Result<Vec<pb::JobStatus>> {
+        let mut jobs = Vec::new();
+        let mut page_token = String::new();
+        loop {
+            let want = limit.map_or(0, |l| l.saturating_sub(jobs.len()).min(u32::MAX as usize));
+            let reply = self
+                .jobs
+                .list_jobs(pb::ListJobsRequest {
+                    limit: want as u32,
+                    page_token,
+                })
+                .await
+                .map_err(status_error)?
+                .into_inner();
+            jobs.extend(reply.jobs);
+            if let Some(l) = limit {
+                jobs.truncate(l);
+                if jobs.len() == l {
+                    break;
+                }
+            }
+            if reply.next_page_token.is_empty() {
+                break;
+            }
+            page_token = reply.next_page_token;
+        }
+        Ok(jobs)
+    }
+
+    /// Cancels job `id`; returns its status after.
+    pub async fn cancel(&mut self, id: u64) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .cancel_job(pb::JobId { id, frame: None })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+}

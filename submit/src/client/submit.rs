@@ -1,0 +1,249 @@
+//! Submitting: one job per camera, a still or a sequence of frames (a
+//! still is the case without a frame range), then, unless detached,
+//! following each job to its end and downloading its output. The embedded
+//! farm of a local render is driven through here like any other.
+
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use trevi_core::output::Format;
+use trevi_core::scene::animation::Frames;
+use trevi_proto::pb::{self, JobState};
+
+use super::connect::{reconnectable_error, status_error};
+use super::upload::Encoded;
+use super::Client;
+use crate::progress::Progress;
+use crate::sequence::Sequence;
+
+/// Where a camera's output goes.
+pub enum Output {
+    /// A still's file.
+    Still(PathBuf),
+    /// A sequence: its frames and their files.
+    Sequence(Sequence),
+}
+
+/// One camera to render and where its output goes.
+pub struct Target {
+    pub camera: String,
+    pub output: Output,
+    /// The format of the file, or of every frame's (from the name's
+    /// extension): the coordinator writes it.
+    pub format: Format,
+}
+
+impl Target {
+    /// A still of `camera` to `out`, or with `frames` a sequence to the
+    /// files of the pattern `out`. Checks the output before anything is
+    /// rendered: its extension must name a format (.png or .exr), it must
+    /// not be anything but a regular file if it exists (see
+    /// [`trevi_core::output::check_output`]), and it follows the scene
+    /// parser's rule for `#` (none in a still's name, one run in a
+    /// sequence's file name).
+    pub fn new(camera: String, out: PathBuf, frames: Option<Frames>) -> Result<Target> {
+        let (output, format) = match frames {
+            None => {
+                crate::cli::still_output(&out)?;
+                let format = trevi_core::output::check_output(&out)?;
+                (Output::Still(out), format)
+            }
+            Some(frames) => {
+                let seq = Sequence::new(frames, out)?;
+                let format = seq.format()?;
+                (Output::Sequence(seq), format)
+            }
+        };
+        Ok(Target {
+            camera,
+            output,
+            format,
+        })
+    }
+
+    /// The frames of a sequence; `None` for a still.
+    pub fn frames(&self) -> Option<Frames> {
+        match &self.output {
+            Output::Still(_) => None,
+            Output::Sequence(seq) => Some(seq.frames),
+        }
+    }
+}
+
+impl Client {
+    /// Submits `target`'s camera of the bundle `bundle_hash` as one job: a
+    /// still, or every frame of a sequence.
+    pub async fn submit(
+        &mut self,
+        bundle_hash: &str,
+        target: &Target,
+        priority: i32,
+        tile_size: u32,
+    ) -> Result<pb::JobStatus> {
+        let frames = target.frames().map(|f| pb::FrameRange {
+            first: f.first,
+            last: f.last,
+        });
+        let what = if frames.is_some() { "'s sequence" } else { "" };
+        Ok(self
+            .jobs
+            .submit_job(pb::SubmitJobRequest {
+                bundle_hash: bundle_hash.to_string(),
+                camera: target.camera.clone(),
+                priority,
+                tile_size,
+                output_format: target.format.extension().to_string(),
+                frames,
+            })
+            .await
+            .map_err(status_error)
+            .with_context(|| format!("the coordinator refused camera \"{}\"{what}", target.camera))?
+            .into_inner())
+    }
+
+    /// Uploads the bundle, submits one job per target, and unless `detach`
+    /// follows each (progress as `progress` says) and downloads its output:
+    /// a still's image, or every frame of a sequence.
+    pub async fn render(
+        &mut self,
+        bundle: &Encoded,
+        targets: &[Target],
+        priority: i32,
+        tile_size: u32,
+        detach: bool,
+        progress: Progress,
+    ) -> Result<()> {
+        let hash = self.upload(bundle).await?;
+        let mut jobs = Vec::new();
+        for t in targets {
+            let s = self.submit(&hash, t, priority, tile_size).await?;
+            self.submitted.push(s.id);
+            let say = self.announce && progress != Progress::Quiet;
+            match t.frames() {
+                None if detach || say => eprintln!(
+                    "job {} queued: camera {} ({}x{}, {} tiles) on {}",
+                    s.id, s.camera, s.width, s.height, s.tiles_total, self.url
+                ),
+                Some(f) if say && !detach => eprintln!(
+                    "sequence {}: camera {}, frames {}-{}",
+                    s.id, t.camera, f.first, f.last
+                ),
+                _ => {}
+            }
+            if detach {
+                println!("{}", s.id);
+            }
+            jobs.push(s.id);
+        }
+        if detach {
+            return Ok(());
+        }
+        for (t, id) in targets.iter().zip(jobs) {
+            match &t.output {
+                Output::Still(out) => self.finish_still(id, t, out, progress).await?,
+                Output::Sequence(seq) => self.finish_sequence(id, t, seq, progress).await?,
+            }
+        }
+        Ok(())
+    }
+
+    /// Follows still `id` to its end and downloads its image to `out`.
+    async fn finish_still(
+        &mut self,
+        id: u64,
+        t: &Target,
+        out: &Path,
+        progress: Progress,
+    ) -> Result<()> {
+        let s = self.watch(id, progress).await?;
+        match s.state() {
+            JobState::Done => {}
+            JobState::Cancelled => bail!("job {id} (camera {}) was cancelled", t.camera),
+            other => bail!(
+                "job {id} (camera {}) {}: {}",
+                t.camera,
+                other.label(),
+                s.error
+            ),
+        }
+        self.download_again(id, None, out, t.format).await?;
+        if progress != Progress::Quiet {
+            let secs = s.elapsed_ms as f64 / 1e3;
+            eprintln!(
+                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s)",
+                s.camera,
+                s.width,
+                s.height,
+                out.display(),
+                secs,
+                s.rays as f64 / 1e6,
+                s.rays as f64 / 1e6 / secs.max(1e-9)
+            );
+        }
+        Ok(())
+    }
+
+    /// Follows sequence `id` to its end (frames done, the current frame, an
+    /// ETA) and downloads every frame to `seq`'s files; of a sequence that
+    /// did not finish, the frames it finished.
+    async fn finish_sequence(
+        &mut self,
+        id: u64,
+        t: &Target,
+        seq: &Sequence,
+        progress: Progress,
+    ) -> Result<()> {
+        let end = self.watch(id, progress).await?;
+        if end.state() != JobState::Done {
+            // The frames it finished are kept.
+            if end.frames_done > 0 {
+                match self.fetch_frames(end.clone(), Some(&seq.pattern)).await {
+                    Ok(_) if progress != Progress::Quiet => eprintln!(
+                        "sequence {id}: kept the {} frames it finished ({})",
+                        end.frames_done,
+                        seq.pattern.display()
+                    ),
+                    Ok(_) => {}
+                    Err(e) => eprintln!("sequence {id}: its finished frames: {e:#}"),
+                }
+            }
+            bail!("sequence {id} {}: {}", end.state().label(), end.error);
+        }
+        for f in seq.frames.first..=seq.frames.last {
+            let out = seq.output(f);
+            self.download_again(id, Some(f), &out, t.format)
+                .await
+                .with_context(|| format!("frame {f}"))?;
+            if progress != Progress::Quiet {
+                eprintln!("{}: frame {f} -> {}", t.camera, out.display());
+            }
+        }
+        Ok(())
+    }
+
+    /// [`Client::download`] of a job that has ended, asked again while the
+    /// coordinator is away: it may restart between the end and the
+    /// download.
+    async fn download_again(
+        &mut self,
+        id: u64,
+        frame: Option<u32>,
+        out: &Path,
+        format: Format,
+    ) -> Result<u64> {
+        let mut tries = 0;
+        loop {
+            match self.download(id, frame, out, format).await {
+                Ok(n) => return Ok(n),
+                Err(e) if reconnectable_error(&e) && tries < 19 => {
+                    tries += 1;
+                    tokio::time::sleep(Duration::from_millis(250 * tries)).await;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

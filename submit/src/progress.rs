@@ -1,0 +1,146 @@
+//! How a job's progress is shown while it is followed: a still's tiles, or
+//! a sequence's frames done and its current frame's share, with an ETA; as
+//! a bar at a terminal, as a line every 10 % (a still) or every frame (a
+//! sequence) otherwise, or not at all (`-q`).
+
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use trevi_proto::pb;
+
+/// How progress is shown.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Progress {
+    Quiet,
+    /// A progress bar (stderr is a terminal).
+    Bar,
+    /// Plain lines every 10 %.
+    Lines,
+}
+
+impl Progress {
+    /// Nothing with `quiet`, else a bar when stderr is a terminal and lines
+    /// when it is not.
+    pub fn choose(quiet: bool) -> Progress {
+        if quiet {
+            Progress::Quiet
+        } else if std::io::stderr().is_terminal() {
+            Progress::Bar
+        } else {
+            Progress::Lines
+        }
+    }
+}
+
+/// One followed job's progress on stderr, from its statuses.
+pub struct ProgressView {
+    mode: Progress,
+    bar: Option<ProgressBar>,
+    last_pct: Option<u64>,
+}
+
+impl ProgressView {
+    pub fn new(mode: Progress) -> Self {
+        ProgressView {
+            mode,
+            bar: None,
+            last_pct: None,
+        }
+    }
+
+    /// Shows status `s`: a still's tiles, or a sequence's frames.
+    pub fn show(&mut self, s: &pb::JobStatus) {
+        let secs = s.elapsed_ms as f64 / 1e3;
+        if let Some(f) = s.frames {
+            return self.show_frames(s, f, secs);
+        }
+        let rate = s.rays as f64 / secs.max(1e-9) / 1e6;
+        let eta = eta(s, secs);
+        match self.mode {
+            Progress::Quiet => {}
+            Progress::Bar => {
+                let bar = self.bar.get_or_insert_with(|| {
+                    let b = ProgressBar::new(s.tiles_total);
+                    b.set_style(
+                        ProgressStyle::with_template("{prefix} [{bar:40}] {pos}/{len} tiles {msg}")
+                            .expect("static template")
+                            .progress_chars("=> "),
+                    );
+                    b.set_prefix(s.camera.clone());
+                    b
+                });
+                bar.set_position(s.tiles_done);
+                bar.set_message(format!("{rate:.2} M rays/s {eta}"));
+            }
+            Progress::Lines => {
+                let pct = s.tiles_done * 100 / s.tiles_total.max(1);
+                let due = match self.last_pct {
+                    None => true,
+                    Some(p) => pct >= p + 10 || (pct == 100 && p != 100),
+                };
+                if due {
+                    self.last_pct = Some(pct);
+                    eprintln!(
+                        "{}: {pct}% ({}/{} tiles, {rate:.2} M rays/s, {eta})",
+                        s.camera, s.tiles_done, s.tiles_total
+                    );
+                }
+            }
+        }
+    }
+
+    /// A sequence: frames done, the current frame's share, an ETA from the
+    /// tiles of every frame.
+    fn show_frames(&mut self, s: &pb::JobStatus, f: pb::FrameRange, secs: f64) {
+        let count = u64::from(f.last - f.first) + 1;
+        let eta = eta(s, secs);
+        let current = match s.current_frame {
+            Some(c) => format!(
+                ", frame {c} {}%",
+                s.current_tiles_done * 100 / s.current_tiles_total.max(1)
+            ),
+            None => String::new(),
+        };
+        let line = format!(
+            "{}: {}/{count} frames done{current}, {eta}",
+            s.camera, s.frames_done
+        );
+        match self.mode {
+            Progress::Quiet => {}
+            Progress::Bar => {
+                let bar = self.bar.get_or_insert_with(|| {
+                    let b = ProgressBar::new(count);
+                    b.set_style(ProgressStyle::with_template("{msg}").expect("static template"));
+                    b
+                });
+                bar.set_message(line);
+            }
+            Progress::Lines => {
+                let pct = u64::from(s.frames_done);
+                if self.last_pct != Some(pct) {
+                    self.last_pct = Some(pct);
+                    eprintln!("{line}");
+                }
+            }
+        }
+    }
+
+    /// Clears the bar, if any: the job has ended or is no longer followed.
+    pub fn done(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// The time left, from the share of the tiles done in `secs`.
+fn eta(s: &pb::JobStatus, secs: f64) -> String {
+    if s.tiles_done > 0 && s.tiles_done < s.tiles_total {
+        let left = secs * (s.tiles_total - s.tiles_done) as f64 / s.tiles_done as f64;
+        format!("ETA {left:.0} s")
+    } else {
+        "ETA -".to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests;
