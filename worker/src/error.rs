@@ -3,7 +3,7 @@
 
 use crate::memory::MaxMemory;
 
-/// Why [`run`](crate::run) could not start or had to give up.
+/// Why [`run`](fn@crate::run) could not start or had to give up.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
     #[error(transparent)]

@@ -1,6 +1,6 @@
 //! The Trevi worker: a stateless tile renderer around `trevi_core::render_tile`.
 //!
-//! [`run`] loops: connect (with exponential backoff), register, lease a tile,
+//! [`run`](fn@run) loops: connect (with exponential backoff), register, lease a tile,
 //! fetch its scene bundle by hash (verifying the SHA-256, keeping the last few
 //! built scenes), render the tile on a rayon pool of `threads` threads while
 //! heartbeating the lease, and stream the pixels back. It keeps nothing that
@@ -41,7 +41,7 @@
 //! | file | what it holds |
 //! |---|---|
 //! | `config.rs` | [`WorkerConfig`]: the settings and their defaults |
-//! | `run.rs` | [`run`]: the render threads, connecting (and again, with backoff), registering |
+//! | `run.rs` | [`run`](fn@run): the render threads, connecting (and again, with backoff), registering |
 //! | `session.rs` | what one session's loops share, and how a session ends |
 //! | `lease.rs` | a loop: lease a tile, then upload it, give it back or decline it |
 //! | `render.rs` | rendering a leased tile while heartbeating its lease; stopping it |
@@ -54,7 +54,7 @@
 //! | [`priority`] | the render threads' CPU priority |
 //! | [`memory`] | `--max-memory`: the biggest scene a worker builds |
 //! | `error.rs` | [`WorkerError`], [`SceneLoadError`] |
-//! | `test_hooks.rs` | the end-to-end tests' fault hooks (feature `test-hooks` only) |
+//! | `test_hooks.rs` | the end-to-end tests' fault and load hooks (feature `test-hooks` only) |
 //!
 //! `src/main.rs` is `trevi-worker`: its flags, and the stop signals
 //! (`trevi_proto::signal`).

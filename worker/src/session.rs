@@ -3,10 +3,10 @@
 //! cache), who the coordinator registered us as ([`Me`]), and how a session
 //! ends ([`End`]).
 //!
-//! A session begins at each registration ([`crate::run`]); its loops are
-//! in their own files: leasing tiles ([`crate::lease`]), rendering one
-//! ([`crate::render`]), loading its scene ([`crate::scene_load`]), sending
-//! it ([`crate::upload`]) and reporting a pause ([`crate::machine`]).
+//! A session begins at each registration (`run.rs`); its loops are in
+//! their own files: leasing tiles (`lease.rs`), rendering one
+//! (`render.rs`), loading its scene (`scene_load.rs`), sending it
+//! (`upload.rs`) and reporting a pause (`machine.rs`).
 
 use crate::memory::MaxMemory;
 use crate::pause::Pause;
