@@ -320,7 +320,7 @@ async fn main() -> Result<()> {
         None => None,
     };
     let shutdown = async move {
-        shutdown_signal().await;
+        trevi_proto::signal::shutdown().await;
         let _ = stop_tx.send(true);
     };
     trevi_coordinator::grpc::serve_with(farm, listener, shutdown, opts)
@@ -333,20 +333,6 @@ async fn main() -> Result<()> {
     }
     tracing::info!("coordinator stopped");
     Ok(())
-}
-
-async fn shutdown_signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        let mut term = signal(SignalKind::terminate()).expect("SIGTERM handler");
-        tokio::select! {
-            _ = term.recv() => {}
-            _ = tokio::signal::ctrl_c() => {}
-        }
-    }
-    #[cfg(not(unix))]
-    let _ = tokio::signal::ctrl_c().await;
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@
 use trevi_core::Rect;
 
 pub mod connect;
+pub mod signal;
 pub use connect::{endpoint, ClientTls, EndpointError};
 
 /// Generated prost messages and tonic clients and servers.

@@ -171,8 +171,12 @@ async fn main() -> Result<()> {
         active_hours: args.active_hours,
     };
     // Hooks for the end-to-end tests: a tile that crashes the renderer.
-    cfg.test_fault = trevi_worker::TestFault::from_env("TREVI_TEST_ABORT_ON_TILE", true)
-        .or_else(|| trevi_worker::TestFault::from_env("TREVI_TEST_PANIC_ON_TILE", false));
+    #[cfg(feature = "test-hooks")]
+    {
+        use trevi_worker::{TestFault, ABORT_ON_TILE, PANIC_ON_TILE};
+        cfg.test_fault = TestFault::from_env(ABORT_ON_TILE, true)
+            .or_else(|| TestFault::from_env(PANIC_ON_TILE, false));
+    }
     cfg.tls = trevi_proto::ClientTls {
         ca_file: args.tls_ca,
         domain: args.tls_domain,
@@ -195,7 +199,7 @@ async fn main() -> Result<()> {
     };
     let (tx, rx) = tokio::sync::watch::channel(false);
     tokio::spawn(async move {
-        wait_for_signal().await;
+        trevi_proto::signal::shutdown().await;
         tracing::info!("stopping: cancelling the tile in hand");
         let _ = tx.send(true);
     });
@@ -204,18 +208,4 @@ async fn main() -> Result<()> {
         .context("the worker failed")?;
     tracing::info!("worker stopped");
     Ok(())
-}
-
-async fn wait_for_signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        let mut term = signal(SignalKind::terminate()).expect("SIGTERM handler");
-        tokio::select! {
-            _ = term.recv() => {}
-            _ = tokio::signal::ctrl_c() => {}
-        }
-    }
-    #[cfg(not(unix))]
-    let _ = tokio::signal::ctrl_c().await;
 }

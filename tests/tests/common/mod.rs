@@ -117,7 +117,10 @@ fn build_binaries() -> Result<PathBuf, String> {
     // every member) come along so that cargo resolves the same features:
     // the dependencies' artifacts are then the test run's, up to date, and
     // only the binaries are compiled (a narrower build would rebuild the
-    // dependencies with other features over the same files).
+    // dependencies with other features over the same files). With this
+    // package's tests selected, its dev-dependency on trevi-worker turns on
+    // the worker's `test-hooks` feature, so trevi-worker is built with the
+    // hooks these tests drive (TREVI_TEST_*), as in the test run.
     cmd.args(["--workspace", "--tests", "--examples"]);
     eprintln!("building the binaries the test starts: {cmd:?}");
     let out = cmd

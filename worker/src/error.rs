@@ -1,0 +1,53 @@
+//! Why the worker stops ([`WorkerError`]) and why a leased tile's scene
+//! cannot be loaded ([`SceneLoadError`]).
+
+use crate::memory::MaxMemory;
+
+/// Why [`run`](fn@crate::run) could not start or had to give up.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    #[error(transparent)]
+    Endpoint(#[from] trevi_proto::EndpointError),
+    /// The coordinator's TLS certificate is not trusted or not for its name:
+    /// retrying cannot help. `why` is the transport error's chain of causes
+    /// on one line, without tonic's repetitions (see
+    /// [`trevi_proto::connect::error_chain`]).
+    #[error("cannot connect to {coordinator}: {why}")]
+    Certificate { coordinator: String, why: String },
+    #[error("cannot start {threads} render threads")]
+    Pool {
+        threads: usize,
+        source: rayon::ThreadPoolBuildError,
+    },
+    #[error(transparent)]
+    Token(#[from] trevi_proto::TokenError),
+}
+
+/// Why the scene of a leased tile could not be loaded. The worker gives the
+/// tile back with this text; the coordinator counts it against the tile.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneLoadError {
+    /// The coordinator refused the download or the stream broke off (the
+    /// status's message says why: an unknown or damaged bundle...).
+    #[error("{}", .0.message())]
+    Download(#[source] tonic::Status),
+    /// The bytes that arrived are not the bundle that was asked for.
+    #[error("bundle {want} arrived with hash {got}")]
+    HashMismatch { want: String, got: String },
+    /// The bytes are not a bundle encoding.
+    #[error(transparent)]
+    Bundle(#[from] trevi_core::bundle::BundleError),
+    /// The bundle's scene does not parse or build.
+    #[error(transparent)]
+    Scene(#[from] trevi_core::SceneError),
+    /// The blocking task that builds the scene panicked or was cancelled.
+    #[error(transparent)]
+    Task(#[from] tokio::task::JoinError),
+    /// The scene's estimate exceeds the worker's `--max-memory`: not built.
+    #[error("the scene needs about {} of memory, more than --max-memory {}",
+        trevi_core::scene::estimate::human_bytes(*.needs), trevi_core::scene::estimate::human_bytes(.limit.0))]
+    TooBig { needs: u64, limit: MaxMemory },
+    /// The scene cannot be moved to the lease's frame.
+    #[error("cannot move the scene to the frame: {0}")]
+    Frame(String),
+}

@@ -1,0 +1,55 @@
+//! The hooks the end-to-end tests (`tests/`) drive the worker with, compiled
+//! in only with the `test-hooks` feature (which `trevi-tests` turns on; a
+//! normal build has none of them and reads none of their variables):
+//!
+//! - `TREVI_TEST_ABORT_ON_TILE=x,y` and `TREVI_TEST_PANIC_ON_TILE=x,y`
+//!   ([`TestFault`], read by `trevi-worker`): the render of the tile at
+//!   (`x`, `y`) aborts the process or panics, standing in for a scene that
+//!   crashes the renderer;
+//! - `TREVI_TEST_PROC_STAT` ([`crate::pause::PROC_STAT_VAR`]): a file read in
+//!   place of `/proc/stat`, so a test decides the machine's load.
+
+use trevi_core::Rect;
+
+/// The variable whose `x,y` makes the render of that tile abort the process.
+pub const ABORT_ON_TILE: &str = "TREVI_TEST_ABORT_ON_TILE";
+/// The variable whose `x,y` makes the render of that tile panic.
+pub const PANIC_ON_TILE: &str = "TREVI_TEST_PANIC_ON_TILE";
+
+/// Tests only: a deliberate failure when rendering the tile whose top-left
+/// corner is at (`x`, `y`), standing in for a scene that crashes the
+/// renderer. Set by `trevi-worker` from [`ABORT_ON_TILE`] or [`PANIC_ON_TILE`].
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TestFault {
+    pub x: u32,
+    pub y: u32,
+    /// Abort the process (like a stack overflow) rather than panic.
+    pub abort: bool,
+}
+
+impl TestFault {
+    /// Reads `x,y` from `var`; `None` when it is unset or malformed.
+    pub fn from_env(var: &str, abort: bool) -> Option<TestFault> {
+        let v = std::env::var(var).ok()?;
+        let (x, y) = v.split_once(',')?;
+        Some(TestFault {
+            x: x.trim().parse().ok()?,
+            y: y.trim().parse().ok()?,
+            abort,
+        })
+    }
+
+    pub(crate) fn strike(&self, rect: Rect) {
+        if (rect.x, rect.y) == (self.x, self.y) {
+            if self.abort {
+                eprintln!(
+                    "test fault: aborting on the tile at ({}, {})",
+                    rect.x, rect.y
+                );
+                std::process::abort();
+            }
+            panic!("test fault: panic on the tile at ({}, {})", rect.x, rect.y);
+        }
+    }
+}

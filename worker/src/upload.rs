@@ -1,0 +1,125 @@
+//! Where a rendered tile is uploaded: the `SubmitTile` stream of a lease's
+//! result, as floats ([`tile_messages`]) or, for a lease with
+//! `png_segments`, as the encoded segments and preview sums
+//! ([`segment_messages`], encoded by [`crate::segments`]). Both start with
+//! the same header ([`header_message`]).
+
+use crate::segments::EncodedRect;
+use crate::session::{Me, Session};
+use std::time::Duration;
+use trevi_core::Rect;
+use trevi_proto::pb;
+use trevi_proto::{pixels_to_bytes, CHUNK_SIZE};
+
+/// What a rendered lease uploads.
+pub(crate) enum Payload {
+    /// The pixels, as floats.
+    Floats(Vec<[f32; 3]>),
+    /// For a lease with `png_segments`: the rect's encoded segments and
+    /// preview sums (see [`crate::segments`]).
+    Segments(EncodedRect),
+}
+
+/// What a render of a lease's rectangle reports besides its pixels.
+#[derive(Debug, Clone, Copy)]
+pub struct Rendered {
+    /// Rays traced.
+    pub rays: u64,
+    /// Time spent rendering (not loading the scene or waiting): the
+    /// coordinator sizes the job's leases from it.
+    pub took: Duration,
+}
+
+impl Session {
+    /// Uploads a lease's result; whether the coordinator accepted it.
+    pub(crate) async fn send(
+        &mut self,
+        me: &Me,
+        lease: &pb::Lease,
+        rect: Rect,
+        rendered: Rendered,
+        payload: Payload,
+    ) -> Result<bool, tonic::Status> {
+        let msgs = match payload {
+            Payload::Floats(pixels) => {
+                tile_messages(me.id, &me.session, lease, rect, rendered, &pixels)
+            }
+            Payload::Segments(encoded) => {
+                segment_messages(me.id, &me.session, lease, rect, rendered, encoded)
+            }
+        };
+        let ack = self
+            .workers
+            .submit_tile(tokio_stream::iter(msgs))
+            .await?
+            .into_inner();
+        Ok(ack.accepted)
+    }
+}
+
+/// The messages of a tile upload: the header, then the pixels in chunks.
+pub fn tile_messages(
+    worker: u64,
+    session: &[u8],
+    lease: &pb::Lease,
+    rect: Rect,
+    rendered: Rendered,
+    pixels: &[[f32; 3]],
+) -> Vec<pb::TileUpload> {
+    use pb::tile_upload::Part;
+    let bytes = pixels_to_bytes(pixels);
+    let mut msgs = vec![header_message(worker, session, lease, rect, rendered)];
+    msgs.extend(bytes.chunks(CHUNK_SIZE).map(|c| pb::TileUpload {
+        part: Some(Part::Pixels(c.to_vec())),
+    }));
+    msgs
+}
+
+/// The first message of an upload, floats or segments: the header.
+pub(crate) fn header_message(
+    worker: u64,
+    session: &[u8],
+    lease: &pb::Lease,
+    rect: Rect,
+    rendered: Rendered,
+) -> pb::TileUpload {
+    pb::TileUpload {
+        part: Some(pb::tile_upload::Part::Header(pb::TileHeader {
+            worker_id: worker,
+            lease_id: lease.lease_id,
+            job_id: lease.job_id,
+            rect: Some(rect.into()),
+            rays: rendered.rays,
+            session: session.to_vec(),
+            frame: lease.frame,
+            render_micros: Some(rendered.took.as_micros().min(u128::from(u64::MAX)) as u64),
+        })),
+    }
+}
+
+/// The messages of a segment upload: the header (as for floats), the
+/// segments in order, one message each, then the preview sums.
+pub fn segment_messages(
+    worker: u64,
+    session: &[u8],
+    lease: &pb::Lease,
+    rect: Rect,
+    rendered: Rendered,
+    encoded: EncodedRect,
+) -> Vec<pb::TileUpload> {
+    use pb::tile_upload::Part;
+    let mut msgs = Vec::with_capacity(encoded.segments.len() + 2);
+    msgs.push(header_message(worker, session, lease, rect, rendered));
+    msgs.extend(encoded.segments.into_iter().map(|s| pb::TileUpload {
+        part: Some(Part::Segment(s)),
+    }));
+    msgs.push(pb::TileUpload {
+        part: Some(Part::Preview(pb::PreviewSums {
+            sums: encoded.preview,
+        })),
+    });
+    msgs
+}
+
+#[cfg(test)]
+mod tests;
