@@ -38,16 +38,24 @@ pub struct Client {
 /// One line about a job, for `status` and `list`.
 pub fn describe(s: &pb::JobStatus) -> String {
     let mut line = format!(
-        "{:>6}  {:<9}  camera {}  {}x{}  {}/{} tiles  priority {}  {:.1} s",
+        "{:>6}  {:<9}  {} camera {}  {}x{}  {}/{} tiles  priority {}  queued {:.1} s, \
+         rendered {:.1} s  by {}",
         s.id,
         s.state().label(),
+        s.scene,
         s.camera,
         s.width,
         s.height,
         s.tiles_done,
         s.tiles_total,
         s.priority,
-        s.elapsed_ms as f64 / 1e3
+        s.queued_ms as f64 / 1e3,
+        s.render_ms as f64 / 1e3,
+        if s.submitter.is_empty() {
+            "-"
+        } else {
+            &s.submitter
+        }
     );
     if let Some(f) = s.frames {
         line.push_str(&format!(

@@ -49,7 +49,8 @@ impl ProgressView {
 
     /// Shows status `s`: a still's tiles, or a sequence's frames.
     pub fn show(&mut self, s: &pb::JobStatus) {
-        let secs = s.elapsed_ms as f64 / 1e3;
+        // Rates and the ETA count the time rendered, not the queue wait.
+        let secs = s.render_ms as f64 / 1e3;
         if let Some(f) = s.frames {
             return self.show_frames(s, f, secs);
         }

@@ -642,6 +642,15 @@ fn farm_commands_on_a_sequence_and_reflection_v1alpha() {
     for row in &lines[1..] {
         assert_eq!(row.get(col..col + 9), Some("127.0.0.1"), "{out}");
     }
+    // `status` says the same, and splits the time at the first lease.
+    let o = common::submit(
+        &dir,
+        &["status", &after.to_string(), "--coordinator", &c.url],
+    );
+    let status = String::from_utf8_lossy(&o.stdout).into_owned();
+    for part in ["still.xml", "queued ", "rendered ", "by 127.0.0.1", "done"] {
+        assert!(status.contains(part), "{part}: {status}");
+    }
     // Without --header, and not on a terminal: the rows alone.
     let o = common::submit(&dir, &["list", "--coordinator", &c.url]);
     assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 2);

@@ -168,9 +168,14 @@ impl Client {
         }
         self.download_again(id, None, out, t.format).await?;
         if progress != Progress::Quiet {
-            let secs = s.elapsed_ms as f64 / 1e3;
+            let secs = s.render_ms as f64 / 1e3;
+            let waited = if s.queued_ms >= 100 {
+                format!(", after {:.1} s in the queue", s.queued_ms as f64 / 1e3)
+            } else {
+                String::new()
+            };
             eprintln!(
-                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s)",
+                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s){waited}",
                 s.camera,
                 s.width,
                 s.height,
