@@ -3,7 +3,7 @@
 //!
 //! The gRPC services in [`crate::grpc`] are thin wrappers around [`Farm`];
 //! tests drive it directly with synthetic pixels. This file holds the
-//! farm's configuration, its locked [`State`] and [`Farm::new`]; beside it,
+//! farm's configuration, its locked `State` and [`Farm::new`]; beside it,
 //! in `farm/`, one file for each part of a job's and a worker's life:
 //!
 //! - `admission.rs`: what is read of a bundle's scene to admit a job, and

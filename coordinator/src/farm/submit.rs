@@ -8,7 +8,7 @@
 use super::checks::output_name;
 use super::outputs::Output;
 use super::{admission, Farm, State};
-use crate::error::FarmError;
+use crate::error::{FarmError, LimitKind};
 use crate::scheduler::{JobId, JobInfo, JobSpec};
 use crate::sink::TileSink;
 use crate::store::{SeqLink, StoredJob};
@@ -62,7 +62,7 @@ impl Farm {
             summary.cameras.iter().find(|c| c.id == camera)
         }
         .ok_or_else(|| {
-            FarmError::BadScene(if camera.is_empty() {
+            FarmError::refused_scene(if camera.is_empty() {
                 "the scene has no camera".to_string()
             } else {
                 format!("the scene has no camera \"{camera}\"")
@@ -72,11 +72,16 @@ impl Farm {
         let samples = cam.width as u64 * cam.height as u64 * (cam.supersample.max(1) as u64).pow(2);
         let max = self.cfg.limits.max_image_samples;
         if samples > max {
-            return Err(FarmError::Limit(format!(
-                "camera \"{}\": {}x{} at supersample {} is {samples} samples, more than the \
+            return Err(FarmError::limit(
+                LimitKind::ImageSamples,
+                samples,
+                max,
+                format!(
+                    "camera \"{}\": {}x{} at supersample {} is {samples} samples, more than the \
                  coordinator's limit of {max} (--max-image-samples)",
-                cam.id, cam.width, cam.height, cam.supersample
-            )));
+                    cam.id, cam.width, cam.height, cam.supersample
+                ),
+            ));
         }
         Ok(JobSpec {
             frame: None,
@@ -104,7 +109,7 @@ impl Farm {
             ..spec
         };
         if spec.width == 0 || spec.height == 0 {
-            return Err(FarmError::BadScene("the frame is empty".into()));
+            return Err(FarmError::refused_scene("the frame is empty"));
         }
         self.check_memory(&spec)?;
         let mut st = self.state.lock();
@@ -124,10 +129,15 @@ impl Farm {
             } else {
                 who
             };
-            return Err(FarmError::Limit(format!(
-                "{who} already has {mine} unfinished jobs, the coordinator's limit \
+            return Err(FarmError::limit(
+                LimitKind::JobsPerSubmitter,
+                mine as u64,
+                max as u64,
+                format!(
+                    "{who} already has {mine} unfinished jobs, the coordinator's limit \
                  (--max-jobs-per-submitter)"
-            )));
+                ),
+            ));
         }
         Ok(())
     }
