@@ -413,7 +413,7 @@ impl trevi_coordinator::TileSink for NullSink {
 }
 
 fn farm(args: &[String]) {
-    use trevi_coordinator::{Farm, FarmConfig, JobSpec, SubmitOptions, TileResult, WorkerOptions};
+    use trevi_coordinator::{Farm, FarmConfig, JobSpec, LeaseResult, SubmitOptions, WorkerOptions};
     let (w, h) = (
         num(args, "--width", 4096) as u32,
         num(args, "--height", 4096) as u32,
@@ -460,7 +460,7 @@ fn farm(args: &[String]) {
                 trevi_proto::pixels_from_bytes(&smooth_tile(n as u32, l.rect.w, l.rect.h)).unwrap()
             };
             n += 1;
-            farm.put_tile(TileResult {
+            farm.put_tile(LeaseResult {
                 lease: l.id,
                 job,
                 rect: l.rect,

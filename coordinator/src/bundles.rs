@@ -164,10 +164,15 @@ impl BundleStore {
         let files = trevi_core::bundle::check_encoding(read)
             .map_err(|e| FarmError::BadBundle(e.to_string()))?;
         if files > max_files as u64 {
-            return Err(FarmError::Limit(format!(
-                "the bundle holds {files} files, more than the coordinator's limit of \
+            return Err(FarmError::limit(
+                crate::error::LimitKind::BundleFiles,
+                files,
+                max_files as u64,
+                format!(
+                    "the bundle holds {files} files, more than the coordinator's limit of \
                  {max_files} (--max-bundle-files)"
-            )));
+                ),
+            ));
         }
         let hash = hex::encode(std::mem::take(&mut up.hasher).finalize());
         let path = self.path(&hash)?;

@@ -1,6 +1,7 @@
 //! The coordinator's typed errors and their one mapping to gRPC codes.
 
 use crate::scheduler::SchedError;
+use trevi_core::SceneError;
 
 #[derive(Debug, thiserror::Error)]
 pub enum FarmError {
@@ -13,13 +14,13 @@ pub enum FarmError {
     #[error("bad scene bundle: {0}")]
     BadBundle(String),
     #[error("bad scene: {0}")]
-    BadScene(String),
+    BadScene(BadScene),
     #[error("tile rejected: {0}")]
     BadTile(String),
     #[error("tile refused: {0}")]
     NotYourLease(String),
     #[error("{0}")]
-    Limit(String),
+    Limit(Limit),
     #[error("{0}")]
     Invalid(String),
     #[error("job {0} has no output: {1}")]
@@ -39,6 +40,82 @@ pub enum FarmError {
     Damaged(String),
 }
 
+/// Why a scene cannot be rendered on the farm.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BadScene {
+    /// The scene file or a file it references is wrong, with its file,
+    /// line, column and kind (from the headers-only parse of admission).
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// What the farm refuses of a scene that parsed: a camera it does not
+    /// have, an empty frame, an output name it cannot write.
+    #[error("{0}")]
+    Refused(String),
+}
+
+/// Which of the farm's bounds a request reached (see `docs/farm.md`,
+/// "Limits").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum LimitKind {
+    /// Samples of one frame (`--max-image-samples`).
+    ImageSamples,
+    /// Tiles of one job (`u32::MAX`, no flag).
+    JobTiles,
+    /// Bytes of one band of tiles against the per-job window (`--window-mib`).
+    Window,
+    /// Unfinished jobs of one submitter (`--max-jobs-per-submitter`).
+    JobsPerSubmitter,
+    /// Workers registered at once (`--max-workers`).
+    Workers,
+    /// Workers registered from one address (`--max-workers-per-address`).
+    WorkersPerAddress,
+    /// Scenes admitted at once (`--max-admissions`).
+    Admissions,
+    /// Bytes of the admissions in progress (`--admission-mib`).
+    AdmissionBytes,
+    /// Files in one bundle (`--max-bundle-files`).
+    BundleFiles,
+}
+
+impl LimitKind {
+    /// The flag that sets the bound; `None` for a fixed one.
+    pub fn flag(self) -> Option<&'static str> {
+        Some(match self {
+            LimitKind::ImageSamples => "--max-image-samples",
+            LimitKind::JobTiles => return None,
+            LimitKind::Window => "--window-mib",
+            LimitKind::JobsPerSubmitter => "--max-jobs-per-submitter",
+            LimitKind::Workers => "--max-workers",
+            LimitKind::WorkersPerAddress => "--max-workers-per-address",
+            LimitKind::Admissions => "--max-admissions",
+            LimitKind::AdmissionBytes => "--admission-mib",
+            LimitKind::BundleFiles => "--max-bundle-files",
+        })
+    }
+}
+
+/// A request refused at one of the farm's bounds: which bound, what was
+/// asked and the bound, in that limit's unit; shown as the sentence users
+/// see (`RESOURCE_EXHAUSTED`), which names the flag.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct Limit {
+    pub kind: LimitKind,
+    /// What the request needed (for a count of things held at once, the
+    /// count already held).
+    pub asked: u64,
+    /// The bound.
+    pub bound: u64,
+    message: String,
+}
+
+impl Limit {
+    /// The flag that sets the bound (see [`LimitKind::flag`]).
+    pub fn flag(&self) -> Option<&'static str> {
+        self.kind.flag()
+    }
+}
+
 /// The underlying error of [`FarmError::Io`]: an I/O, database, image or
 /// random-source error, kept whole.
 pub type BoxError = Box<dyn std::error::Error + Send + Sync>;
@@ -50,6 +127,30 @@ impl FarmError {
             what: what.into(),
             source: source.into(),
         }
+    }
+}
+
+impl FarmError {
+    /// [`FarmError::BadScene`] for what the farm refuses of a parsed scene.
+    pub fn refused_scene(why: impl Into<String>) -> FarmError {
+        FarmError::BadScene(BadScene::Refused(why.into()))
+    }
+
+    /// [`FarmError::Limit`]: `kind`'s bound reached, `asked` against
+    /// `bound`; `message` is what users read, naming the flag.
+    pub fn limit(kind: LimitKind, asked: u64, bound: u64, message: impl Into<String>) -> FarmError {
+        FarmError::Limit(Limit {
+            kind,
+            asked,
+            bound,
+            message: message.into(),
+        })
+    }
+}
+
+impl From<SceneError> for FarmError {
+    fn from(e: SceneError) -> Self {
+        FarmError::BadScene(BadScene::Scene(e))
     }
 }
 
@@ -112,14 +213,17 @@ mod tests {
             (FarmError::UnknownBundle("ab".into()), Code::NotFound),
             (FarmError::UnknownWorker(9), Code::Unauthenticated),
             (FarmError::BadBundle("x".into()), Code::InvalidArgument),
-            (FarmError::BadScene("x".into()), Code::InvalidArgument),
+            (FarmError::refused_scene("x"), Code::InvalidArgument),
             (FarmError::BadTile("x".into()), Code::InvalidArgument),
             (FarmError::NoOutput(1, "x".into()), Code::FailedPrecondition),
             (FarmError::JobOver(1), Code::FailedPrecondition),
             (FarmError::io("x", "y"), Code::Internal),
             (FarmError::Damaged("x".into()), Code::Internal),
             (FarmError::NotYourLease("x".into()), Code::PermissionDenied),
-            (FarmError::Limit("x".into()), Code::ResourceExhausted),
+            (
+                FarmError::limit(LimitKind::Workers, 2, 2, "x"),
+                Code::ResourceExhausted,
+            ),
         ];
         for (e, code) in cases {
             let msg = e.to_string();
@@ -134,6 +238,19 @@ mod tests {
         let e = FarmError::io("reading f", std::io::Error::other("gone"));
         assert_eq!(e.to_string(), "reading f: gone");
         assert!(std::error::Error::source(&e).is_some(), "the cause is kept");
+        // A scene error keeps its place and kind, and reads as it did.
+        let scene = SceneError::of_kind(
+            trevi_core::SceneErrorKind::BadValue,
+            trevi_core::Location::new("s.xml", 3, 7),
+            "no",
+        );
+        let e = FarmError::from(scene.clone());
+        assert_eq!(e.to_string(), format!("bad scene: {scene}"));
+        assert!(matches!(&e, FarmError::BadScene(BadScene::Scene(s)) if s == &scene));
+        assert_eq!(e.code(), Code::InvalidArgument);
+        let e = FarmError::limit(LimitKind::Admissions, 4, 4, "4 at once (--max-admissions)");
+        assert_eq!(e.to_string(), "4 at once (--max-admissions)");
+        assert!(matches!(&e, FarmError::Limit(l) if l.flag() == Some("--max-admissions")));
         let e: FarmError = SchedError::UnknownWorker(4).into();
         assert!(matches!(e, FarmError::UnknownWorker(4)));
     }

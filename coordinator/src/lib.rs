@@ -49,7 +49,7 @@ pub mod workers;
 
 pub use error::FarmError;
 pub use farm::{
-    Farm, FarmConfig, Registration, SubmitOptions, TileOutcome, TileResult, WorkerOptions,
+    Farm, FarmConfig, LeaseResult, Registration, SubmitOptions, TileOutcome, WorkerOptions,
 };
 pub use limits::Limits;
 pub use scheduler::{JobId, JobInfo, JobSpec, JobState};

@@ -8,6 +8,9 @@
 //! coordinator keeps only this small image per running job (at most
 //! 512×512×16 bytes = 4 MiB), never the frame. Pixels no tile has reached
 //! yet are transparent in the PNG.
+//!
+//! This is the image of one frame; which jobs keep one, for how long, and
+//! when it is encoded is the farm's (`farm/job_previews.rs`).
 
 use trevi_core::output::Srgb8;
 use trevi_core::Rect;

@@ -302,7 +302,7 @@ mod tests {
         let other = farm.summaries().admissions().enter().unwrap();
         let e = farm.job_spec(&hash, "a", 0, 0).unwrap_err();
         assert!(
-            matches!(&e, crate::FarmError::Limit(m) if m.contains("--max-admissions")),
+            matches!(&e, crate::FarmError::Limit(l) if l.flag() == Some("--max-admissions")),
             "{e}"
         );
         assert_eq!(farm.summaries().parses(), 0);
@@ -344,7 +344,7 @@ mod tests {
         );
         let e = farm.job_spec(&hash, "a", 0, 0).unwrap_err();
         assert!(
-            matches!(&e, crate::FarmError::BadScene(m) if m.contains("s.xml:3:") && m.contains("20000 x 20000")),
+            matches!(&e, crate::FarmError::BadScene(crate::error::BadScene::Scene(s)) if s.location.line == 3 && s.to_string().contains("s.xml:3:") && s.message.contains("20000 x 20000")),
             "{e}"
         );
     }

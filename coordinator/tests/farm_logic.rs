@@ -7,8 +7,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 use trevi_coordinator::scheduler::Lease;
 use trevi_coordinator::{
-    Farm, FarmConfig, FarmError, JobSpec, JobState, Limits, SubmitOptions, TileOutcome, TileResult,
-    WorkerOptions,
+    Farm, FarmConfig, FarmError, JobSpec, JobState, LeaseResult, Limits, SubmitOptions,
+    TileOutcome, WorkerOptions,
 };
 use trevi_core::output::decode_png;
 use trevi_core::{FrameWriter, Rect};
@@ -81,7 +81,7 @@ fn tiles_in_any_order_stitch_to_the_same_file_moved_into_place_at_the_end() {
             assert!(!out.exists(), "the output appears only when complete");
             assert_eq!(f.info(job).unwrap().tiles_done, i as u64);
             assert_eq!(
-                f.put_tile(TileResult {
+                f.put_tile(LeaseResult {
                     lease: l.id,
                     job,
                     rect: l.rect,
@@ -124,7 +124,7 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
     let mut short = pixels(l.rect);
     short.pop();
     let e = f
-        .put_tile(TileResult {
+        .put_tile(LeaseResult {
             lease: l.id,
             job,
             rect: l.rect,
@@ -140,7 +140,7 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
     let mut nan = pixels(l.rect);
     nan[5][1] = f32::NAN;
     assert!(matches!(
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l2.id,
             job,
             rect: l2.rect,
@@ -153,7 +153,7 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
     let mut inf = pixels(l.rect);
     inf[0][0] = f32::INFINITY;
     assert!(f
-        .put_tile(TileResult {
+        .put_tile(LeaseResult {
             lease: l2.id,
             job,
             rect: l2.rect,
@@ -165,7 +165,7 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
     // A rectangle that is not a tile of the job.
     let odd = Rect::new(1, 0, 16, 16);
     assert!(f
-        .put_tile(TileResult {
+        .put_tile(LeaseResult {
             lease: l2.id,
             job,
             rect: odd,
@@ -176,7 +176,7 @@ fn wrong_size_and_nan_results_are_rejected_and_the_tile_requeued() {
         .is_err());
     assert_eq!(f.info(job).unwrap().tiles_done, 0);
     for l in lease_all(&f, good) {
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job,
             rect: l.rect,
@@ -220,7 +220,7 @@ fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
     let l2 = f.lease(fast).unwrap().unwrap();
     assert_eq!(l2.rect, l.rect);
     assert_eq!(f.heartbeat(slow, &[l.id]).unwrap(), vec![l.id]);
-    f.put_tile(TileResult {
+    f.put_tile(LeaseResult {
         lease: l2.id,
         job,
         rect: l2.rect,
@@ -230,7 +230,7 @@ fn missed_deadline_requeues_and_the_late_result_is_then_ignored() {
     })
     .unwrap();
     assert_eq!(
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job,
             rect: l.rect,
@@ -304,7 +304,7 @@ fn jobs_finish_in_priority_order() {
         .id;
     let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     while let Some(l) = f.lease(w).unwrap() {
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job: l.job,
             rect: l.rect,
@@ -329,7 +329,7 @@ fn a_cancelled_job_takes_no_more_work_and_leaves_no_output() {
     let w = f.register_worker(WorkerOptions::default()).unwrap().id;
     let leases = lease_all(&f, w);
     for l in &leases[..6] {
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job,
             rect: l.rect,
@@ -344,7 +344,7 @@ fn a_cancelled_job_takes_no_more_work_and_leaves_no_output() {
     assert_eq!(f.heartbeat(w, &[leases[7].id]).unwrap(), vec![leases[7].id]);
     let l = &leases[7];
     assert_eq!(
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job,
             rect: l.rect,
@@ -418,7 +418,7 @@ fn rows_held_do_not_grow_with_the_image_height() {
             }
             // Return the newest first: the worst case for the writer.
             let l = in_flight.pop().unwrap();
-            f.put_tile(TileResult {
+            f.put_tile(LeaseResult {
                 lease: l.id,
                 job,
                 rect: l.rect,
@@ -456,7 +456,7 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
             first_half = leases.len() / 2;
             // Out of order, so rows are pending in the writer at the "crash".
             for l in leases[..first_half].iter().rev() {
-                f.put_tile(TileResult {
+                f.put_tile(LeaseResult {
                     lease: l.id,
                     job,
                     rect: l.rect,
@@ -482,7 +482,7 @@ fn a_restarted_farm_resumes_from_its_database_with_the_same_bytes() {
             "stored tiles are not leased again"
         );
         for l in &rest {
-            f.put_tile(TileResult {
+            f.put_tile(LeaseResult {
                 lease: l.id,
                 job,
                 rect: l.rect,
@@ -540,7 +540,7 @@ fn a_tile_failing_too_often_fails_its_job_and_a_failing_worker_is_benched() {
         let l = f.lease(bad[0]).unwrap().unwrap();
         assert_eq!(l.rect, Rect::new(0, 0, 16, 16));
         assert!(f
-            .put_tile(TileResult {
+            .put_tile(LeaseResult {
                 lease: l.id,
                 job,
                 rect: l.rect,
@@ -553,7 +553,7 @@ fn a_tile_failing_too_often_fails_its_job_and_a_failing_worker_is_benched() {
     assert_eq!(f.lease(bad[0]).unwrap(), None, "benched");
     let l = f.lease(bad[1]).unwrap().unwrap();
     assert!(f
-        .put_tile(TileResult {
+        .put_tile(LeaseResult {
             lease: l.id,
             job,
             rect: l.rect,
@@ -589,7 +589,7 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
     let lb = f.lease(b).unwrap().unwrap();
     // b sends a tile under a's lease, then under a lease that never was.
     let e = f
-        .put_tile(TileResult {
+        .put_tile(LeaseResult {
             lease: la.id,
             job,
             rect: la.rect,
@@ -600,7 +600,7 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
         .unwrap_err();
     assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
     let e = f
-        .put_tile(TileResult {
+        .put_tile(LeaseResult {
             lease: 987_654,
             job,
             rect: lb.rect,
@@ -615,7 +615,7 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
     let whole = Rect::new(0, 0, 32, 16);
     let e = f
         .put_span(
-            TileResult {
+            LeaseResult {
                 lease: u64::MAX,
                 job,
                 rect: whole,
@@ -629,7 +629,7 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
     assert!(matches!(e, FarmError::NotYourLease(_)), "{e}");
     // a bad result under a's lease from b does not re-queue a's tile.
     assert!(f
-        .put_tile(TileResult {
+        .put_tile(LeaseResult {
             lease: la.id,
             job,
             rect: la.rect,
@@ -640,7 +640,7 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
         .is_err());
     assert!(f.heartbeat(a, &[la.id]).unwrap().is_empty());
     assert_eq!(f.info(job).unwrap().tiles_done, 0);
-    f.put_tile(TileResult {
+    f.put_tile(LeaseResult {
         lease: la.id,
         job,
         rect: la.rect,
@@ -649,7 +649,7 @@ fn a_result_under_someone_elses_lease_is_refused_and_changes_nothing() {
         worker: Some(a),
     })
     .unwrap();
-    f.put_tile(TileResult {
+    f.put_tile(LeaseResult {
         lease: lb.id,
         job,
         rect: lb.rect,
@@ -686,7 +686,7 @@ fn the_preview_fills_in_tile_by_tile_and_outlives_the_job() {
     assert_eq!(leases.len(), 18);
     let mut seen = 0;
     for (i, l) in leases.iter().enumerate() {
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job,
             rect: l.rect,
@@ -748,7 +748,7 @@ fn metrics_count_the_job_s_tiles_and_priority_changes_reorder_jobs() {
     let jobs: Vec<u64> = leases.iter().map(|l| l.job).collect();
     assert_eq!(jobs, [b, b, a, a, a, a]);
     for l in &leases {
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job: l.job,
             rect: l.rect,
@@ -792,7 +792,7 @@ fn huge_ray_counts_saturate_and_negative_or_infinite_pixels_are_refused() {
         let mut px = pixels(l.rect);
         px[5][1] = bad;
         let e = f
-            .put_tile(TileResult {
+            .put_tile(LeaseResult {
                 lease: l.id,
                 job,
                 rect: l.rect,
@@ -811,7 +811,7 @@ fn huge_ray_counts_saturate_and_negative_or_infinite_pixels_are_refused() {
     assert_eq!(again.rect, l.rect, "the refused tile comes back first");
     let mut px = pixels(again.rect);
     px[0] = [-0.0, 0.0, 0.0];
-    f.put_tile(TileResult {
+    f.put_tile(LeaseResult {
         lease: again.id,
         job,
         rect: again.rect,
@@ -821,7 +821,7 @@ fn huge_ray_counts_saturate_and_negative_or_infinite_pixels_are_refused() {
     })
     .unwrap();
     let last = f.lease(w).unwrap().unwrap();
-    f.put_tile(TileResult {
+    f.put_tile(LeaseResult {
         lease: last.id,
         job,
         rect: last.rect,

@@ -16,7 +16,7 @@ use trevi_coordinator::farm::{SegmentUpload, TileOutcome};
 use trevi_coordinator::preview::Preview;
 use trevi_coordinator::scheduler::Lease;
 use trevi_coordinator::{Farm, FarmConfig, FarmError, JobState, SubmitOptions};
-use trevi_coordinator::{TileResult, WorkerOptions};
+use trevi_coordinator::{LeaseResult, WorkerOptions};
 use trevi_core::output::{
     encode_segment, max_segment_deflate_len, segment_rows, PngSegment, SEGMENT_ROWS, SYNC_FLUSH,
 };
@@ -112,7 +112,7 @@ fn put_segments(f: &Farm, l: &Lease, w: u32, h: u32, worker: u64) -> TileOutcome
 }
 
 fn put_floats(f: &Farm, l: &Lease, worker: u64) -> TileOutcome {
-    f.put_tile(TileResult {
+    f.put_tile(LeaseResult {
         lease: l.id,
         job: l.job,
         rect: l.rect,
@@ -654,7 +654,7 @@ fn a_float_span_over_several_bands_is_cut_by_x_and_y() {
     let union = Rect::new(0, 16, 32, 24);
     let out = f
         .put_span(
-            TileResult {
+            LeaseResult {
                 lease: leases[2].id,
                 job,
                 rect: union,
@@ -668,7 +668,7 @@ fn a_float_span_over_several_bands_is_cut_by_x_and_y() {
     assert_eq!(out, TileOutcome::Accepted);
     let band0 = Rect::new(0, 0, 32, 16);
     f.put_span(
-        TileResult {
+        LeaseResult {
             lease: leases[0].id,
             job,
             rect: band0,

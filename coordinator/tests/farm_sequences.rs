@@ -8,7 +8,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use trevi_coordinator::farm::sequences::DEFAULT_FRAMES_IN_PROGRESS as FRAMES_IN_PROGRESS;
 use trevi_coordinator::{
-    Farm, FarmConfig, JobSpec, JobState, Limits, SubmitOptions, TileResult, WorkerOptions,
+    Farm, FarmConfig, JobSpec, JobState, LeaseResult, Limits, SubmitOptions, WorkerOptions,
 };
 use trevi_core::Rect;
 
@@ -51,7 +51,7 @@ fn run(f: &Farm, seq: u64, mut stop: impl FnMut(&Farm) -> bool) -> BTreeMap<u32,
         *leased.entry(frame).or_default() += 1;
         let fr = f.info(seq).unwrap().frames.unwrap();
         assert!(fr.in_progress as usize <= FRAMES_IN_PROGRESS, "{fr:?}");
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job: l.job,
             rect: l.rect,
@@ -116,7 +116,7 @@ fn frames_go_in_order_two_at_a_time_and_a_restart_loses_no_frame_or_tile() {
     for frame in 3..=7 {
         let still = g.submit(spec(), SubmitOptions::default()).unwrap().id;
         while let Some(l) = g.lease(worker).unwrap() {
-            g.put_tile(TileResult {
+            g.put_tile(LeaseResult {
                 lease: l.id,
                 job: l.job,
                 rect: l.rect,
@@ -191,7 +191,7 @@ fn frames_in_progress_is_the_most_frames_a_sequence_leases_at_once() {
             let fr = f.info(seq).unwrap().frames.unwrap();
             assert_eq!(fr.in_progress as usize, want.len(), "N = {n}");
             for l in held {
-                f.put_tile(TileResult {
+                f.put_tile(LeaseResult {
                     lease: l.id,
                     job: l.job,
                     rect: l.rect,

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 use trevi_coordinator::farm::Retention;
 use trevi_coordinator::{
-    Farm, FarmConfig, FarmError, JobSpec, JobState, SubmitOptions, TileResult, WorkerOptions,
+    Farm, FarmConfig, FarmError, JobSpec, JobState, LeaseResult, SubmitOptions, WorkerOptions,
 };
 use trevi_core::Rect;
 
@@ -30,7 +30,7 @@ fn grey(r: Rect) -> Vec<[f32; 3]> {
 fn render_all(f: &Farm) {
     let worker = f.register_worker(WorkerOptions::default()).unwrap().id;
     while let Some(l) = f.lease(worker).unwrap() {
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job: l.job,
             rect: l.rect,
@@ -181,7 +181,7 @@ fn a_download_of_a_ten_million_frame_sequence_looks_at_one_file() {
     let worker = f.register_worker(WorkerOptions::default()).unwrap().id;
     while f.info(seq).unwrap().frames.unwrap().done == 0 {
         let l = f.lease(worker).unwrap().expect("a tile of frame 0 or 1");
-        f.put_tile(TileResult {
+        f.put_tile(LeaseResult {
             lease: l.id,
             job: l.job,
             rect: l.rect,

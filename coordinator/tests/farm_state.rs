@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use trevi_coordinator::farm::Retention;
 use trevi_coordinator::scheduler::{band_bytes, encoder_bytes};
 use trevi_coordinator::{
-    Farm, FarmConfig, FarmError, JobSpec, JobState, Limits, SinkError, SubmitOptions, TileOutcome,
-    TileResult, TileSink, WorkerOptions,
+    Farm, FarmConfig, FarmError, JobSpec, JobState, LeaseResult, Limits, SinkError, SubmitOptions,
+    TileOutcome, TileSink, WorkerOptions,
 };
 use trevi_core::Rect;
 
@@ -101,7 +101,7 @@ fn the_window_bounds_the_rows_of_a_wide_frame_to_one_band() {
             "more than one band in flight"
         );
         for l in leases.iter().rev() {
-            f.put_tile(TileResult {
+            f.put_tile(LeaseResult {
                 lease: l.id,
                 job,
                 rect: l.rect,
@@ -301,7 +301,7 @@ fn job_ending_on_a_full_disk(dir: &Path) -> (Farm, u64, Arc<Mutex<Option<rusqlit
     let b = f.lease(w).unwrap().unwrap();
     for l in [a, b] {
         let out = f
-            .put_tile(TileResult {
+            .put_tile(LeaseResult {
                 lease: l.id,
                 job,
                 rect: l.rect,

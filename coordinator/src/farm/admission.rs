@@ -29,7 +29,7 @@
 //! [`Limits::admission_bytes`]: crate::limits::Limits::admission_bytes
 
 use crate::bundles::BundleStore;
-use crate::error::FarmError;
+use crate::error::{FarmError, LimitKind};
 use crate::limits::Limits;
 use crate::summaries::SceneSummary;
 use std::sync::Mutex;
@@ -79,11 +79,16 @@ impl Admissions {
     pub fn enter(&self) -> Result<Ticket<'_>, FarmError> {
         let mut s = self.lock();
         if s.0 >= self.max {
-            return Err(FarmError::Limit(format!(
-                "{} scenes are being admitted, the coordinator's limit (--max-admissions); \
+            return Err(FarmError::limit(
+                LimitKind::Admissions,
+                s.0 as u64,
+                self.max as u64,
+                format!(
+                    "{} scenes are being admitted, the coordinator's limit (--max-admissions); \
                  try again shortly",
-                self.max
-            )));
+                    self.max
+                ),
+            ));
         }
         s.0 += 1;
         Ok(Ticket {
@@ -107,13 +112,18 @@ impl Ticket<'_> {
         let others = s.1 - self.bytes;
         let want = self.bytes.saturating_add(bytes);
         if s.0 > 1 && others.saturating_add(want) > self.gate.budget {
-            return Err(FarmError::Limit(format!(
-                "admitting this scene needs about {} of memory and {} of the coordinator's {} \
+            return Err(FarmError::limit(
+                LimitKind::AdmissionBytes,
+                others.saturating_add(want),
+                self.gate.budget,
+                format!(
+                    "admitting this scene needs about {} of memory and {} of the coordinator's {} \
                  for admissions (--admission-mib) is in use; try again shortly",
-                human_bytes(want),
-                human_bytes(others),
-                human_bytes(self.gate.budget)
-            )));
+                    human_bytes(want),
+                    human_bytes(others),
+                    human_bytes(self.gate.budget)
+                ),
+            ));
         }
         s.1 = others + want;
         self.bytes = want;
@@ -142,7 +152,7 @@ pub fn summarize(
         trevi_core::Bundle::decode(&bytes).map_err(|e| FarmError::BadBundle(e.to_string()))?;
     drop(bytes);
     let headers = trevi_core::scene::aisxml::parse_scene_headers(&bundle.scene, &bundle)
-        .map_err(|e| FarmError::BadScene(e.to_string()))?;
+        .map_err(FarmError::from)?;
     Ok(SceneSummary::of_headers(&bundle.scene, &headers))
 }
 
@@ -165,7 +175,7 @@ mod tests {
         let b = g.enter().unwrap();
         let e = g.enter().unwrap_err();
         assert!(
-            matches!(&e, FarmError::Limit(m) if m.contains("--max-admissions")),
+            matches!(&e, FarmError::Limit(l) if l.flag() == Some("--max-admissions")),
             "{e}"
         );
         drop(a);
@@ -183,7 +193,7 @@ mod tests {
         let mut b = g.enter().unwrap();
         let e = b.reserve(10).unwrap_err();
         assert!(
-            matches!(&e, FarmError::Limit(m) if m.contains("--admission-mib")),
+            matches!(&e, FarmError::Limit(l) if l.flag() == Some("--admission-mib")),
             "{e}"
         );
         drop(a);

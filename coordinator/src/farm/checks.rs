@@ -3,7 +3,7 @@
 //! name a job writes.
 
 use super::Farm;
-use crate::error::FarmError;
+use crate::error::{FarmError, LimitKind};
 use crate::scheduler::{band_bytes, encoder_bytes, JobSpec};
 use std::path::Path;
 use trevi_core::Rect;
@@ -53,13 +53,18 @@ impl Farm {
         let tiles =
             (spec.width as u64).div_ceil(tile as u64) * (spec.height as u64).div_ceil(tile as u64);
         if tiles > u32::MAX as u64 {
-            return Err(FarmError::Limit(format!(
-                "a {}x{} frame in {tile}-pixel tiles is {tiles} tiles, more than a job may \
+            return Err(FarmError::limit(
+                LimitKind::JobTiles,
+                tiles,
+                u32::MAX as u64,
+                format!(
+                    "a {}x{} frame in {tile}-pixel tiles is {tiles} tiles, more than a job may \
                  have ({}); use larger tiles",
-                spec.width,
-                spec.height,
-                u32::MAX
-            )));
+                    spec.width,
+                    spec.height,
+                    u32::MAX
+                ),
+            ));
         }
         let need = band_bytes(&JobSpec {
             frame: None,
@@ -69,15 +74,20 @@ impl Farm {
         let window = self.cfg.limits.window_bytes;
         if need > window {
             let mib = |b: u64| b.div_ceil(1 << 20);
-            return Err(FarmError::Limit(format!(
-                "a {}x{} frame in {tile}-pixel tiles needs {} MiB for one band of tiles, more \
+            return Err(FarmError::limit(
+                LimitKind::Window,
+                need,
+                window,
+                format!(
+                    "a {}x{} frame in {tile}-pixel tiles needs {} MiB for one band of tiles, more \
                  than the coordinator's per-job window of {} MiB (--window-mib); use a \
                  narrower frame or smaller tiles, or raise --window-mib",
-                spec.width,
-                spec.height,
-                mib(need),
-                mib(window)
-            )));
+                    spec.width,
+                    spec.height,
+                    mib(need),
+                    mib(window)
+                ),
+            ));
         }
         Ok(())
     }
@@ -91,7 +101,7 @@ pub fn output_name_as(name: &str, format: &str) -> Result<String, FarmError> {
         return Ok(name.to_string());
     }
     let f = trevi_core::output::Format::from_extension(format).ok_or_else(|| {
-        FarmError::BadScene(format!(
+        FarmError::refused_scene(format!(
             "output format \"{format}\" is not supported (png or exr)"
         ))
     })?;
@@ -106,14 +116,14 @@ pub(super) fn output_name(output: &str) -> Result<String, FarmError> {
     let name = Path::new(output)
         .file_name()
         .and_then(|n| n.to_str())
-        .ok_or_else(|| FarmError::BadScene(format!("output \"{output}\" names no file")))?;
+        .ok_or_else(|| FarmError::refused_scene(format!("output \"{output}\" names no file")))?;
     let ext = Path::new(name)
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase());
     match ext.as_deref() {
         Some("png") | Some("exr") => Ok(name.to_string()),
-        _ => Err(FarmError::BadScene(format!(
+        _ => Err(FarmError::refused_scene(format!(
             "output \"{output}\" must end in .png or .exr"
         ))),
     }

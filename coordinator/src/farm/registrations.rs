@@ -11,7 +11,7 @@
 //! [`Limits::max_workers_per_address`]: crate::limits::Limits::max_workers_per_address
 
 use super::State;
-use crate::error::FarmError;
+use crate::error::{FarmError, LimitKind};
 use crate::scheduler::{Scheduler, WorkerId};
 use std::collections::{HashMap, HashSet};
 
@@ -80,20 +80,30 @@ impl State {
             r.prune(&self.sched, Some(addr));
             let n = r.by_addr.get(addr).map_or(0, HashSet::len);
             if n >= per_address {
-                return Err(FarmError::Limit(format!(
-                    "{addr} already has {n} workers registered, the coordinator's limit \
+                return Err(FarmError::limit(
+                    LimitKind::WorkersPerAddress,
+                    n as u64,
+                    per_address as u64,
+                    format!(
+                        "{addr} already has {n} workers registered, the coordinator's limit \
                      (--max-workers-per-address); a worker that stops calling is forgotten"
-                )));
+                    ),
+                ));
             }
         }
         if r.addr_of.len() >= total {
             r.prune(&self.sched, None);
             let n = r.addr_of.len();
             if n >= total {
-                return Err(FarmError::Limit(format!(
-                    "{n} workers are registered, the coordinator's limit (--max-workers); a \
+                return Err(FarmError::limit(
+                    LimitKind::Workers,
+                    n as u64,
+                    total as u64,
+                    format!(
+                        "{n} workers are registered, the coordinator's limit (--max-workers); a \
                      worker that stops calling is forgotten"
-                )));
+                    ),
+                ));
             }
         }
         Ok(())

@@ -244,7 +244,7 @@ impl Farm {
             )));
         }
         if spec.width == 0 || spec.height == 0 {
-            return Err(FarmError::BadScene("the frame is empty".into()));
+            return Err(FarmError::refused_scene("the frame is empty"));
         }
         self.check_memory(&spec)?;
         spec.output_name = sequence_pattern(&spec.output_name);

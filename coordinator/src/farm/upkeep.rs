@@ -54,3 +54,24 @@ impl Farm {
         }
     }
 }
+
+impl Farm {
+    /// Removes the bundles no job uses that are older than
+    /// [`Retention::bundle_grace`]; returns how many went.
+    pub fn collect_bundles(&self) -> usize {
+        let mut keep: std::collections::HashSet<String> = self
+            .list()
+            .into_iter()
+            .map(|j| j.spec.bundle_hash)
+            .collect();
+        keep.extend(
+            self.state
+                .lock()
+                .seqs
+                .values()
+                .filter(|s| !s.state.is_final())
+                .map(|s| s.spec.bundle_hash.clone()),
+        );
+        self.bundles.collect(&keep, self.cfg.retention.bundle_grace)
+    }
+}

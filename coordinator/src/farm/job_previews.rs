@@ -1,5 +1,7 @@
 //! Each job's live preview as a PNG: filling in while the job runs, and the
 //! last state of the newest few ended jobs, so the monitor still shows them.
+//! Which jobs have one and when it is encoded is decided here; the scaled
+//! image itself, filled in tile by tile, is [`crate::preview::Preview`].
 
 use super::{lock, Farm, State};
 use crate::error::FarmError;

@@ -1,0 +1,211 @@
+//! `trevi.v1.Jobs`: submitting, watching, listing and cancelling jobs,
+//! their previews and their finished outputs; and [`job_status`], a job's
+//! status as the wire carries it.
+
+use super::{blocking, stream_file};
+use crate::farm::{Farm, SubmitOptions};
+use crate::scheduler::{JobInfo, JobState};
+use crate::FarmError;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status};
+use trevi_proto::pb;
+
+pub fn job_status(info: &JobInfo) -> pb::JobStatus {
+    let state = match info.state {
+        JobState::Queued => pb::JobState::Queued,
+        JobState::Running => pb::JobState::Running,
+        JobState::Done => pb::JobState::Done,
+        JobState::Failed => pb::JobState::Failed,
+        JobState::Cancelled => pb::JobState::Cancelled,
+    };
+    pb::JobStatus {
+        id: info.id,
+        state: state as i32,
+        camera: info.spec.camera.clone(),
+        priority: info.spec.priority,
+        width: info.spec.width,
+        height: info.spec.height,
+        tiles_total: info.tiles_total,
+        tiles_done: info.tiles_done,
+        rays: info.rays,
+        output_name: info.spec.output_name.clone(),
+        elapsed_ms: info.elapsed.as_millis() as u64,
+        queued_ms: info.queued.as_millis() as u64,
+        render_ms: info.render().as_millis() as u64,
+        scene: info.spec.scene.clone(),
+        submitter: info.spec.submitter.clone(),
+        error: info.error.clone().unwrap_or_default(),
+        finish_order: info.finish_order,
+        bundle_hash: info.spec.bundle_hash.clone(),
+        frames: info.frames.map(|f| pb::FrameRange {
+            first: f.first,
+            last: f.last,
+        }),
+        frames_done: info.frames.map_or(0, |f| f.done),
+        current_frame: info.frames.and_then(|f| f.current.map(|c| c.0)),
+        current_tiles_done: info.frames.and_then(|f| f.current).map_or(0, |c| c.1),
+        current_tiles_total: info.frames.and_then(|f| f.current).map_or(0, |c| c.2),
+        frames_in_progress: info.frames.map_or(0, |f| f.in_progress),
+    }
+}
+
+/// `trevi.v1.Jobs`.
+pub struct JobsService {
+    pub farm: Arc<Farm>,
+}
+
+#[tonic::async_trait]
+impl pb::jobs_server::Jobs for JobsService {
+    async fn submit_job(
+        &self,
+        req: Request<pb::SubmitJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        // Submitters are told apart by their address (see Limits).
+        let who = req
+            .remote_addr()
+            .map(|a| a.ip().to_string())
+            .unwrap_or_default();
+        let r = req.into_inner();
+        let farm = self.farm.clone();
+        let info = blocking(move || {
+            let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
+            spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
+            match r.frames {
+                Some(f) => farm.submit_sequence(spec, f.first, f.last, &who),
+                None => farm.submit(
+                    spec,
+                    SubmitOptions {
+                        who: &who,
+                        ..SubmitOptions::default()
+                    },
+                ),
+            }
+        })
+        .await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    type WatchJobStream = ReceiverStream<Result<pb::JobStatus, Status>>;
+
+    async fn watch_job(
+        &self,
+        req: Request<pb::JobId>,
+    ) -> Result<Response<Self::WatchJobStream>, Status> {
+        let mut rx = self.farm.watch(req.into_inner().id)?;
+        let (tx, out) = mpsc::channel(4);
+        tokio::spawn(async move {
+            loop {
+                let info = rx.borrow_and_update().clone();
+                let fin = info.state.is_final();
+                if tx.send(Ok(job_status(&info))).await.is_err() || fin {
+                    break;
+                }
+                // Coalesce bursts of tiles into at most ~20 updates a second.
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                if rx.changed().await.is_err() {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(out)))
+    }
+
+    async fn get_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {
+        Ok(Response::new(job_status(
+            &self.farm.info(req.into_inner().id)?,
+        )))
+    }
+
+    async fn list_jobs(
+        &self,
+        req: Request<pb::ListJobsRequest>,
+    ) -> Result<Response<pb::ListJobsResponse>, Status> {
+        let req = req.into_inner();
+        let from = if req.page_token.is_empty() {
+            0
+        } else {
+            req.page_token.parse::<u64>().map_err(|_| {
+                Status::invalid_argument(format!(
+                    "page_token \"{}\" is not one this coordinator gave",
+                    req.page_token.chars().take(40).collect::<String>()
+                ))
+            })?
+        };
+        let limits = self.farm.config().limits;
+        let limit = match req.limit {
+            0 => limits.list_page_default,
+            n => (n as usize).min(limits.list_page_max),
+        };
+        let (page, mut next) = self.farm.list_from(from, limit);
+        // Errors make statuses long: stop a page at about list_page_bytes.
+        let mut jobs = Vec::with_capacity(page.len());
+        let mut bytes = 0;
+        for info in &page {
+            let s = job_status(info);
+            // The numbers take at most ~100 bytes; the strings their length.
+            bytes +=
+                100 + s.camera.len() + s.output_name.len() + s.error.len() + s.bundle_hash.len();
+            if bytes > limits.list_page_bytes && !jobs.is_empty() {
+                next = Some(info.id);
+                break;
+            }
+            jobs.push(s);
+        }
+        Ok(Response::new(pb::ListJobsResponse {
+            jobs,
+            next_page_token: next.map(|id| id.to_string()).unwrap_or_default(),
+        }))
+    }
+
+    async fn cancel_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {
+        let id = req.into_inner().id;
+        let farm = self.farm.clone();
+        let info = blocking(move || farm.cancel(id)).await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    async fn get_preview(&self, req: Request<pb::JobId>) -> Result<Response<pb::Preview>, Status> {
+        let id = req.into_inner().id;
+        let farm = self.farm.clone();
+        let p = blocking(move || farm.preview(id)).await?;
+        Ok(Response::new(pb::Preview {
+            png: p.png.as_ref().clone(),
+            width: p.width,
+            height: p.height,
+            tiles: p.tiles,
+        }))
+    }
+
+    type DownloadOutputStream = ReceiverStream<Result<pb::OutputChunk, Status>>;
+
+    async fn download_output(
+        &self,
+        req: Request<pb::JobId>,
+    ) -> Result<Response<Self::DownloadOutputStream>, Status> {
+        let r = req.into_inner();
+        let (id, frame) = (r.id, r.frame);
+        // Finding and opening the file touches the disk: off the async
+        // threads, like every file system call (issue 36: a lookup that
+        // stat'ed every frame of a long sequence here held a runtime
+        // thread for half a minute and let leases expire).
+        let farm = self.farm.clone();
+        let file = blocking(move || {
+            let path = match frame {
+                Some(f) => farm.frame_file(id, Some(f))?,
+                None => farm.output_file(id)?,
+            };
+            let file = std::fs::File::open(&path)
+                .map_err(|e| FarmError::io(format!("opening the output of job {id}"), e))?;
+            farm.fetched(id, frame);
+            Ok(file)
+        })
+        .await?;
+        Ok(Response::new(stream_file(
+            tokio::fs::File::from_std(file),
+            |data, size| pb::OutputChunk { data, size },
+        )))
+    }
+}
