@@ -32,7 +32,7 @@ pub struct SegmentUpload<'a> {
     pub rect: Rect,
     /// Rays the worker traced for it.
     pub rays: u64,
-    /// As for [`super::TileResult::worker`]; such a worker must also have
+    /// As for [`super::LeaseResult::worker`]; such a worker must also have
     /// registered with the coordinator's encoder.
     pub worker: Option<WorkerId>,
     /// The rect's segments, top to bottom.
@@ -459,7 +459,7 @@ impl Farm {
     }
 
     /// Takes a lease's result as encoded segments: `up.rect` is the span's
-    /// rect, `parts` its tiles in row-major order ([`Farm::span_tiles`]),
+    /// rect, `parts` its tiles in row-major order (the scheduler's `span_tiles`),
     /// whose leases are `up.lease`, `up.lease + 1`, ….
     ///
     /// An invalid upload ([`check_upload`], or a worker that did not
