@@ -6,9 +6,10 @@
 //! farm's configuration, its locked `State` and [`Farm::new`]; beside it,
 //! in `farm/`, one file for each part of a job's and a worker's life:
 //!
-//! - `admission.rs`: what is read of a bundle's scene to admit a job, and
-//!   the bounds on that work; `submit.rs`: where a job is made from a
-//!   camera, submitted (queued) and moved in the queue.
+//! - `submit.rs`: where a job is made from a camera, submitted (queued)
+//!   and moved in the queue (what is read of a bundle's scene to admit it
+//!   is [`crate::summaries::summarize`], under the bounds of
+//!   [`crate::admission`]).
 //! - `registrations.rs`: the bounds on registering workers; `leasing.rs`:
 //!   where a worker registers and is granted, keeps, returns or loses a
 //!   lease.
@@ -29,7 +30,6 @@
 //! encoding one job's rows never stalls leasing. The order is always
 //! output → state, never the reverse.
 
-pub mod admission;
 mod checks;
 mod ending;
 mod job_previews;

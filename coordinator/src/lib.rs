@@ -27,7 +27,9 @@
 //! of the first incomplete band, so the rows held by a job's writer are
 //! bounded by the window (see [`limits::Limits::window_bytes`]),
 //! not by the image height.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod admission;
 pub mod auth;
 pub mod bundles;
 pub mod dir_lock;

@@ -25,10 +25,10 @@ pub struct Limits {
     /// Bundle uploads in progress at once; one more is refused.
     pub max_uploads: usize,
     /// Scenes read at once to admit a job (the first submission on a
-    /// bundle; see [`crate::farm::admission`]); one more is refused.
+    /// bundle; see [`crate::admission`]); one more is refused.
     pub max_admissions: usize,
     /// Memory the admissions in progress may be counted at together, in
-    /// bytes (each at [`crate::farm::admission::admission_cost`] of its
+    /// bytes (each at [`crate::admission::admission_cost`] of its
     /// bundle's size; one admission alone always fits); one more that does
     /// not fit is refused.
     pub admission_bytes: u64,

@@ -1,4 +1,5 @@
 //! `trevi-coordinator --listen ADDR --data-dir DIR`: the farm's coordinator.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 use anyhow::{Context, Result};
 use clap::Parser;

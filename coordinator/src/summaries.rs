@@ -11,10 +11,12 @@
 //! because a summary is only worth keeping while its jobs are being
 //! submitted, and it holds only what [`crate::Farm::job_spec`] reads, never
 //! the meshes. A summary is made by the headers-only parse, within the
-//! admission bounds of [`crate::farm::admission`]. A local render hands the description it already parsed to
+//! admission bounds of [`crate::admission`]. A local render hands the description it already parsed to
 //! [`Summaries::prime`], so the embedded coordinator does not parse at all.
 
-use crate::farm::admission::{Admissions, Ticket};
+use crate::admission::{admission_cost, Admissions, Ticket};
+use crate::bundles::BundleStore;
+use crate::error::FarmError;
 use crate::limits::Limits;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -54,7 +56,7 @@ impl SceneSummary {
     }
 
     /// The summary of a scene read by the headers-only parse (see
-    /// [`crate::farm::admission`]).
+    /// [`crate::admission`]).
     pub fn of_headers(scene: &str, h: &SceneHeaders) -> SceneSummary {
         Self::with_memory(scene, &h.desc, h.estimate().total())
     }
@@ -79,7 +81,7 @@ impl SceneSummary {
 }
 
 /// Summaries by bundle hash, most recently used last; and the gate the
-/// parses that make them go through (see [`crate::farm::admission`]).
+/// parses that make them go through (see [`crate::admission`]).
 pub struct Summaries {
     entries: Mutex<VecDeque<(String, Arc<SceneSummary>)>>,
     /// How many summaries were made by parsing a bundle (see
@@ -177,6 +179,23 @@ impl Summaries {
     pub fn parses(&self) -> u64 {
         self.parses.load(std::sync::atomic::Ordering::Relaxed)
     }
+}
+
+/// The summary of the stored bundle `hash`, from the headers-only parse of
+/// its scene, counted against `ticket` before the bundle is decoded.
+pub fn summarize(
+    bundles: &BundleStore,
+    hash: &str,
+    ticket: &mut Ticket,
+) -> Result<SceneSummary, FarmError> {
+    let bytes = bundles.get_bytes(hash)?;
+    ticket.reserve(admission_cost(bytes.len() as u64))?;
+    let bundle =
+        trevi_core::Bundle::decode(&bytes).map_err(|e| FarmError::BadBundle(e.to_string()))?;
+    drop(bytes);
+    let headers = trevi_core::scene::aisxml::parse_scene_headers(&bundle.scene, &bundle)
+        .map_err(FarmError::from)?;
+    Ok(SceneSummary::of_headers(&bundle.scene, &headers))
 }
 
 #[cfg(test)]

@@ -9,7 +9,8 @@
 //! Made from a scene file, a bundle comes with the description its parse
 //! produced ([`ParsedBundle`]), so that nothing reads the scene twice.
 
-use crate::error::{read_error_kind, Location, SceneError};
+use crate::error::{Location, SceneError};
+use crate::scene::source::read_error_kind;
 use crate::scene::aisxml::parse_scene;
 use crate::scene::SceneDesc;
 use crate::world::Scene;

@@ -108,23 +108,6 @@ impl SceneError {
     }
 }
 
-/// The kind of a failed file read: [`SceneErrorKind::MissingFile`] when the
-/// file is not there, [`SceneErrorKind::Limit`] when reading it would pass a
-/// size limit (see [`crate::scene::source::ReadLimits`]), else
-/// [`SceneErrorKind::Io`].
-pub fn read_error_kind(e: &std::io::Error) -> SceneErrorKind {
-    if e.kind() == std::io::ErrorKind::NotFound {
-        SceneErrorKind::MissingFile
-    } else if e
-        .get_ref()
-        .is_some_and(|inner| inner.is::<crate::scene::source::OverLimit>())
-    {
-        SceneErrorKind::Limit
-    } else {
-        SceneErrorKind::Io
-    }
-}
-
 /// Errors while writing an output image.
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {

@@ -5,6 +5,7 @@
 //! messages and `trevi-core`'s domain types live here, so `trevi-core` never
 //! sees prost, and so does the pixel wire format ([`pixels_to_bytes`],
 //! [`pixels_from_bytes`]).
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 use trevi_core::Rect;
 

@@ -8,7 +8,8 @@ use std::io::IsTerminal;
 use crate::cli::{self, LeftRunning};
 use crate::client;
 use crate::progress::Progress;
-use crate::{local, Command};
+use crate::args::Command;
+use crate::local;
 
 pub async fn run(cmd: Command) -> Result<()> {
     let farm = cmd.farm();

@@ -234,6 +234,193 @@ fn the_readme_s_layout_names_what_exists() {
     );
 }
 
+/// CONTRIBUTING.md names the files each kind of change touches: every path
+/// it names (in backquotes, with a `/`) exists.
+#[test]
+fn contributing_names_what_exists() {
+    let text = read("CONTRIBUTING.md");
+    let mut missing = Vec::new();
+    let mut named = 0;
+    for quoted in text.split('`').skip(1).step_by(2) {
+        let looks_like_path = quoted.contains('/')
+            && !quoted.contains(' ')
+            && (quoted.ends_with(".rs") || quoted.ends_with(".md") || quoted.ends_with('/'));
+        if !looks_like_path {
+            continue;
+        }
+        named += 1;
+        if !root().join(quoted).exists() {
+            missing.push(quoted.to_string());
+        }
+    }
+    assert!(named > 20, "only {named} paths found in CONTRIBUTING.md");
+    assert!(
+        missing.is_empty(),
+        "CONTRIBUTING.md names {missing:?}, which do not exist"
+    );
+}
+
+/// No module cycle in any crate: among the modules of one parent, the
+/// `crate::` and `super::` references of their files form a DAG (a module
+/// may use its ancestors and descendants; test-only files are left out).
+#[test]
+fn no_crate_has_a_module_cycle() {
+    let mut cycles = Vec::new();
+    for krate in ["core", "coordinator", "worker", "submit", "proto", "bench"] {
+        let src = root().join(krate).join("src");
+        let mut files = Vec::new();
+        rust_files(&src, &mut files);
+        let module_of = |f: &Path| -> Vec<String> {
+            let rel = f.strip_prefix(&src).unwrap().with_extension("");
+            let mut parts: Vec<String> = rel
+                .components()
+                .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                .collect();
+            if matches!(parts.last().map(String::as_str), Some("mod" | "lib" | "main")) {
+                parts.pop();
+            }
+            parts
+        };
+        let modules: Vec<Vec<String>> = files.iter().map(|f| module_of(f)).collect();
+        let mut edges: std::collections::BTreeSet<(Vec<String>, Vec<String>)> = Default::default();
+        for (file, from) in files.iter().zip(&modules) {
+            let name = file.file_name().unwrap().to_string_lossy();
+            if name == "tests.rs" || name.ends_with("_tests.rs") || name == "testing.rs" {
+                continue;
+            }
+            let text = std::fs::read_to_string(file).unwrap();
+            for target in references(&text, from) {
+                // The longest module the reference is inside of.
+                let Some(to) = (1..=target.len())
+                    .rev()
+                    .map(|n| target[..n].to_vec())
+                    .find(|m| modules.contains(m))
+                else {
+                    continue;
+                };
+                let common = from.iter().zip(&to).take_while(|(a, b)| a == b).count();
+                if common == from.len() || common == to.len() {
+                    continue; // an ancestor or a descendant
+                }
+                edges.insert((from[..=common].to_vec(), to[..=common].to_vec()));
+            }
+        }
+        if let Some(cycle) = find_cycle(&edges) {
+            cycles.push(format!("{krate}: {}", cycle.join(" -> ")));
+        }
+    }
+    assert!(cycles.is_empty(), "module cycles: {cycles:#?}");
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// The module paths `text` (a file of module `here`) names through
+/// `crate::` and `super::`, outside comments and before an inline
+/// `#[cfg(test)] mod … {` (test modules come last); a `{…}` group gives each
+/// of its first names.
+fn references(text: &str, here: &[String]) -> Vec<Vec<String>> {
+    let ident = |s: &str| -> usize {
+        s.find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .unwrap_or(s.len())
+    };
+    let mut out = Vec::new();
+    let lines: Vec<&str> = text.lines().collect();
+    for (n, line) in lines.iter().enumerate() {
+        let next = lines.get(n + 1).map_or("", |l| l.trim());
+        if line.trim() == "#[cfg(test)]" && next.starts_with("mod ") && next.ends_with('{') {
+            break;
+        }
+        let code = line.split("//").next().unwrap_or("");
+        let mut rest = code;
+        while let Some(i) = rest.find("crate::").or_else(|| rest.find("super::")) {
+            let (mut base, mut tail) = if rest[i..].starts_with("crate::") {
+                (Vec::new(), &rest[i + 7..])
+            } else {
+                let mut b = here.to_vec();
+                let mut t = &rest[i..];
+                while let Some(next) = t.strip_prefix("super::") {
+                    b.pop();
+                    t = next;
+                }
+                (b, t)
+            };
+            loop {
+                let n = ident(tail);
+                if n == 0 {
+                    if let Some(group) = tail.strip_prefix('{') {
+                        for item in group.split(',') {
+                            let item = item.trim();
+                            let n = ident(item);
+                            if n > 0 {
+                                let mut p = base.clone();
+                                p.push(item[..n].to_string());
+                                out.push(p);
+                            }
+                        }
+                    }
+                    break;
+                }
+                base.push(tail[..n].to_string());
+                match tail[n..].strip_prefix("::") {
+                    Some(next) => tail = next,
+                    None => break,
+                }
+            }
+            if !base.is_empty() {
+                out.push(base);
+            }
+            rest = &rest[i + 7..];
+        }
+    }
+    out
+}
+
+/// A cycle of the directed graph `edges`, if it has one.
+fn find_cycle(
+    edges: &std::collections::BTreeSet<(Vec<String>, Vec<String>)>,
+) -> Option<Vec<String>> {
+    fn visit(
+        node: &Vec<String>,
+        edges: &std::collections::BTreeSet<(Vec<String>, Vec<String>)>,
+        path: &mut Vec<Vec<String>>,
+        done: &mut std::collections::BTreeSet<Vec<String>>,
+    ) -> Option<Vec<String>> {
+        if let Some(at) = path.iter().position(|p| p == node) {
+            let mut c: Vec<String> = path[at..].iter().map(|m| m.join("::")).collect();
+            c.push(node.join("::"));
+            return Some(c);
+        }
+        if done.contains(node) {
+            return None;
+        }
+        path.push(node.clone());
+        for (_, to) in edges.iter().filter(|(f, _)| f == node) {
+            if let Some(c) = visit(to, edges, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        done.insert(node.clone());
+        None
+    }
+    let mut done = Default::default();
+    for (from, _) in edges {
+        if let Some(c) = visit(from, edges, &mut Vec::new(), &mut done) {
+            return Some(c);
+        }
+    }
+    None
+}
+
 /// The systemd unit for spare machines starts the worker with flags the
 /// worker has: a renamed flag would leave a service that never starts.
 #[test]

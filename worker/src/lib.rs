@@ -58,6 +58,7 @@
 //!
 //! `src/main.rs` is `trevi-worker`: its flags, and the stop signals
 //! (`trevi_proto::signal`).
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 mod config;
 mod error;

@@ -1,4 +1,5 @@
 //! `trevi-worker --coordinator URL [--threads N]`: a stateless render worker.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 mod names;
 

@@ -66,7 +66,7 @@ impl Session {
             Ok(Scene::build(desc))
         })
         .await??;
-        let memory = trevi_core::texture::SceneMemory::of(&scene.desc);
+        let memory = trevi_core::scene::memory::SceneMemory::of(&scene.desc);
         tracing::info!(
             bundle = %hash,
             mesh_bytes = memory.meshes,

@@ -17,7 +17,7 @@
 //! cell).
 
 use rayon::prelude::*;
-use trevi_core::output::{encode_segment, SEGMENT_ROWS};
+use trevi_core::output::{encode_segment, whole_segments, SEGMENT_ROWS};
 use trevi_core::Rect;
 use trevi_proto::pb;
 
@@ -77,20 +77,6 @@ pub fn check_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), BadPixel> {
     }
 }
 
-/// Whether `rect` is what a segment lease of a `width`×`height` frame must
-/// be: full-width rows from a multiple of [`SEGMENT_ROWS`] to a multiple of
-/// it or the frame's bottom.
-pub fn is_segment_rect(rect: Rect, width: u32, height: u32) -> bool {
-    let end = u64::from(rect.y) + u64::from(rect.h);
-    rect.x == 0
-        && rect.w == width
-        && rect.w > 0
-        && rect.h > 0
-        && rect.y % SEGMENT_ROWS == 0
-        && end <= u64::from(height)
-        && (rect.h % SEGMENT_ROWS == 0 || end == u64::from(height))
-}
-
 /// The preview's box sums of `rect`'s pixels (row by row), as the proto's
 /// `PreviewSums` says: the frame is cut into `scale`-pixel square cells from
 /// (0, 0); for every cell the rect overlaps, row-major, the sums of the
@@ -139,7 +125,9 @@ pub fn encode_rect(
     scale: u32,
     pixels: &[[f32; 3]],
 ) -> Result<EncodedRect, SegmentError> {
-    if !is_segment_rect(rect, width, height) {
+    // Full-width rows from a multiple of SEGMENT_ROWS to a multiple of it
+    // or the frame's bottom: core's one rule for whole segments.
+    if width == 0 || whole_segments(rect, width, height).is_err() {
         return Err(SegmentError::NotSegments {
             rect,
             width,

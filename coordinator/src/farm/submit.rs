@@ -1,13 +1,13 @@
 //! Queueing a job: the job a stored bundle's camera makes ([`Farm::job_spec`],
 //! checked against the image bounds), its submission with the per-submitter
 //! bound ([`Farm::submit`]), and moving it in the queue
-//! ([`Farm::set_priority`]). What is read of the scene to admit it is in
-//! `admission.rs`; sequences queue their frames through
+//! ([`Farm::set_priority`]). What is read of the scene to admit it is
+//! [`crate::summaries::summarize`], under [`crate::admission`]'s bounds; sequences queue their frames through
 //! [`Farm::submit_locked`] (see `sequences.rs`).
 
 use super::checks::output_name;
 use super::outputs::Output;
-use super::{admission, Farm, State};
+use super::{Farm, State};
 use crate::error::{FarmError, LimitKind};
 use crate::scheduler::{JobId, JobInfo, JobSpec};
 use crate::sink::TileSink;
@@ -35,7 +35,7 @@ impl Farm {
     /// Describes the job rendering `camera` (empty: the first camera) of a
     /// stored bundle's scene. The scene is read the first time a bundle is
     /// asked about, headers only and within the admission bounds (see
-    /// [`admission`]; it reads the bundle: call off the async threads), then
+    /// [`crate::admission`]; it reads the bundle: call off the async threads), then
     /// its summary is kept (see [`Summaries`](crate::summaries::Summaries)).
     pub fn job_spec(
         &self,
@@ -53,7 +53,7 @@ impl Farm {
                 summary
             }
             None => self.summaries.get_or_admit(bundle_hash, |ticket| {
-                admission::summarize(&self.bundles, bundle_hash, ticket)
+                crate::summaries::summarize(&self.bundles, bundle_hash, ticket)
             })?,
         };
         let cam = if camera.is_empty() {

@@ -6,6 +6,7 @@
 //! Paths handed to a [`FileSource`] are relative, use `/`, and never climb
 //! out of the scene's directory ([`normalize_rel_path`] makes them so).
 
+use crate::error::SceneErrorKind;
 use std::io::{self, Read};
 use std::path::{Component, Path, PathBuf};
 
@@ -39,7 +40,7 @@ impl Default for ReadLimits {
 
 /// The error inside the [`io::Error`] of a read that would pass its size
 /// limit, so that the caller can tell it from other read errors (see
-/// [`crate::error::read_error_kind`]).
+/// [`read_error_kind`]).
 #[derive(Debug, thiserror::Error)]
 #[error("\"{rel}\" takes the scene bundle past its limit of {limit} bytes (the scene and every file it references together)")]
 pub struct OverLimit {
@@ -227,6 +228,23 @@ fn normalize_joined(reference: &str) -> Result<String, PathError> {
         return Err(PathError::NamesNoFile(reference.to_string()));
     }
     Ok(parts.join("/"))
+}
+
+/// The kind of a failed file read: [`SceneErrorKind::MissingFile`] when the
+/// file is not there, [`SceneErrorKind::Limit`] when reading it would pass a
+/// size limit (see [`ReadLimits`]), else
+/// [`SceneErrorKind::Io`].
+pub fn read_error_kind(e: &std::io::Error) -> SceneErrorKind {
+    if e.kind() == std::io::ErrorKind::NotFound {
+        SceneErrorKind::MissingFile
+    } else if e
+        .get_ref()
+        .is_some_and(|inner| inner.is::<OverLimit>())
+    {
+        SceneErrorKind::Limit
+    } else {
+        SceneErrorKind::Io
+    }
 }
 
 #[cfg(test)]

@@ -15,7 +15,8 @@ use std::collections::HashMap;
 use std::rc::Rc;
 
 use super::{outside_scene, Resolver, Result};
-use crate::error::{read_error_kind, Location, SceneError, SceneErrorKind};
+use crate::error::{Location, SceneError, SceneErrorKind};
+use crate::scene::source::read_error_kind;
 use crate::mesh::mtl::{self, Material};
 use crate::mesh::obj::{ObjMaterials, MAX_OBJ_MATERIALS, NO_MATERIAL};
 use crate::mesh::Mesh;

@@ -5,7 +5,8 @@
 use super::values::El;
 use super::xml::Attr;
 use super::{Load, Resolver, Result};
-use crate::error::{read_error_kind, SceneErrorKind};
+use crate::error::SceneErrorKind;
+use crate::scene::source::read_error_kind;
 use crate::scene::TextureMap;
 use crate::texture::jpeg_scan::JpegScanError;
 use crate::texture::{header, Texture, TextureError, Wrap, MAX_SCENE_TEXELS};

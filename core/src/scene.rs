@@ -10,6 +10,7 @@
 pub mod aisxml;
 pub mod animation;
 pub mod estimate;
+pub mod memory;
 pub mod source;
 
 use crate::mesh::Mesh;

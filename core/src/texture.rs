@@ -24,11 +24,9 @@
 
 pub mod header;
 pub mod jpeg_scan;
-mod memory;
 pub mod png_scan;
 mod sample;
 
-pub use memory::SceneMemory;
 pub use sample::Wrap;
 
 use glam::Vec3;

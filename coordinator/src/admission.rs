@@ -1,5 +1,6 @@
-//! Admitting a job: what the coordinator learns of a stored bundle's scene
-//! before it queues a job on it, and the bounds on that work.
+//! Admitting a job: the bounds on what the coordinator reads of a stored
+//! bundle's scene before it queues a job on it (the reading itself is
+//! [`crate::summaries::summarize`]).
 //!
 //! The coordinator never builds a scene (workers do). To admit a job it
 //! needs the cameras (id, frame size, supersampling, output) and the
@@ -28,10 +29,8 @@
 //! [`Limits::max_admissions`]: crate::limits::Limits::max_admissions
 //! [`Limits::admission_bytes`]: crate::limits::Limits::admission_bytes
 
-use crate::bundles::BundleStore;
 use crate::error::{FarmError, LimitKind};
 use crate::limits::Limits;
-use crate::summaries::SceneSummary;
 use std::sync::Mutex;
 use trevi_core::scene::estimate::human_bytes;
 
@@ -137,23 +136,6 @@ impl Drop for Ticket<'_> {
         s.0 -= 1;
         s.1 -= self.bytes;
     }
-}
-
-/// The summary of the stored bundle `hash`, from the headers-only parse of
-/// its scene, counted against `ticket` before the bundle is decoded.
-pub fn summarize(
-    bundles: &BundleStore,
-    hash: &str,
-    ticket: &mut Ticket,
-) -> Result<SceneSummary, FarmError> {
-    let bytes = bundles.get_bytes(hash)?;
-    ticket.reserve(admission_cost(bytes.len() as u64))?;
-    let bundle =
-        trevi_core::Bundle::decode(&bytes).map_err(|e| FarmError::BadBundle(e.to_string()))?;
-    drop(bytes);
-    let headers = trevi_core::scene::aisxml::parse_scene_headers(&bundle.scene, &bundle)
-        .map_err(FarmError::from)?;
-    Ok(SceneSummary::of_headers(&bundle.scene, &headers))
 }
 
 #[cfg(test)]

@@ -1,0 +1,223 @@
+//! `trevi-submit`'s command line: the flags of a render and of the farm
+//! commands (clap's definitions), read by `main.rs` and `commands.rs`.
+
+use crate::client;
+use anyhow::{bail, Result};
+use clap::Parser;
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "trevi-submit",
+    version,
+    about = "Render an AISXML scene, on this machine or on a farm",
+    args_conflicts_with_subcommands = true
+)]
+pub struct Args {
+    #[command(subcommand)]
+    pub command: Option<Command>,
+    /// The scene file (AISXML).
+    pub scene: Option<PathBuf>,
+    /// Arguments after the scene: none are taken, but a mistyped
+    /// subcommand's (`canel 3`) are read so that it can be named.
+    #[arg(hide = true)]
+    pub rest: Vec<std::ffi::OsString>,
+    /// The farm's coordinator, like http://host:50051, or https:// for TLS
+    /// (default: render on this machine).
+    #[arg(long, env = "TREVI_COORDINATOR")]
+    pub coordinator: Option<String>,
+    #[command(flatten)]
+    pub auth: Auth,
+    /// Job priority on the farm: higher runs first (a worker's CPU class is
+    /// trevi-worker --cpu-priority).
+    #[arg(
+        long,
+        env = "TREVI_JOB_PRIORITY",
+        default_value_t = 0,
+        allow_negative_numbers = true
+    )]
+    pub priority: i32,
+    /// Submit and print the job ids without waiting (needs --coordinator).
+    #[arg(long, env = "TREVI_DETACH")]
+    pub detach: bool,
+    /// Render only this camera (default: every camera in the scene).
+    #[arg(long, env = "TREVI_CAMERA")]
+    pub camera: Option<String>,
+    /// Output file (.png or .exr); only with a single camera. Default: the
+    /// camera's `output`, relative to the scene's directory. No `#` but one
+    /// run in a sequence's file name.
+    #[arg(short = 'o', long = "output", env = "TREVI_OUTPUT")]
+    pub output: Option<PathBuf>,
+    /// Render these frames of the camera's sequence, `first-last` or one
+    /// frame (default: the scene's `frames=`, if any). Each frame goes to
+    /// its own file: the output's run of `#` replaced by the frame number.
+    /// On a farm the range is one job (`status`, `cancel`, `fetch` take its
+    /// id).
+    #[arg(long, env = "TREVI_FRAMES", value_parser = sequence::parse_frames)]
+    pub frames: Option<trevi_core::scene::animation::Frames>,
+    /// Worker threads on this machine (default: every core).
+    #[arg(long, env = "TREVI_THREADS")]
+    pub threads: Option<usize>,
+    /// Tile edge in pixels (at least 1); the coordinator's --tile-size
+    /// when not given. Old name: --tile.
+    #[arg(long = "tile-size", alias = "tile", env = "TREVI_TILE_SIZE",
+          default_value_t = default_tile(), value_parser = tile_edge)]
+    pub tile_size: u32,
+    /// No progress output.
+    #[arg(short, long, env = "TREVI_QUIET")]
+    pub quiet: bool,
+    /// Keep the live preview of the frame being rendered in this PNG file
+    /// (at most 512 pixels a side, updated about once a second).
+    #[arg(long, env = "TREVI_PREVIEW")]
+    pub preview: Option<PathBuf>,
+}
+
+/// How to reach a farm's coordinator: the flags every farm command shares.
+#[derive(clap::Args, Debug)]
+pub struct Auth {
+    /// The coordinator's submit token (its --submit-token; sent as
+    /// `authorization: Bearer`). TREVI_TOKEN is no longer read: it named
+    /// trevi-worker's token too.
+    #[arg(long, env = "TREVI_SUBMIT_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// For an https:// coordinator: trust this PEM CA certificate instead of
+    /// the system roots (a farm with its own CA, see deploy/make-certs.sh).
+    #[arg(long, env = "TREVI_TLS_CA")]
+    pub tls_ca: Option<PathBuf>,
+    /// For an https:// coordinator: the name its certificate must carry, if
+    /// not the URL's host.
+    #[arg(long, env = "TREVI_TLS_DOMAIN")]
+    pub tls_domain: Option<String>,
+}
+
+/// A farm command's coordinator (required) and credentials.
+#[derive(clap::Args, Debug)]
+pub struct Farm {
+    /// The farm's coordinator, like http://host:50051, or https:// for TLS.
+    #[arg(long, env = "TREVI_COORDINATOR")]
+    pub coordinator: String,
+    #[command(flatten)]
+    pub auth: Auth,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum Command {
+    /// Show a job.
+    Status {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// Also write the job's live preview (a PNG) to this file.
+        #[arg(long, env = "TREVI_PREVIEW")]
+        preview: Option<PathBuf>,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// List the farm's jobs (every page of them, by id), one a line.
+    List {
+        /// Show at most this many jobs (the oldest first).
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Print the header line even when the output is not a terminal
+        /// (scripts reading the lines get none by default).
+        #[arg(long)]
+        header: bool,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Cancel a job: it takes no more worker time and leaves no output. A
+    /// job that has already ended is left as it is (exit status 1).
+    Cancel {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Download a finished job's image, e.g. of a job submitted with
+    /// --detach.
+    Fetch {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// Where to write it (default: the job's output file name, in the
+        /// current directory). Its extension must be the job's format. For a
+        /// sequence: a pattern with a run of # (like out/shot.####.png) or
+        /// a directory.
+        #[arg(short = 'o', long = "output")]
+        output: Option<PathBuf>,
+        /// Print nothing but errors.
+        #[arg(short, long, env = "TREVI_QUIET")]
+        quiet: bool,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Follow a job (e.g. one submitted with --detach, or left running by
+    /// Ctrl-C) until it ends, showing progress, then download its image as
+    /// the submission would have.
+    #[command(alias = "attach")]
+    Wait {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// Where to write the image (as for `fetch`).
+        #[arg(short = 'o', long = "output")]
+        output: Option<PathBuf>,
+        /// No progress output.
+        #[arg(short, long, env = "TREVI_QUIET")]
+        quiet: bool,
+        #[command(flatten)]
+        farm: Farm,
+    },
+}
+
+impl Command {
+    pub fn farm(&self) -> &Farm {
+        match self {
+            Command::Status { farm, .. }
+            | Command::List { farm, .. }
+            | Command::Cancel { farm, .. }
+            | Command::Fetch { farm, .. }
+            | Command::Wait { farm, .. } => farm,
+        }
+    }
+}
+
+impl Auth {
+    /// The submit token; refuses the old, ambiguous TREVI_TOKEN when no
+    /// token is given under its current name.
+    pub fn token(&self) -> Result<Option<&str>> {
+        let old = std::env::var("TREVI_TOKEN").is_ok_and(|v| !v.is_empty());
+        if self.token.is_none() && old {
+            bail!(
+                "TREVI_TOKEN is no longer read (trevi-worker read it for another token): \
+                 set TREVI_SUBMIT_TOKEN (or pass --token)"
+            );
+        }
+        Ok(self.token.as_deref())
+    }
+
+    /// The TLS settings of `--tls-ca` and `--tls-domain`.
+    pub fn tls(&self) -> trevi_proto::ClientTls {
+        trevi_proto::ClientTls {
+            ca_file: self.tls_ca.clone(),
+            domain: self.tls_domain.clone(),
+        }
+    }
+
+    /// A client of the coordinator at `url` with these credentials.
+    pub async fn connect(&self, url: &str) -> Result<client::Client> {
+        client::Client::connect_with(url, self.token()?, &self.tls()).await
+    }
+}
+
+/// `--tile-size`'s default: the coordinator's own, so that a local render and a
+/// farm's cut a frame alike.
+pub fn default_tile() -> u32 {
+    trevi_coordinator::FarmConfig::default().default_tile
+}
+
+/// A `--tile-size` edge: 0 is refused, naming the flag, not clamped.
+pub fn tile_edge(s: &str) -> Result<u32, String> {
+    match s.parse::<u32>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
+}
