@@ -190,10 +190,16 @@ fn run(args: Args) -> Result<()> {
         // A signal drops the render, and with it the half-written output
         // (see client::PartFile), and the embedded worker's render (its
         // cancel flag, set when the task is dropped, stops even a pixel in
-        // progress); `data` goes after the runtime.
+        // progress); the frames sequences finished are kept; `data` goes
+        // after the runtime.
         let result = tokio::select! {
             r = render => r,
-            sig = signals.next() => Err(anyhow::Error::new(sig)),
+            sig = signals.next() => {
+                if let Ok(mut client) = client::Client::connect(&farm.url, None).await {
+                    client.keep_finished_frames(&targets, progress).await;
+                }
+                Err(anyhow::Error::new(sig))
+            }
         };
         farm.stop().await;
         result

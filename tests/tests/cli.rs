@@ -312,6 +312,71 @@ fn a_local_render_interrupted_by_a_signal_leaves_nothing_behind() {
     }
 }
 
+/// A local sequence interrupted keeps the frames it finished (complete
+/// files under the pattern) and writes none of the others: its frames are
+/// on the embedded farm until the end, and a signal used to drop them with
+/// its data directory. Frame 0 sees nothing (the wall is behind the
+/// camera) and is quick; from frame 1 on the wall fills the frame with
+/// soft shadows and AO on one thread, so the signal lands in frame 1.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_local_sequence_keeps_the_frames_it_finished() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let scene = r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
+  <mesh id="wall"><vertices>-50 -50 0  50 -50 0  50 50 0  -50 50 0</vertices>
+    <triangles>0 1 2  0 2 3</triangles></mesh>
+  <model id="w" mesh="wall">
+    <animate channel="translate" times="0 0.001" values="0 0 1000   0 0 0"/>
+    <surface diffuse="0.8 0.3 0.2" reflectivity="0.2"/>
+  </model>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
+  <camera id="main" position="0 0 6" lookat="0 0 0" up="0 1 0" fov="50">
+    <render width="96" height="64" supersample="6" shadow-samples="8" ao-samples="16"
+            frames="0-2" output="shot.#.png"/>
+  </camera>
+</scene>
+"#;
+    std::fs::write(dir.path().join("seq.xml"), scene).unwrap();
+    let mut child = Command::new(bin("trevi-submit"))
+        .args(["seq.xml", "--threads", "1", "--tile-size", "16"])
+        .current_dir(dir.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut said = String::new();
+    // Not a terminal: one progress line each time a frame is done.
+    while !said.contains("1/3 frames done") {
+        let mut line = String::new();
+        assert!(
+            err.read_line(&mut line).unwrap() > 0,
+            "trevi-submit ended before frame 0 was done: {said}"
+        );
+        said.push_str(&line);
+    }
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    said.push_str(&rest);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{said}");
+    assert!(said.contains("kept the 1 frames it finished"), "{said}");
+    let frame0 = std::fs::read(dir.path().join("shot.0.png")).unwrap();
+    let png = png::Decoder::new(std::io::Cursor::new(frame0))
+        .read_info()
+        .unwrap();
+    assert_eq!((png.info().width, png.info().height), (96, 64));
+    for f in ["shot.1.png", "shot.2.png"] {
+        assert!(!dir.path().join(f).exists(), "{f}: {said}");
+    }
+}
+
 /// A flag value that makes no sense (0 scenes cached, 0 tiles in flight,
 /// polling every 0 ms, 0-pixel tiles) is refused, naming the flag, before
 /// anything starts, and nothing is written: taking it as 1 instead would

@@ -226,6 +226,35 @@ impl Client {
         Ok(())
     }
 
+    /// Downloads the frames every sequence of `targets` has finished so far
+    /// (a local render interrupted: the frames done are kept, as a
+    /// sequence that failed keeps them); says so unless `progress` is quiet.
+    pub async fn keep_finished_frames(&mut self, targets: &[Target], progress: Progress) {
+        let Ok(jobs) = self.list(None).await else {
+            return;
+        };
+        for s in jobs {
+            let Some(seq) = targets.iter().find_map(|t| match &t.output {
+                Output::Sequence(seq) if t.camera == s.camera && s.frames.is_some() => Some(seq),
+                _ => None,
+            }) else {
+                continue;
+            };
+            if s.frames_done == 0 {
+                continue;
+            }
+            let (id, done) = (s.id, s.frames_done);
+            match self.fetch_frames(s, Some(&seq.pattern)).await {
+                Ok(_) if progress != Progress::Quiet => eprintln!(
+                    "sequence {id}: kept the {done} frames it finished ({})",
+                    seq.pattern.display()
+                ),
+                Ok(_) => {}
+                Err(e) => eprintln!("sequence {id}: its finished frames: {e:#}"),
+            }
+        }
+    }
+
     /// [`Client::download`] of a job that has ended, asked again while the
     /// coordinator is away: it may restart between the end and the
     /// download.
