@@ -10,8 +10,8 @@
 //! produced ([`ParsedBundle`]), so that nothing reads the scene twice.
 
 use crate::error::{Location, SceneError};
-use crate::scene::source::read_error_kind;
 use crate::scene::aisxml::parse_scene;
+use crate::scene::source::read_error_kind;
 use crate::scene::SceneDesc;
 use crate::world::Scene;
 use sha2::{Digest, Sha256};
@@ -355,7 +355,9 @@ impl<'a> Reader<'a> {
     }
     fn u64(&mut self) -> Result<u64, BundleError> {
         let b = self.take(8)?;
-        Ok(u64::from_le_bytes(b.try_into().unwrap()))
+        Ok(u64::from_le_bytes(
+            b.try_into().map_err(|_| BundleError::Truncated)?,
+        ))
     }
     fn string(&mut self) -> Result<String, BundleError> {
         let n = self.u64()? as usize;

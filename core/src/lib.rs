@@ -20,7 +20,6 @@
 //! (see `sampling`), so any tiling, thread count or machine gives the same
 //! bytes.
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
-
 // `!(x > 0.0)` is deliberate throughout the geometry code: it is true for
 // NaN as well, which is exactly what the hit tests must reject.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

@@ -132,7 +132,7 @@ pub fn pixels_from_bytes(bytes: &[u8]) -> Result<Vec<[f32; 3]>, WireError> {
     Ok(bytes
         .chunks_exact(12)
         .map(|c| {
-            let f = |i: usize| f32::from_le_bytes(c[i..i + 4].try_into().unwrap());
+            let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
             [f(0), f(4), f(8)]
         })
         .collect())

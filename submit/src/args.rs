@@ -53,7 +53,7 @@ pub struct Args {
     /// its own file: the output's run of `#` replaced by the frame number.
     /// On a farm the range is one job (`status`, `cancel`, `fetch` take its
     /// id).
-    #[arg(long, env = "TREVI_FRAMES", value_parser = sequence::parse_frames)]
+    #[arg(long, env = "TREVI_FRAMES", value_parser = crate::sequence::parse_frames)]
     pub frames: Option<trevi_core::scene::animation::Frames>,
     /// Worker threads on this machine (default: every core).
     #[arg(long, env = "TREVI_THREADS")]

@@ -5,11 +5,11 @@
 use anyhow::{bail, Result};
 use std::io::IsTerminal;
 
+use crate::args::Command;
 use crate::cli::{self, LeftRunning};
 use crate::client;
-use crate::progress::Progress;
-use crate::args::Command;
 use crate::local;
+use crate::progress::Progress;
 
 pub async fn run(cmd: Command) -> Result<()> {
     let farm = cmd.farm();

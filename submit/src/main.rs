@@ -66,7 +66,6 @@ fn main() {
     }
 }
 
-
 fn run(args: Args) -> Result<()> {
     if let Some(cmd) = args.command {
         let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
@@ -205,7 +204,6 @@ fn run(args: Args) -> Result<()> {
         result
     })
 }
-
 
 /// Scene errors name bundle-relative files; show them as the user typed the
 /// scene's path so the location can be opened directly.

@@ -315,11 +315,13 @@ pub fn local_minute() -> u32 {
     #[cfg(target_os = "linux")]
     {
         let t = now as libc::time_t;
-        // SAFETY: `tm` is plain data that localtime_r fills in; both
-        // pointers are valid for the call, and localtime_r (unlike
-        // localtime) keeps no shared state.
+        // SAFETY: `libc::tm` is plain data (integers and a pointer that
+        // may be null): all zero bytes is a valid value of it.
         let mut tm: libc::tm = unsafe { std::mem::zeroed() };
-        if !unsafe { libc::localtime_r(&t, &mut tm) }.is_null() {
+        // SAFETY: both pointers are valid for the call, and localtime_r
+        // (unlike localtime) fills in `tm` and keeps no shared state.
+        let local = unsafe { libc::localtime_r(&t, &mut tm) };
+        if !local.is_null() {
             return (tm.tm_hour * 60 + tm.tm_min) as u32;
         }
     }

@@ -237,10 +237,7 @@ fn normalize_joined(reference: &str) -> Result<String, PathError> {
 pub fn read_error_kind(e: &std::io::Error) -> SceneErrorKind {
     if e.kind() == std::io::ErrorKind::NotFound {
         SceneErrorKind::MissingFile
-    } else if e
-        .get_ref()
-        .is_some_and(|inner| inner.is::<OverLimit>())
-    {
+    } else if e.get_ref().is_some_and(|inner| inner.is::<OverLimit>()) {
         SceneErrorKind::Limit
     } else {
         SceneErrorKind::Io

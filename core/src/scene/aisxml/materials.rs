@@ -16,10 +16,10 @@ use std::rc::Rc;
 
 use super::{outside_scene, Resolver, Result};
 use crate::error::{Location, SceneError, SceneErrorKind};
-use crate::scene::source::read_error_kind;
 use crate::mesh::mtl::{self, Material};
 use crate::mesh::obj::{ObjMaterials, MAX_OBJ_MATERIALS, NO_MATERIAL};
 use crate::mesh::Mesh;
+use crate::scene::source::read_error_kind;
 use crate::scene::source::resolve_reference;
 use crate::scene::{Surface, TextureMap};
 use crate::texture::Wrap;

@@ -6,9 +6,9 @@ use super::values::{parse_real, parse_uint, El, NumError};
 use super::xml::{excerpt, Attr, Elem};
 use super::{Load, Resolver, Result};
 use crate::error::SceneErrorKind;
-use crate::scene::source::read_error_kind;
 use crate::mesh::counts::MeshCounts;
 use crate::mesh::Mesh;
+use crate::scene::source::read_error_kind;
 use crate::scene::MAX_MESH_ELEMENTS;
 use glam::{DVec3, Vec2, Vec3};
 
