@@ -150,7 +150,7 @@ say "step 2: trevi-submit scene.xml --coordinator $url (768x512, 96 tiles)"
 submit_pid=$!
 
 job_line() { "$submit" list --coordinator "$url" 2>/dev/null | tail -n1; }
-# list's row: ID STATE CAMERA WxH DONE/TOTAL ... (submit/src/cli.rs, list_row)
+# list's row: ID STATE SCENE CAMERA WxH DONE/TOTAL ... (submit/src/cli.rs, list_row)
 tiles_done() { job_line | sed -nE 's|.*[0-9]x[0-9]+ +([0-9]+)/[0-9]+ .*|\1|p'; }
 deadline=$(($(date +%s) + 120))
 while :; do
