@@ -122,6 +122,29 @@ fn build_binaries() -> Result<PathBuf, String> {
     // the worker's `test-hooks` feature, so trevi-worker is built with the
     // hooks these tests drive (TREVI_TEST_*), as in the test run.
     cmd.args(["--workspace", "--tests", "--examples"]);
+    // Cargo runs this test with the test package's own variables set
+    // (CARGO_MANIFEST_DIR, CARGO_PKG_NAME, ...). Build scripts such as
+    // ring's ask to run again when those change (rerun-if-env-changed), so
+    // passing them on made every nested build rebuild the TLS and gRPC stack
+    // and every later `cargo test` rebuild it back: the nested build gets
+    // the environment the user's `cargo test` had.
+    for (key, _) in std::env::vars_os() {
+        let k = key.to_string_lossy();
+        let set_by_cargo_for_this_test = [
+            "CARGO_PKG_",
+            "CARGO_MANIFEST_",
+            "CARGO_CFG_",
+            "CARGO_FEATURE_",
+            "CARGO_CRATE_",
+            "CARGO_BIN_",
+        ]
+        .iter()
+        .any(|p| k.starts_with(p))
+            || ["CARGO_PRIMARY_PACKAGE", "CARGO_TARGET_TMPDIR", "OUT_DIR"].contains(&&*k);
+        if set_by_cargo_for_this_test {
+            cmd.env_remove(&key);
+        }
+    }
     eprintln!("building the binaries the test starts: {cmd:?}");
     let out = cmd
         .output()
