@@ -152,7 +152,7 @@ pub fn sampled_segment(lease: LeaseId, count: u32) -> u32 {
 /// 1: None or Sub, which do not read the row above). What it still cannot
 /// tell is whether the pixels are the right ones.
 ///
-/// The bytes are inflated through a ring of [`INFLATE_RING`] bytes and
+/// The bytes are inflated through a ring of `INFLATE_RING` bytes and
 /// checked as they come, not into one buffer the segment's size: a wide
 /// frame's segment inflates to hundreds of kilobytes, which zeroing and
 /// faulting in cost as much as inflating did (docs/benchmarks.md,

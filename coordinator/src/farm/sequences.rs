@@ -460,7 +460,7 @@ impl Farm {
     /// The output file of frame `frame` of a sequence, once that frame is
     /// done; without a frame, its highest frame done. Looks at the disk
     /// at most [`FRAME_SCAN`] times, whatever the sequence's length: the
-    /// highest frame done is kept in memory (see [`Sequence::latest`]).
+    /// highest frame done is kept in memory (see `Sequence::latest`).
     /// Call off the async threads: it stats files.
     pub fn frame_file(&self, seq: JobId, frame: Option<u32>) -> Result<PathBuf, FarmError> {
         let (pattern, first, last, latest, done) = {

@@ -57,7 +57,7 @@ impl Farm {
 
 impl Farm {
     /// Removes the bundles no job uses that are older than
-    /// [`Retention::bundle_grace`]; returns how many went.
+    /// [`super::Retention::bundle_grace`]; returns how many went.
     pub fn collect_bundles(&self) -> usize {
         let mut keep: std::collections::HashSet<String> = self
             .list()
