@@ -98,46 +98,26 @@ impl std::fmt::Display for Interrupted {
 impl std::error::Error for Interrupted {}
 
 /// SIGINT and SIGTERM, caught from now on (instead of ending the process
-/// where it stands) so that a local render can clean up after itself.
-pub struct Signals {
-    #[cfg(unix)]
-    int: tokio::signal::unix::Signal,
-    #[cfg(unix)]
-    term: tokio::signal::unix::Signal,
-}
+/// where it stands) so that a local render can clean up after itself
+/// ([`trevi_proto::signal::Signals`], naming what arrived as the error
+/// `trevi-submit` exits with).
+pub struct Signals(trevi_proto::signal::Signals);
 
 impl Signals {
     /// Must run inside the runtime.
     pub fn catch() -> Result<Signals> {
-        #[cfg(unix)]
-        {
-            use tokio::signal::unix::{signal, SignalKind};
-            Ok(Signals {
-                int: signal(SignalKind::interrupt()).context("cannot catch SIGINT")?,
-                term: signal(SignalKind::terminate()).context("cannot catch SIGTERM")?,
-            })
-        }
-        #[cfg(not(unix))]
-        Ok(Signals {})
+        let signals =
+            trevi_proto::signal::Signals::catch().context("cannot catch SIGINT and SIGTERM")?;
+        Ok(Signals(signals))
     }
 
     /// The next SIGINT or SIGTERM (including one that arrived since
     /// [`Signals::catch`]).
     pub async fn next(&mut self) -> Interrupted {
-        #[cfg(unix)]
-        {
-            tokio::select! {
-                _ = self.int.recv() => Interrupted { name: "SIGINT", code: 130 },
-                _ = self.term.recv() => Interrupted { name: "SIGTERM", code: 143 },
-            }
-        }
-        #[cfg(not(unix))]
-        {
-            let _ = tokio::signal::ctrl_c().await;
-            Interrupted {
-                name: "Ctrl-C",
-                code: 130,
-            }
+        let s = self.0.next().await;
+        Interrupted {
+            name: s.name,
+            code: s.code,
         }
     }
 }
