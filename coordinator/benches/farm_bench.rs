@@ -261,6 +261,7 @@ fn ingest(args: &[String]) {
                 tile_size: tile,
                 output_format: String::new(),
                 frames: None,
+                progressive: None,
             })
             .await
             .unwrap()
@@ -899,6 +900,7 @@ fn scale(args: &[String]) {
                             tile_size: tile,
                             output_format: String::new(),
                             frames: None,
+                            progressive: None,
                         })
                         .await
                         .unwrap()

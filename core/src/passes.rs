@@ -8,6 +8,7 @@
 //! | `passes.rs` | [`TileState`]: a rectangle's accumulated samples, rendered on by ranges |
 //! | `passes/encode.rs` | its bytes: a versioned, bounded encoding, decoded with every length checked first |
 //! | `passes/noise.rs` | [`Noise`]: the relative error of a frame from its pixels' variances |
+//! | `passes/samples.rs` | [`Scene::set_samples`]: a job's own sample count, on the sequence that extends |
 //!
 //! The per-pixel state and the arithmetic that continues it are the
 //! integrator's ([`PixelState`], integrator/accumulate.rs); this module only
@@ -15,9 +16,11 @@
 
 mod encode;
 mod noise;
+mod samples;
 
 pub use encode::{StateError, HEADER_BYTES, MAGIC, MAX_STATE_PIXELS, PIXEL_BYTES, VERSION};
 pub use noise::Noise;
+pub use samples::MAX_SAMPLES;
 
 use crate::integrator::{samples_per_pixel, Cancelled, PixelState};
 use crate::tile::{finish_tile, render_tile_samples, Rect};

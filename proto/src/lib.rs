@@ -10,6 +10,7 @@
 use trevi_core::Rect;
 
 pub mod connect;
+pub mod duration;
 pub mod signal;
 pub use connect::{endpoint, ClientTls, EndpointError};
 

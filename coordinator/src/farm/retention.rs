@@ -89,45 +89,26 @@ impl Ended {
     }
 }
 
-/// A duration `--keep-ended-for` cannot read.
+/// A duration `--keep-ended-for` cannot read (the farm's grammar,
+/// [`trevi_proto::duration`], or `never`).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("\"{0}\" is not a duration like 90s, 30m, 12h, 7d or never")]
 pub struct BadDuration(pub String);
 
 impl Retention {
-    /// Reads `--keep-ended-for`: a whole number with `s`, `m`, `h` or `d`
-    /// (`90m`, `7d`), or `never`.
+    /// Reads `--keep-ended-for`: a duration (`90m`, `7d`), or `never`.
     pub fn parse_duration(s: &str) -> Result<Option<Duration>, BadDuration> {
-        let s = s.trim();
-        if s == "never" {
+        if s.trim() == "never" {
             return Ok(None);
         }
-        let bad = || BadDuration(s.to_string());
-        let unit = match s.chars().last().ok_or_else(bad)? {
-            's' => 1,
-            'm' => 60,
-            'h' => 3600,
-            'd' => 86400,
-            _ => return Err(bad()),
-        };
-        let n: u64 = s[..s.len() - 1].parse().map_err(|_| bad())?;
-        Ok(Some(Duration::from_secs(
-            n.checked_mul(unit).ok_or_else(bad)?,
-        )))
+        trevi_proto::duration::parse(s)
+            .map(Some)
+            .map_err(|_| BadDuration(s.trim().to_string()))
     }
 
     /// The inverse of [`Retention::parse_duration`] (the flag's default).
     pub fn format_duration(d: Option<Duration>) -> String {
-        let Some(d) = d else {
-            return "never".into();
-        };
-        let s = d.as_secs();
-        for (unit, n) in [("d", 86400), ("h", 3600), ("m", 60)] {
-            if s > 0 && s % n == 0 {
-                return format!("{}{unit}", s / n);
-            }
-        }
-        format!("{s}s")
+        d.map_or_else(|| "never".into(), trevi_proto::duration::format)
     }
 
     /// Refuses settings that make no sense (see [`BadRetention`]).

@@ -49,6 +49,7 @@ pub fn job_status(info: &JobInfo) -> pb::JobStatus {
         current_tiles_done: info.frames.and_then(|f| f.current).map_or(0, |c| c.1),
         current_tiles_total: info.frames.and_then(|f| f.current).map_or(0, |c| c.2),
         frames_in_progress: info.frames.map_or(0, |f| f.in_progress),
+        passes: None,
     }
 }
 
@@ -188,9 +189,9 @@ impl pb::jobs_server::Jobs for JobsService {
         let r = req.into_inner();
         let (id, frame) = (r.id, r.frame);
         // Finding and opening the file touches the disk: off the async
-        // threads, like every file system call (issue 36: a lookup that
-        // stat'ed every frame of a long sequence here held a runtime
-        // thread for half a minute and let leases expire).
+        // threads, like every file system call (a lookup that stat'ed every
+        // frame of a long sequence here once held a runtime thread for half
+        // a minute and let leases expire).
         let farm = self.farm.clone();
         let file = blocking(move || {
             let path = match frame {
@@ -207,5 +208,12 @@ impl pb::jobs_server::Jobs for JobsService {
             tokio::fs::File::from_std(file),
             |data, size| pb::OutputChunk { data, size },
         )))
+    }
+
+    async fn extend_job(
+        &self,
+        _req: Request<pb::ExtendJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        Err(Status::unimplemented("extend: in progress"))
     }
 }

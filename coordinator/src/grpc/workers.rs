@@ -238,6 +238,7 @@ impl pb::workers_server::Workers for WorkersService {
                 frame: l.frame,
                 png_segments: l.png_segments,
                 preview_scale,
+                samples: None,
             }),
         }))
     }
@@ -345,6 +346,15 @@ impl pb::workers_server::Workers for WorkersService {
         Ok(Response::new(pb::TileAck {
             accepted: outcome == TileOutcome::Accepted,
         }))
+    }
+
+    type FetchStateStream = tokio_stream::wrappers::ReceiverStream<Result<pb::StateChunk, Status>>;
+
+    async fn fetch_state(
+        &self,
+        _req: Request<pb::StateRequest>,
+    ) -> Result<Response<Self::FetchStateStream>, Status> {
+        Err(Status::unimplemented("fetch state: in progress"))
     }
 
     async fn return_tile(

@@ -70,22 +70,27 @@ impl TileState {
         HEADER_BYTES + PIXEL_BYTES * rect.pixel_count()
     }
 
+    /// The header of the encoding of a state of `rect` rendered up to
+    /// sample `next`: what a keeper of the pixels' bytes alone (a
+    /// coordinator's state file, row by row) puts before them to make an
+    /// encoded state again.
+    pub fn encode_header(rect: Rect, next: u32) -> [u8; HEADER_BYTES] {
+        let mut out = [0u8; HEADER_BYTES];
+        out[..4].copy_from_slice(&MAGIC);
+        out[4..6].copy_from_slice(&VERSION.to_le_bytes());
+        for (i, v) in [rect.x, rect.y, rect.w, rect.h, next]
+            .into_iter()
+            .enumerate()
+        {
+            out[8 + 4 * i..12 + 4 * i].copy_from_slice(&v.to_le_bytes());
+        }
+        out
+    }
+
     /// The state's bytes (see the module documentation).
     pub fn encode(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(Self::encoded_len(self.rect));
-        out.extend_from_slice(&MAGIC);
-        out.extend_from_slice(&VERSION.to_le_bytes());
-        out.extend_from_slice(&0u16.to_le_bytes());
-        for v in [
-            self.rect.x,
-            self.rect.y,
-            self.rect.w,
-            self.rect.h,
-            self.next,
-            0,
-        ] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
+        out.extend_from_slice(&Self::encode_header(self.rect, self.next));
         for p in &self.pixels {
             for c in p.block {
                 out.extend_from_slice(&c.to_le_bytes());

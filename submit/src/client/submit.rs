@@ -94,6 +94,7 @@ impl Client {
                 tile_size,
                 output_format: target.format.extension().to_string(),
                 frames,
+                progressive: None,
             })
             .await
             .map_err(status_error)
