@@ -437,6 +437,7 @@ fn farm(args: &[String]) {
             output_name: "bench.png".into(),
             scene: String::new(),
             submitter: String::new(),
+            samples: None,
         };
         let start = Instant::now();
         let job = if sink == "png" {

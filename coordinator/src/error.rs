@@ -160,7 +160,9 @@ impl From<SchedError> for FarmError {
             SchedError::UnknownJob(j) => FarmError::UnknownJob(j),
             SchedError::UnknownWorker(w) => FarmError::UnknownWorker(w),
             e @ SchedError::NotATile(..) => FarmError::BadTile(e.to_string()),
-            e @ SchedError::NotYourLease(..) => FarmError::NotYourLease(e.to_string()),
+            e @ (SchedError::NotYourLease(..) | SchedError::NotHeld(..)) => {
+                FarmError::NotYourLease(e.to_string())
+            }
             SchedError::JobOver(j) => FarmError::JobOver(j),
         }
     }

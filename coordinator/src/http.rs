@@ -326,6 +326,20 @@ struct JobView {
     error: Option<String>,
     /// A sequence's frames (see farm/sequences.rs); `null` for a still.
     frames: Option<FramesView>,
+    /// A progressive job's passes (see farm/progressive.rs); `null` for
+    /// any other.
+    passes: Option<PassesView>,
+}
+
+#[derive(Serialize)]
+struct PassesView {
+    done: u32,
+    samples_done: u32,
+    samples_total: u32,
+    /// The estimated relative error after the last pass; `null` until known.
+    error: Option<f64>,
+    /// "time limit" or "noise target" when it stopped before its total.
+    stopped_by: Option<&'static str>,
 }
 
 #[derive(Serialize)]
@@ -378,6 +392,13 @@ impl From<&JobInfo> for JobView {
                 current: f.current.map(|c| c.0),
                 current_tiles_done: f.current.map_or(0, |c| c.1),
                 current_tiles_total: f.current.map_or(0, |c| c.2),
+            }),
+            passes: j.passes.as_ref().map(|p| PassesView {
+                done: p.done,
+                samples_done: p.samples_done,
+                samples_total: p.samples_total,
+                error: p.error,
+                stopped_by: p.stopped_by.map(|r| r.label()),
             }),
         }
     }

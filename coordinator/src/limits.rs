@@ -117,7 +117,24 @@ pub struct Limits {
     /// [`MAX_FRAMES_IN_PROGRESS`]); each holds what a still in progress
     /// holds (see [`crate::farm::sequences`]).
     pub frames_in_progress: usize,
+    /// Most pixels in one lease of a progressive job (see
+    /// [`crate::farm::progressive`]), whose upload carries the rect's
+    /// accumulation state at 64 bytes a pixel on top of its pixels, and
+    /// whose fetch serves as much: see [`DEFAULT_MAX_STATE_LEASE_PIXELS`].
+    /// A progressive job's tiles must fit (checked at submission).
+    pub max_state_lease_pixels: u64,
+    /// Most bytes a progressive job's accumulation states may take on the
+    /// coordinator's disk: 128 bytes a pixel of its frame (two state files
+    /// of 64, see `crate::farm::progressive`); a larger frame is refused at
+    /// submission. 16 GiB by default: an 11585-pixel square frame.
+    pub max_job_state_bytes: u64,
 }
+
+/// [`Limits::max_state_lease_pixels`] by default: 2¹⁸ pixels, 16 MiB of
+/// state (and 3 MiB of floats) in one upload; a 16-row band of a
+/// 16384-pixel-wide frame, so a segment lease of one 16-row band still
+/// fits the widest frame the default `--max-image-samples` lets through.
+pub const DEFAULT_MAX_STATE_LEASE_PIXELS: u64 = 1 << 18;
 
 /// [`Limits::max_segment_lease_pixels`] by default: 2²² pixels (4 Mi). A
 /// second of a 16-thread worker on the cheap scene of docs/benchmarks.md
@@ -223,6 +240,26 @@ impl Default for Limits {
             // by its service manager) to register.
             memory_grace: Duration::from_secs(30),
             frames_in_progress: DEFAULT_FRAMES_IN_PROGRESS,
+            max_state_lease_pixels: DEFAULT_MAX_STATE_LEASE_PIXELS,
+            max_job_state_bytes: 16 << 30,
+        }
+    }
+}
+
+impl Limits {
+    /// The bounds a lease of a job with a state (`state`: a pass of a
+    /// progressive job) is sized within: the lease caps no larger than
+    /// [`Limits::max_state_lease_pixels`].
+    pub fn for_state(&self, state: bool) -> Limits {
+        if !state {
+            return *self;
+        }
+        Limits {
+            max_lease_pixels: self.max_lease_pixels.min(self.max_state_lease_pixels),
+            max_segment_lease_pixels: self
+                .max_segment_lease_pixels
+                .min(self.max_state_lease_pixels),
+            ..*self
         }
     }
 }

@@ -62,8 +62,8 @@ mod window;
 pub use crate::workers::WorkerId;
 pub use results::ray_shares;
 pub use types::{
-    Accepted, Counters, FramesInfo, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, QueueDepth,
-    Restored, SchedError, FRAME_IDS,
+    Accepted, Counters, FramesInfo, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, PassesInfo,
+    QueueDepth, Restored, SampleRange, SchedError, StopReason, FRAME_IDS,
 };
 pub use whole_span::SpanCheck;
 pub use window::{
@@ -98,6 +98,7 @@ pub(crate) fn test_spec(width: u32, height: u32, tile: u32, output: &str) -> Job
         frame: None,
         scene: "scene.xml".into(),
         submitter: String::new(),
+        samples: None,
     }
 }
 

@@ -61,7 +61,7 @@ mod spans;
 mod tiles;
 
 pub use integrity::check_files;
-pub use jobs::{SeqLink, StoredJob};
+pub use jobs::{SeqLink, StoredJob, StoredPasses};
 pub use spans::Replayed;
 
 use crate::error::FarmError;

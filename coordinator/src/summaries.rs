@@ -30,6 +30,9 @@ pub struct CameraSummary {
     pub width: u32,
     pub height: u32,
     pub supersample: u32,
+    /// Samples per pixel: `supersample²`, or `max-samples` with adaptive
+    /// sampling (`trevi_core::integrator::samples_per_pixel`).
+    pub samples_per_pixel: u32,
     /// Bundle-relative output path.
     pub output: String,
 }
@@ -72,6 +75,7 @@ impl SceneSummary {
                     width: c.render.width,
                     height: c.render.height,
                     supersample: c.render.supersample,
+                    samples_per_pixel: trevi_core::integrator::samples_per_pixel(&c.render),
                     output: c.render.output.clone(),
                 })
                 .collect(),
@@ -210,6 +214,7 @@ mod tests {
                 width: n,
                 height: n,
                 supersample: 1,
+                samples_per_pixel: 1,
                 output: "c.png".into(),
             }],
             memory: 0,

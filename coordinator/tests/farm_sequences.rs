@@ -25,6 +25,7 @@ fn spec() -> JobSpec {
         output_name: "shot.png".into(),
         scene: String::new(),
         submitter: String::new(),
+        samples: None,
     }
 }
 

@@ -6,7 +6,7 @@
 use super::{lock, Farm};
 use crate::error::FarmError;
 use crate::scheduler::{JobId, JobInfo, JobState};
-use crate::store::{SeqLink, StoredJob};
+use crate::store::{SeqLink, StoredJob, StoredPasses};
 use std::time::Instant;
 
 impl Farm {
@@ -39,6 +39,13 @@ impl Farm {
     /// later, and a restart meanwhile resumes the job from its stored tiles.
     pub(super) fn end_job(&self, job: JobId, mut result: Result<(), String>) {
         let image = self.final_preview(job);
+        // A pass of a progressive job: the frame's noise after it (read
+        // before the lock: it may read the disk).
+        let noise = if result.is_ok() {
+            self.pass_noise(job)
+        } else {
+            None
+        };
         let mut st = self.state.lock();
         let now = Instant::now();
         let Some(mut ending) = st.sched.finish_info(job, &result, now) else {
@@ -62,7 +69,21 @@ impl Farm {
                 seq_done = Some((seq, done));
             }
         }
-        if let Err(e) = self.persist_frame_end(&ending, seq_done) {
+        // A pass done: its job's passes after it, recorded with the count.
+        let passes = match (seq_done, ending.spec.samples) {
+            (Some((seq, _)), Some(range)) => {
+                st.seqs.get(&seq).and_then(|s| s.passes.as_ref()).map(|p| {
+                    let mut p = p.clone();
+                    p.samples_done = range.end;
+                    p.error = noise.map(|n| n.relative_error());
+                    p.noise.clear();
+                    p
+                })
+            }
+            _ => None,
+        };
+        let stored = passes.as_ref().map(|p| p.stored());
+        if let Err(e) = self.persist_frame_end(&ending, seq_done, stored.as_ref()) {
             if st.unrecorded.insert(job, result).is_none() {
                 st.sched.hold(job);
                 tracing::error!(job, error = %e,
@@ -80,6 +101,9 @@ impl Farm {
         st.submitters.remove(&job);
         st.keep_final_preview(job, image, self.cfg.limits.kept_previews);
         if let Some(seq) = parent {
+            if let (Some(p), Some(s)) = (passes, st.seqs.get_mut(&seq)) {
+                s.passes = Some(p);
+            }
             st.frame_ended(seq, job, &ending, seq_done.is_some());
         }
         st.publish(job);
@@ -92,15 +116,17 @@ impl Farm {
 
     /// Records a job's end in the database (and drops its tiles there).
     pub(super) fn persist_end(&self, info: &JobInfo) -> Result<(), FarmError> {
-        self.persist_frame_end(info, None)
+        self.persist_frame_end(info, None, None)
     }
 
     /// Like [`Farm::persist_end`], with a sequence's count of frames done
-    /// (see [`Store::finish_frame`](crate::store::Store::finish_frame)).
+    /// and a progressive job's passes (see
+    /// [`Store::finish_frame`](crate::store::Store::finish_frame)).
     pub(super) fn persist_frame_end(
         &self,
         info: &JobInfo,
         seq: Option<(JobId, u32)>,
+        passes: Option<&StoredPasses>,
     ) -> Result<(), FarmError> {
         let Some(store) = &self.store else {
             return Ok(());
@@ -117,11 +143,15 @@ impl Farm {
             tiles_done: info.tiles_done,
             rays: info.rays,
             seq: SeqLink {
-                frames_done: info.frames.map_or(0, |f| f.done),
+                frames_done: info
+                    .frames
+                    .map(|f| f.done)
+                    .or(info.passes.as_ref().map(|p| p.done))
+                    .unwrap_or(0),
                 ..SeqLink::default()
             },
         };
-        store.finish_frame(&j, seq)
+        store.finish_frame(&j, seq, passes)
     }
 
     /// Cancels a job: no more leases, workers drop theirs at the next

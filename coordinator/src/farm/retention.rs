@@ -8,7 +8,7 @@
 //! are kept up to the same number apart, and never beyond their sequence).
 //! An output that was never fetched is never removed by the count, only by
 //! age (`--keep-ended-for`): one user's many jobs cannot delete another's
-//! finished, unfetched output (issue 36).
+//! finished, unfetched output.
 
 use super::{Farm, State};
 use crate::scheduler::{JobId, JobState};

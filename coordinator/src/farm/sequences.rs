@@ -20,6 +20,7 @@
 //! other frames in progress are cancelled); cancelling a sequence cancels
 //! its frames in progress; its priority is its frames'.
 
+use super::progressive::Passes;
 use super::{Farm, State};
 use crate::error::FarmError;
 #[cfg(doc)]
@@ -67,6 +68,24 @@ pub struct Sequence {
     /// download without a frame fetches, found without looking at the
     /// disk.
     pub(super) latest: Option<(u32, Option<JobId>)>,
+    /// For a progressive job (see `progressive.rs`): its passes, which are
+    /// then its "frames" (`first` 0, `last` the last pass planned, one in
+    /// progress at a time).
+    pub(super) passes: Option<Passes>,
+}
+
+/// What a [`Sequence`] runs one after the other: frames of an animation,
+/// or the passes of a progressive still.
+pub enum Runs {
+    /// Frames `first..=last` of the camera.
+    Frames { first: u32, last: u32 },
+    /// Passes (see `progressive.rs`).
+    Passes(Passes),
+}
+
+/// The frame or pass a job of a sequence renders.
+pub(super) fn run_index(spec: &JobSpec) -> Option<u32> {
+    spec.frame.or(spec.samples.map(|r| r.pass))
 }
 
 impl Sequence {
@@ -96,6 +115,16 @@ impl Sequence {
                 current.get_or_insert((f, i.tiles_done, i.tiles_total));
             }
         }
+        if self.passes.is_some() {
+            // A pass's tiles are the job's: the current pass's, or all of
+            // them once one is done and none is running.
+            let current = current.map_or(0, |c| c.1);
+            tiles_done = if self.running.is_empty() && self.done > 0 {
+                per
+            } else {
+                current
+            };
+        }
         let end = self.finished.unwrap_or(now);
         let state = match self.state {
             JobState::Queued if started => JobState::Running,
@@ -105,7 +134,10 @@ impl Sequence {
             id,
             spec: self.spec.clone(),
             state,
-            tiles_total: u64::from(self.count()) * per,
+            tiles_total: match self.passes {
+                Some(_) => per,
+                None => u64::from(self.count()) * per,
+            },
             tiles_done,
             rays,
             elapsed: end.saturating_duration_since(self.submitted),
@@ -115,13 +147,14 @@ impl Sequence {
                 .saturating_duration_since(self.submitted),
             error: self.error.clone(),
             finish_order: 0,
-            frames: Some(FramesInfo {
+            frames: self.passes.is_none().then_some(FramesInfo {
                 first: self.first,
                 last: self.last,
                 done: self.done,
                 in_progress: self.running.len() as u32,
                 current,
             }),
+            passes: self.passes.as_ref().map(|p| p.info(self.done)),
         }
     }
 }
@@ -155,13 +188,13 @@ impl State {
     /// is done and counted in the database).
     pub(super) fn frame_ended(&mut self, seq: JobId, job: JobId, ending: &JobInfo, counted: bool) {
         self.parent_of.remove(&job);
-        if let Some(f) = ending.spec.frame {
+        if let Some(f) = run_index(&ending.spec) {
             self.ended.frame(job, seq, f);
         }
         let Some(s) = self.seqs.get_mut(&seq) else {
             return;
         };
-        if let Some(f) = ending.spec.frame {
+        if let Some(f) = run_index(&ending.spec) {
             s.running.remove(&f);
         }
         if ending.tiles_done > 0 {
@@ -170,15 +203,18 @@ impl State {
         if counted {
             s.done += 1;
             s.rays = s.rays.saturating_add(ending.rays);
-            if let Some(f) = ending.spec.frame {
+            if let Some(f) = run_index(&ending.spec) {
                 if s.latest.is_none_or(|(l, _)| f >= l) {
                     s.latest = Some((f, Some(job)));
                 }
             }
         } else if !s.state.is_final() && s.failed.is_none() {
-            let f = ending.spec.frame.unwrap_or_default();
+            let what = match (ending.spec.frame, ending.spec.samples) {
+                (None, Some(r)) => format!("pass {} (samples {}..{})", r.pass + 1, r.start, r.end),
+                (f, _) => format!("frame {}", f.unwrap_or_default()),
+            };
             s.failed = Some(format!(
-                "frame {f}: {}",
+                "{what}: {}",
                 ending.error.as_deref().unwrap_or("failed")
             ));
         }
@@ -212,7 +248,7 @@ impl State {
             .list_from(from, usize::MAX, now)
             .0
             .into_iter()
-            .filter(|i| i.spec.frame.is_none())
+            .filter(|i| run_index(&i.spec).is_none())
             .map(|i| i.id)
             .chain(self.seqs.keys().copied().filter(|&id| id >= from))
             .collect();
@@ -233,7 +269,7 @@ impl Farm {
     /// counts as one job of its submitter.
     pub fn submit_sequence(
         &self,
-        mut spec: JobSpec,
+        spec: JobSpec,
         first: u32,
         last: u32,
         who: &str,
@@ -243,12 +279,29 @@ impl Farm {
                 "frames {first}-{last}: a range is first-last, both in [0, {MAX_FRAME}]"
             )));
         }
+        self.submit_runs(spec, Runs::Frames { first, last }, who)
+    }
+
+    /// Queues a sequence of `runs`: frames, or a progressive still's passes.
+    pub(super) fn submit_runs(
+        &self,
+        mut spec: JobSpec,
+        runs: Runs,
+        who: &str,
+    ) -> Result<JobInfo, FarmError> {
         if spec.width == 0 || spec.height == 0 {
             return Err(FarmError::refused_scene("the frame is empty"));
         }
         self.check_memory(&spec)?;
-        spec.output_name = sequence_pattern(&spec.output_name);
+        let (first, last, passes) = match runs {
+            Runs::Frames { first, last } => {
+                spec.output_name = sequence_pattern(&spec.output_name);
+                (first, last, None)
+            }
+            Runs::Passes(p) => (0, p.remaining().max(1) - 1, Some(p)),
+        };
         spec.frame = None;
+        spec.samples = None;
         spec.submitter = who.to_string();
         let now = Instant::now();
         let mut st = self.state.lock();
@@ -257,6 +310,7 @@ impl Farm {
         if let Some(store) = &self.store {
             let link = SeqLink {
                 frames: Some((first, last)),
+                passes: passes.as_ref().map(Passes::stored),
                 ..SeqLink::default()
             };
             store.insert_job(&StoredJob::submitted(
@@ -281,6 +335,7 @@ impl Farm {
             failed: None,
             rays: 0,
             latest: None,
+            passes,
         };
         let info = seq.info(id, &st.sched, now);
         st.seqs.insert(id, seq);
@@ -318,14 +373,39 @@ impl Farm {
                 self.end_sequence(seq, Ok(()));
                 return;
             }
-            if s.running.len() >= self.cfg.limits.frames_in_progress.max(1) || s.next > s.last {
+            let most = match s.passes {
+                // Each pass continues the states of the one before.
+                Some(_) => 1,
+                None => self.cfg.limits.frames_in_progress.max(1),
+            };
+            if s.running.len() >= most || s.next > s.last {
                 return;
             }
+            let rendered = s.started.map_or(Duration::ZERO, |t| t.elapsed());
+            if let Some(why) = s.passes.as_ref().and_then(|p| p.stop(rendered)) {
+                let s = st.seqs.get_mut(&seq).expect("checked above");
+                let p = s.passes.as_mut().expect("checked above");
+                p.stopped_by = Some(why);
+                s.last = s.done.saturating_sub(1);
+                tracing::info!(
+                    job = seq,
+                    passes = s.done,
+                    why = why.label(),
+                    "passes stopped"
+                );
+                continue;
+            }
             let f = s.next;
-            let spec = JobSpec {
-                frame: Some(f),
-                output_name: frame_output(&s.spec.output_name, f),
-                ..s.spec.clone()
+            let spec = match &s.passes {
+                Some(p) => JobSpec {
+                    samples: Some(p.range(f)),
+                    ..s.spec.clone()
+                },
+                None => JobSpec {
+                    frame: Some(f),
+                    output_name: frame_output(&s.spec.output_name, f),
+                    ..s.spec.clone()
+                },
             };
             let who = s.spec.submitter.clone();
             let queued = self.submit_locked(&mut st, spec, None, &who, Some(seq));
@@ -341,6 +421,32 @@ impl Farm {
                 Err(e) => s.failed = Some(format!("frame {f}: {e}")),
             }
         }
+    }
+
+    /// Runs finished progressive job `seq` again with `passes` (an
+    /// extension): recorded first, then its next pass is queued.
+    pub(super) fn reopen_runs(&self, seq: JobId, passes: Passes) -> Result<(), FarmError> {
+        {
+            let mut st = self.state.lock();
+            let s = st.seqs.get_mut(&seq).ok_or(FarmError::UnknownJob(seq))?;
+            let last = s.done + passes.remaining().max(1) - 1;
+            if let Some(store) = &self.store {
+                store.set_passes(seq, &passes.stored(), last, JobState::Running)?;
+            }
+            s.last = last;
+            s.next = s.done;
+            s.passes = Some(passes);
+            s.state = JobState::Running;
+            s.finished = None;
+            s.error = None;
+            s.failed = None;
+            let who = s.spec.submitter.clone();
+            st.submitters.insert(seq, who);
+            st.publish(seq);
+        }
+        tracing::info!(job = seq, "progressive job extended");
+        self.advance(seq);
+        Ok(())
     }
 
     /// Moves a finished frame's output into its sequence's directory.
@@ -381,6 +487,15 @@ impl Farm {
             }
         }
         let info = st.info(seq, now).expect("just ended");
+        if let (Some(store), Some(p)) = (
+            &self.store,
+            st.seqs.get(&seq).and_then(|s| s.passes.as_ref()),
+        ) {
+            let last = st.seqs.get(&seq).map_or(0, |s| s.last);
+            if let Err(e) = store.set_passes(seq, &p.stored(), last, info.state) {
+                tracing::error!(job = seq, error = %e, "cannot record the passes");
+            }
+        }
         match &info.error {
             None => tracing::info!(job = seq, "sequence done"),
             Some(e) => tracing::error!(job = seq, error = %e, "sequence failed"),
@@ -468,6 +583,20 @@ impl Farm {
             let Some(s) = st.seqs.get(&seq) else {
                 return Err(self.not_a_sequence(&st, seq, frame));
             };
+            if s.passes.is_some() {
+                // A progressive still: the output of its last pass done.
+                let path = self.output_path(seq, &s.spec.output_name);
+                return match frame {
+                    Some(f) => Err(FarmError::NoOutput(
+                        seq,
+                        format!("it is a still rendered in passes: it has no frame {f}"),
+                    )),
+                    None if s.done == 0 => {
+                        Err(FarmError::NoOutput(seq, "no pass is done yet".into()))
+                    }
+                    None => Ok(path),
+                };
+            }
             let latest = s.latest.map(|l| l.0);
             (s.spec.output_name.clone(), s.first, s.last, latest, s.done)
         };
@@ -542,12 +671,19 @@ impl Farm {
     }
 
     /// The job whose preview stands for `job`: a sequence's earliest frame
-    /// in progress, or else its latest frame done; any other job itself.
+    /// in progress, or else its latest frame done; a progressive job's
+    /// latest pass done (the whole frame after each pass), or else its first
+    /// pass in progress; any other job itself.
     pub(super) fn preview_job(&self, job: JobId) -> JobId {
         let st = self.state.lock();
         st.seqs
             .get(&job)
             .and_then(|s| {
+                if s.passes.is_some() {
+                    if let Some(done) = s.latest.and_then(|l| l.1) {
+                        return Some(done);
+                    }
+                }
                 s.running
                     .values()
                     .next()
@@ -591,6 +727,7 @@ impl Farm {
                 failed: None,
                 rays: j.rays,
                 latest: None,
+                passes: j.seq.passes.as_ref().map(Passes::from_stored),
             };
             st.sched.skip_ids_through(j.id);
             if !seq.state.is_final() {
@@ -600,7 +737,7 @@ impl Farm {
         }
         let mut rays: HashMap<JobId, u64> = HashMap::new();
         for j in rows {
-            let (Some(p), Some(f)) = (j.seq.parent, j.spec.frame) else {
+            let (Some(p), Some(f)) = (j.seq.parent, run_index(&j.spec)) else {
                 continue;
             };
             if j.state.is_final() {
@@ -620,7 +757,12 @@ impl Farm {
             } else if j.state.is_final() {
                 s.failed.get_or_insert_with(|| {
                     format!(
-                        "frame {f}: {}",
+                        "{} {f}: {}",
+                        if j.spec.frame.is_some() {
+                            "frame"
+                        } else {
+                            "pass"
+                        },
                         j.error.as_deref().unwrap_or(j.state.name())
                     )
                 });

@@ -98,6 +98,7 @@ impl Farm {
             output_name,
             scene: summary.scene.clone(),
             submitter: String::new(),
+            samples: None,
         })
     }
 

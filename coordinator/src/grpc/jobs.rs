@@ -3,7 +3,7 @@
 //! status as the wire carries it.
 
 use super::{blocking, stream_file};
-use crate::farm::{Farm, SubmitOptions};
+use crate::farm::{Farm, Progressive, SubmitOptions};
 use crate::scheduler::{JobInfo, JobState};
 use crate::FarmError;
 use std::sync::Arc;
@@ -49,7 +49,26 @@ pub fn job_status(info: &JobInfo) -> pb::JobStatus {
         current_tiles_done: info.frames.and_then(|f| f.current).map_or(0, |c| c.1),
         current_tiles_total: info.frames.and_then(|f| f.current).map_or(0, |c| c.2),
         frames_in_progress: info.frames.map_or(0, |f| f.in_progress),
-        passes: None,
+        passes: info.passes.as_ref().map(|p| pb::PassesInfo {
+            done: p.done,
+            samples_done: p.samples_done,
+            samples_total: p.samples_total,
+            error: p.error,
+            pass: p.pass,
+            time_limit_ms: p.time_limit.map_or(0, |d| d.as_millis() as u64),
+            noise_target: p.noise_target.unwrap_or(0.0),
+            stopped_by: p.stopped_by.map_or("", |r| r.label()).to_string(),
+        }),
+    }
+}
+
+/// A request's progressive settings (0: not set, each).
+pub fn progressive_from(p: &pb::Progressive) -> Progressive {
+    Progressive {
+        samples: p.samples,
+        pass: p.pass,
+        time_limit: (p.time_limit_ms > 0).then(|| Duration::from_millis(p.time_limit_ms)),
+        noise_target: (p.noise_target != 0.0).then_some(p.noise_target),
     }
 }
 
@@ -74,9 +93,15 @@ impl pb::jobs_server::Jobs for JobsService {
         let info = blocking(move || {
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
-            match r.frames {
-                Some(f) => farm.submit_sequence(spec, f.first, f.last, &who),
-                None => farm.submit(
+            match (r.frames, r.progressive) {
+                (Some(_), Some(_)) => Err(FarmError::Invalid(
+                    "a sequence cannot be rendered in passes (yet): submit its frames without \
+                     progressive settings"
+                        .into(),
+                )),
+                (None, Some(p)) => farm.submit_progressive(spec, progressive_from(&p), &who),
+                (Some(f), None) => farm.submit_sequence(spec, f.first, f.last, &who),
+                (None, None) => farm.submit(
                     spec,
                     SubmitOptions {
                         who: &who,
@@ -212,8 +237,12 @@ impl pb::jobs_server::Jobs for JobsService {
 
     async fn extend_job(
         &self,
-        _req: Request<pb::ExtendJobRequest>,
+        req: Request<pb::ExtendJobRequest>,
     ) -> Result<Response<pb::JobStatus>, Status> {
-        Err(Status::unimplemented("extend: in progress"))
+        let r = req.into_inner();
+        let farm = self.farm.clone();
+        let p = r.passes.as_ref().map(progressive_from).unwrap_or_default();
+        let info = blocking(move || farm.extend(r.id, r.samples, p)).await?;
+        Ok(Response::new(job_status(&info)))
     }
 }

@@ -7,10 +7,34 @@ use crate::farm::{Farm, LeaseResult, SegmentUpload, TileOutcome, WorkerOptions};
 use crate::FarmError;
 use std::sync::Arc;
 use std::time::Duration;
+use tokio::sync::mpsc;
 use tokio::sync::Semaphore;
+use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
+use trevi_core::passes::TileState;
 use trevi_proto::pb::{self, tile_upload::Part};
-use trevi_proto::{pixels_from_bytes, rect_from};
+use trevi_proto::{pixels_from_bytes, rect_from, CHUNK_SIZE};
+
+/// Adds a piece of an upload's accumulation state, refusing more than a
+/// state of `rect` can be ([`TileState::encoded_len`]) before holding it.
+fn add_state(
+    state: &mut Option<Vec<u8>>,
+    piece: &[u8],
+    rect: trevi_core::Rect,
+) -> Result<(), String> {
+    let most = TileState::encoded_len(rect);
+    let have = state.as_ref().map_or(0, Vec::len);
+    if have + piece.len() > most {
+        return Err(format!(
+            "the accumulation state is longer than the {most} bytes a state of {}x{} pixels is",
+            rect.w, rect.h
+        ));
+    }
+    state
+        .get_or_insert_with(|| Vec::with_capacity(most.min(64 << 20)))
+        .extend_from_slice(piece);
+    Ok(())
+}
 
 /// `trevi.v1.Workers`.
 pub struct WorkersService {
@@ -91,6 +115,7 @@ impl WorkersService {
         };
         let mut segments: Vec<PngSegment> = Vec::with_capacity(plan.count.min(4096) as usize);
         let mut sums: Option<Vec<f32>> = None;
+        let mut state: Option<Vec<u8>> = None;
         let mut next = first;
         while let Some(m) = next {
             match m.part {
@@ -143,6 +168,11 @@ impl WorkersService {
                     }
                     sums = Some(p.sums);
                 }
+                Some(Part::State(b)) if sums.is_some() => {
+                    if let Err(why) = add_state(&mut state, &b, rect) {
+                        return refuse(why).await;
+                    }
+                }
                 _ => {
                     return refuse(
                         "an upload of segments is its header, its segments in order, then one \
@@ -160,6 +190,14 @@ impl WorkersService {
         let farm = self.farm.clone();
         let (rays, render) = (header.rays, header.render_micros.map(Duration::from_micros));
         let outcome = blocking(move || {
+            if let Err(e) = farm.put_state(job, rect, &parts, state.as_deref()) {
+                return Err(match e {
+                    FarmError::BadTile(why) => {
+                        farm.reject_segments(lease, job, &parts, Some(worker), why)
+                    }
+                    e => e,
+                });
+            }
             farm.put_segments(
                 SegmentUpload {
                     lease,
@@ -296,9 +334,27 @@ impl pb::workers_server::Workers for WorkersService {
         let expected = rect.pixel_count().saturating_mul(12);
         let mut bytes = Vec::with_capacity(expected.min(64 << 20));
         let mut oversized = false;
+        let mut state: Option<Vec<u8>> = None;
         let mut next = first;
         while let Some(m) = next {
             match m.part {
+                Some(Part::State(b)) if !oversized => {
+                    if let Err(why) = add_state(&mut state, &b, rect) {
+                        let farm = self.farm.clone();
+                        let (lease, job, worker) =
+                            (header.lease_id, header.job_id, header.worker_id);
+                        let e = blocking(move || {
+                            Ok(farm.reject_segments(lease, job, &parts, Some(worker), why))
+                        })
+                        .await?;
+                        return Err(e.into());
+                    }
+                }
+                Some(Part::Pixels(_)) if state.is_some() => {
+                    return Err(Status::invalid_argument(
+                        "a tile upload's state comes after all of its pixels",
+                    ))
+                }
                 Some(Part::Pixels(p)) => {
                     if bytes.len() + p.len() > expected {
                         // Stop reading: the size check rejects it.
@@ -329,6 +385,16 @@ impl pb::workers_server::Workers for WorkersService {
         );
         let render = header.render_micros.map(Duration::from_micros);
         let outcome = blocking(move || {
+            if !pixels.is_empty() {
+                if let Err(e) = farm.put_state(job, rect, &parts, state.as_deref()) {
+                    return Err(match e {
+                        FarmError::BadTile(why) => {
+                            farm.reject_segments(lease, job, &parts, Some(worker), why)
+                        }
+                        e => e,
+                    });
+                }
+            }
             farm.put_span_rendered(
                 LeaseResult {
                     lease,
@@ -348,13 +414,44 @@ impl pb::workers_server::Workers for WorkersService {
         }))
     }
 
-    type FetchStateStream = tokio_stream::wrappers::ReceiverStream<Result<pb::StateChunk, Status>>;
+    type FetchStateStream = ReceiverStream<Result<pb::StateChunk, Status>>;
 
+    /// The state a pass's lease continues, read from the state file a few
+    /// rows at a time (what is held is at most a chunk and a row, and the
+    /// two chunks in the channel).
     async fn fetch_state(
         &self,
-        _req: Request<pb::StateRequest>,
+        req: Request<pb::StateRequest>,
     ) -> Result<Response<Self::FetchStateStream>, Status> {
-        Err(Status::unimplemented("fetch state: in progress"))
+        let r = req.into_inner();
+        self.farm.check_session(r.worker_id, &r.session)?;
+        let farm = self.farm.clone();
+        let (file, rect, next) =
+            blocking(move || farm.state_source(r.worker_id, r.lease_id)).await?;
+        let (tx, rx) = mpsc::channel(2);
+        tokio::task::spawn_blocking(move || {
+            let mut chunk = Vec::with_capacity(CHUNK_SIZE);
+            let closed = || FarmError::Invalid("the worker stopped reading".into());
+            let sent = file
+                .read_encoded(rect, next, |piece| {
+                    chunk.extend_from_slice(&piece);
+                    while chunk.len() >= CHUNK_SIZE {
+                        let rest = chunk.split_off(CHUNK_SIZE);
+                        let full = std::mem::replace(&mut chunk, rest);
+                        tx.blocking_send(Ok(pb::StateChunk { data: full }))
+                            .map_err(|_| closed())?;
+                    }
+                    Ok(())
+                })
+                .and_then(|()| {
+                    tx.blocking_send(Ok(pb::StateChunk { data: chunk }))
+                        .map_err(|_| closed())
+                });
+            if let Err(e) = sent {
+                let _ = tx.blocking_send(Err(e.into()));
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
     }
 
     async fn return_tile(

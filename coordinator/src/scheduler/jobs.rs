@@ -41,11 +41,11 @@ impl Scheduler {
     }
 
     /// Queues a job. `spec.tile_size`, `width` and `height` must be ≥ 1.
-    /// A frame of a sequence (`spec.frame` set) takes its id from
-    /// [`FRAME_IDS`] on, so the ids users see (stills and sequences) follow
-    /// one another.
+    /// A frame of a sequence (`spec.frame` set) or a pass of a progressive
+    /// job (`spec.samples`) takes its id from [`FRAME_IDS`] on, so the ids
+    /// users see (stills and sequences) follow one another.
     pub fn submit(&mut self, spec: JobSpec, now: Instant) -> JobId {
-        let id = if spec.frame.is_some() {
+        let id = if spec.frame.is_some() || spec.samples.is_some() {
             self.next_frame += 1;
             self.next_frame - 1
         } else {

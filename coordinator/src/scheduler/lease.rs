@@ -138,6 +138,7 @@ impl Scheduler {
             // so never a segment lease: rounded up to a whole band, a
             // frame one or two tiles wide would go whole.
             let measured = self.sizer.cost(id).is_some();
+            let caps = self.cfg.for_state(job.spec.samples.is_some());
             let plan = span_plan(
                 &job.window,
                 &job.spec,
@@ -156,7 +157,7 @@ impl Scheduler {
                         cap,
                     )
                 },
-                &self.cfg,
+                &caps,
             );
             let Some(plan) = plan else {
                 // Only a segment lease could go this far ahead, and none
@@ -233,6 +234,7 @@ impl Scheduler {
                 memory_estimate: self.memory.estimate(id),
                 frame: job.spec.frame,
                 png_segments: segments,
+                samples: job.spec.samples,
             }));
         }
         if too_small {

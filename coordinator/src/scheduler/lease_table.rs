@@ -138,6 +138,18 @@ impl LeaseTable {
         (i < u64::from(span.count)).then_some((first, span, i))
     }
 
+    /// The span whose first lease is `first`, while any of its leases is
+    /// out: its run of tiles (`len` is all of the span's tiles).
+    pub fn span(&self, first: LeaseId) -> Option<LeaseRun> {
+        let span = self.spans.get(&first)?;
+        Some(LeaseRun {
+            job: span.job,
+            worker: span.worker,
+            first_tile: span.first_tile,
+            len: span.count,
+        })
+    }
+
     /// Lease `id`, if it is out.
     pub fn get(&self, id: LeaseId) -> Option<LeaseEntry> {
         let (_, span, i) = self.span_of(id)?;

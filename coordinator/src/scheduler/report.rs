@@ -30,6 +30,7 @@ impl Scheduler {
             error: j.error.clone(),
             finish_order: j.finish_order,
             frames: None,
+            passes: None,
         })
     }
 

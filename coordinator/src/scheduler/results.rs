@@ -10,7 +10,7 @@ use super::expiry::Release;
 use super::jobs::same_shot;
 use super::lease::{is_png, whole_segments};
 use super::lease_size::{self, MAX_SPAN_TILES};
-use super::types::{Accepted, JobId, LeaseId, SchedError};
+use super::types::{Accepted, JobId, LeaseId, SampleRange, SchedError};
 use super::window::TileState;
 use super::Scheduler;
 use crate::workers::WorkerId;
@@ -108,6 +108,31 @@ impl Scheduler {
         check_holder(holder, worker, lease, rect, job)
     }
 
+    /// The job and rectangle of the lease (a span's first) that `worker`
+    /// holds as `lease`: what the worker renders, and so the state it
+    /// fetches. Refused when the lease is not out under `worker`.
+    pub fn leased_span(
+        &self,
+        lease: LeaseId,
+        worker: WorkerId,
+    ) -> Result<(JobId, Rect, Option<SampleRange>), SchedError> {
+        let not_yours = || SchedError::NotHeld(lease, worker);
+        let run = self.leases.span(lease).ok_or_else(not_yours)?;
+        if run.worker != worker {
+            return Err(not_yours());
+        }
+        let j = self
+            .jobs
+            .get(&run.job)
+            .ok_or(SchedError::UnknownJob(run.job))?;
+        let (a, b) = (
+            j.window.rect(run.first_tile),
+            j.window.rect(run.first_tile + run.len - 1),
+        );
+        let rect = Rect::new(a.x, a.y, b.x + b.w - a.x, b.y + b.h - a.y);
+        Ok((run.job, rect, j.spec.samples))
+    }
+
     /// The tile index of `rect` in `job`, checking that it is one of its tiles.
     pub fn check_tile(&self, job: JobId, rect: Rect) -> Result<(), SchedError> {
         let j = self.jobs.get(&job).ok_or(SchedError::UnknownJob(job))?;
@@ -193,16 +218,15 @@ impl Scheduler {
         let (c0, c1) = (rect.x / t, x1.div_ceil(t));
         let count = bands as u64 * (c1 - c0) as u64;
         let segment_shaped = full_width && is_png(&j.spec) && whole_segments(rect.y, y1, height);
+        let cfg = self.cfg.for_state(j.spec.samples.is_some());
         let cap = match kind {
             Some(true) if !segment_shaped => return Err(not_a_span()),
-            Some(true) => self.cfg.max_segment_lease_pixels,
-            None if segment_shaped => self
-                .cfg
-                .max_segment_lease_pixels
-                .max(self.cfg.max_lease_pixels),
-            // A single tile of any size is its own lease.
+            Some(true) => cfg.max_segment_lease_pixels,
+            None if segment_shaped => cfg.max_segment_lease_pixels.max(cfg.max_lease_pixels),
+            // A single tile of any size is its own lease (a progressive
+            // job's tiles fit its cap: checked at submission).
             _ if count == 1 => u64::MAX,
-            _ => self.cfg.max_lease_pixels,
+            _ => cfg.max_lease_pixels,
         };
         if count > MAX_SPAN_TILES as u64 || rect.pixel_count() as u64 > cap {
             return Err(not_a_span());

@@ -79,6 +79,24 @@ pub struct JobSpec {
     /// Who submitted the job: the client's address, as the farm counts
     /// jobs per submitter (empty when unknown).
     pub submitter: String,
+    /// For one pass of a progressive job: the samples its workers render
+    /// (see `crate::farm::progressive`); `None` for every other job.
+    pub samples: Option<SampleRange>,
+}
+
+/// One pass of a progressive job: sample indices `start..end` of every
+/// pixel, continuing the state the previous pass left.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SampleRange {
+    /// Which pass (0 first): which of the job's two state files it reads
+    /// and writes (`crate::farm::pass_states`).
+    pub pass: u32,
+    /// The first sample index rendered, and one past the last.
+    pub start: u32,
+    pub end: u32,
+    /// The job's own samples per pixel (`--samples`), rendered as
+    /// `min-samples = max-samples` adaptive sampling; 0: the scene's.
+    pub total: u32,
 }
 
 /// The first id of the frame jobs of sequences. Stills and sequences take
@@ -106,6 +124,8 @@ pub struct JobInfo {
     pub finish_order: u64,
     /// For a sequence: its frames' progress.
     pub frames: Option<FramesInfo>,
+    /// For a progressive job: its passes' progress.
+    pub passes: Option<PassesInfo>,
 }
 
 impl JobInfo {
@@ -127,6 +147,53 @@ pub struct FramesInfo {
     pub in_progress: u32,
     /// The earliest frame in progress: its number, tiles done and tiles.
     pub current: Option<(u32, u64, u64)>,
+}
+
+/// A progressive job's progress (see `crate::farm::progressive`).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PassesInfo {
+    /// Passes finished: the output holds the last one's image.
+    pub done: u32,
+    /// Samples per pixel in the output now, and the total asked for.
+    pub samples_done: u32,
+    pub samples_total: u32,
+    /// Samples per pixel in each pass.
+    pub pass: u32,
+    /// The frame's estimated relative error after the last pass, once it
+    /// is known (every pixel has two samples).
+    pub error: Option<f64>,
+    /// The stop conditions: no pass starts after `time_limit` of
+    /// rendering; the job stops once `error` is at most `noise_target`.
+    pub time_limit: Option<Duration>,
+    pub noise_target: Option<f64>,
+    /// Why it ended before its total.
+    pub stopped_by: Option<StopReason>,
+}
+
+/// Why a progressive job ended before its total samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    /// It had rendered for its time limit when a pass ended.
+    TimeLimit,
+    /// Its estimated error fell to its noise target.
+    NoiseTarget,
+}
+
+impl StopReason {
+    /// The words the API, the database and `status` use.
+    pub fn label(self) -> &'static str {
+        match self {
+            StopReason::TimeLimit => "time limit",
+            StopReason::NoiseTarget => "noise target",
+        }
+    }
+
+    /// The reason named by [`StopReason::label`].
+    pub fn from_label(s: &str) -> Option<StopReason> {
+        [StopReason::TimeLimit, StopReason::NoiseTarget]
+            .into_iter()
+            .find(|r| r.label() == s)
+    }
 }
 
 /// A tile handed to a worker, or a span (see [`lease_size`]): adjacent
@@ -164,6 +231,9 @@ pub struct Lease {
     /// [`SEGMENT_ROWS`]: trevi_core::output::SEGMENT_ROWS
     /// [`Scheduler::allow_segments`]: super::Scheduler::allow_segments
     pub png_segments: bool,
+    /// For a pass of a progressive job: the samples to render, from the
+    /// state `FetchState` serves (the job's [`JobSpec::samples`]).
+    pub samples: Option<SampleRange>,
 }
 
 /// What became of a result handed to [`Scheduler::accept_tile`].
@@ -209,6 +279,8 @@ pub enum SchedError {
     NotATile(Rect, JobId),
     #[error("lease {0} is not worker {1}'s lease on tile {2:?} of job {3}")]
     NotYourLease(LeaseId, WorkerId, Rect, JobId),
+    #[error("lease {0} is not a lease worker {1} holds")]
+    NotHeld(LeaseId, WorkerId),
     #[error("job {0} is over")]
     JobOver(JobId),
 }

@@ -5,7 +5,7 @@
 
 use super::{db_err, wall_ms, Store};
 use crate::error::FarmError;
-use crate::scheduler::{JobId, JobSpec, JobState};
+use crate::scheduler::{JobId, JobSpec, JobState, SampleRange, StopReason};
 use rusqlite::{params, OptionalExtension};
 use std::time::Duration;
 
@@ -53,7 +53,7 @@ impl StoredJob {
 /// A sequence's row, or a frame's link to its sequence (see
 /// `crate::farm::sequences`): a sequence is a row of its own, its frames
 /// jobs whose `parent` it is. Both `None` for a still.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SeqLink {
     /// For a frame: its sequence.
     pub parent: Option<JobId>,
@@ -61,6 +61,48 @@ pub struct SeqLink {
     pub frames: Option<(u32, u32)>,
     /// For an ended sequence: how many frames it finished.
     pub frames_done: u32,
+    /// For a progressive job: its passes (then `frames` are its passes'
+    /// indices and `frames_done` the passes done).
+    pub passes: Option<StoredPasses>,
+}
+
+/// A progressive job's passes as stored (see `crate::farm::progressive`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StoredPasses {
+    /// Samples per pixel asked for, and whether they are the job's own
+    /// (`--samples`: extendable) or the scene's.
+    pub total: u32,
+    pub own: bool,
+    /// Samples per pass.
+    pub pass: u32,
+    /// 0: none.
+    pub time_limit_ms: u64,
+    /// 0: none.
+    pub noise_target: f64,
+    /// Samples per pixel of the passes done.
+    pub samples_done: u32,
+    /// The estimated relative error after the last pass done.
+    pub error: Option<f64>,
+    pub stopped_by: Option<StopReason>,
+}
+
+fn set_passes(tx: &rusqlite::Transaction, job: JobId, p: &StoredPasses) -> Result<(), FarmError> {
+    tx.execute(
+        "UPDATE jobs SET passes_total = ?2, samples_done = ?3, noise_error = ?4, stopped_by = ?5,
+             pass_samples = ?6, time_limit_ms = ?7, noise_target = ?8 WHERE id = ?1",
+        params![
+            job as i64,
+            p.total,
+            p.samples_done,
+            p.error,
+            p.stopped_by.map(StopReason::label),
+            p.pass,
+            p.time_limit_ms as i64,
+            p.noise_target,
+        ],
+    )
+    .map_err(db_err)?;
+    Ok(())
 }
 
 /// A job's stored state: one of [`JobState::name`]'s words. Any other is a
@@ -88,8 +130,10 @@ impl Store {
             .execute(
                 "INSERT INTO jobs (id, bundle_hash, camera, priority, width, height, tile_size,
                      output_name, submitter, state, submitted_ms, frame, parent, first_frame,
-                     last_frame, scene)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16)",
+                     last_frame, scene, pass, sample_start, sample_end, sample_total,
+                     passes_total, passes_own, pass_samples, time_limit_ms, noise_target)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16,
+                     ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25)",
                 params![
                     j.id as i64,
                     s.bundle_hash,
@@ -107,6 +151,15 @@ impl Store {
                     j.seq.frames.map(|f| f.0),
                     j.seq.frames.map(|f| f.1),
                     s.scene,
+                    s.samples.map(|r| r.pass),
+                    s.samples.map(|r| r.start),
+                    s.samples.map(|r| r.end),
+                    s.samples.map(|r| r.total),
+                    j.seq.passes.map(|p| p.total),
+                    j.seq.passes.map(|p| p.own),
+                    j.seq.passes.map(|p| p.pass),
+                    j.seq.passes.map(|p| p.time_limit_ms as i64),
+                    j.seq.passes.map(|p| p.noise_target),
                 ],
             )
             .map_err(db_err)?;
@@ -128,13 +181,41 @@ impl Store {
 
     /// Records a job's end and drops its stored tiles.
     pub fn finish_job(&self, j: &StoredJob) -> Result<(), FarmError> {
-        self.finish_frame(j, None)
+        self.finish_frame(j, None, None)
+    }
+
+    /// Stores a progressive job's passes (its samples, its last error, its
+    /// frame range of passes) and state: an extension, or a stop.
+    pub fn set_passes(
+        &self,
+        job: JobId,
+        passes: &StoredPasses,
+        last: u32,
+        state: JobState,
+    ) -> Result<(), FarmError> {
+        let mut guard = self.inner.lock();
+        let tx = guard.conn.transaction().map_err(db_err)?;
+        set_passes(&tx, job, passes)?;
+        tx.execute(
+            "UPDATE jobs SET last_frame = ?2, state = ?3, elapsed_ms = NULL, render_ms = NULL,
+                 error = NULL WHERE id = ?1",
+            params![job as i64, last, state.name()],
+        )
+        .map_err(db_err)?;
+        tx.commit().map_err(db_err)
     }
 
     /// Like [`Store::finish_job`], and for a frame of a sequence in the same
     /// transaction the sequence's count of finished frames (`(sequence,
     /// frames_done)`), so a restart never finds one without the other.
-    pub fn finish_frame(&self, j: &StoredJob, seq: Option<(JobId, u32)>) -> Result<(), FarmError> {
+    /// For a pass of a progressive job, `passes` is the job's passes after
+    /// it, stored with the count.
+    pub fn finish_frame(
+        &self,
+        j: &StoredJob,
+        seq: Option<(JobId, u32)>,
+        passes: Option<&StoredPasses>,
+    ) -> Result<(), FarmError> {
         let mut guard = self.inner.lock();
         let inner = &mut *guard;
         let tx = inner.conn.transaction().map_err(db_err)?;
@@ -144,6 +225,9 @@ impl Store {
                 params![seq as i64, done],
             )
             .map_err(db_err)?;
+            if let Some(p) = passes {
+                set_passes(&tx, seq, p)?;
+            }
         }
         tx.execute(
             "UPDATE jobs SET state = ?2, elapsed_ms = ?3, error = ?4, finish_order = ?5,
@@ -177,7 +261,10 @@ impl Store {
             .prepare(
                 "SELECT id, bundle_hash, camera, priority, width, height, tile_size, output_name,
                      submitter, state, submitted_ms, elapsed_ms, error, finish_order, tiles_done,
-                     rays, frame, parent, first_frame, last_frame, frames_done, render_ms, scene
+                     rays, frame, parent, first_frame, last_frame, frames_done, render_ms, scene,
+                     pass, sample_start, sample_end, sample_total, passes_total, passes_own,
+                     pass_samples, time_limit_ms, noise_target, samples_done, noise_error,
+                     stopped_by
                  FROM jobs ORDER BY id",
             )
             .map_err(db_err)?;
@@ -198,6 +285,22 @@ impl Store {
                         frame: r.get(16)?,
                         scene: r.get(22)?,
                         submitter: r.get(8)?,
+                        samples: match (
+                            r.get::<_, Option<u32>>(23)?,
+                            r.get::<_, Option<u32>>(24)?,
+                            r.get::<_, Option<u32>>(25)?,
+                            r.get::<_, Option<u32>>(26)?,
+                        ) {
+                            (Some(pass), Some(start), Some(end), Some(total)) => {
+                                Some(SampleRange {
+                                    pass,
+                                    start,
+                                    end,
+                                    total,
+                                })
+                            }
+                            _ => None,
+                        },
                     },
                     state: JobState::Queued,
                     submitted_ms: r.get::<_, i64>(10)? as u64,
@@ -218,6 +321,23 @@ impl Store {
                             _ => None,
                         },
                         frames_done: r.get::<_, Option<u32>>(20)?.unwrap_or(0),
+                        passes: match r.get::<_, Option<u32>>(27)? {
+                            None => None,
+                            Some(total) => Some(StoredPasses {
+                                total,
+                                own: r.get::<_, Option<bool>>(28)?.unwrap_or(false),
+                                pass: r.get::<_, Option<u32>>(29)?.unwrap_or(1),
+                                time_limit_ms: r.get::<_, Option<i64>>(30)?.unwrap_or(0).max(0)
+                                    as u64,
+                                noise_target: r.get::<_, Option<f64>>(31)?.unwrap_or(0.0),
+                                samples_done: r.get::<_, Option<u32>>(32)?.unwrap_or(0),
+                                error: r.get(33)?,
+                                stopped_by: r
+                                    .get::<_, Option<String>>(34)?
+                                    .as_deref()
+                                    .and_then(StopReason::from_label),
+                            }),
+                        },
                     },
                 };
                 Ok((job, state))

@@ -112,6 +112,20 @@ impl Store {
             ("frames_done", "INTEGER"),
             ("render_ms", "INTEGER"),
             ("scene", "TEXT NOT NULL DEFAULT ''"),
+            // Then progressive jobs: a pass's samples (its row's), and the
+            // passes of the job they belong to (the parent's row).
+            ("pass", "INTEGER"),
+            ("sample_start", "INTEGER"),
+            ("sample_end", "INTEGER"),
+            ("sample_total", "INTEGER"),
+            ("passes_total", "INTEGER"),
+            ("passes_own", "INTEGER"),
+            ("pass_samples", "INTEGER"),
+            ("time_limit_ms", "INTEGER"),
+            ("noise_target", "REAL"),
+            ("samples_done", "INTEGER"),
+            ("noise_error", "REAL"),
+            ("stopped_by", "TEXT"),
         ] {
             if !have.iter().any(|h| h == col) {
                 conn.execute(&format!("ALTER TABLE jobs ADD COLUMN {col} {decl}"), [])

@@ -20,6 +20,7 @@ fn job(id: JobId) -> StoredJob {
             output_name: "o.png".into(),
             scene: "s.xml".into(),
             submitter: "client".into(),
+            samples: None,
         },
         state: JobState::Running,
         submitted_ms: 1,

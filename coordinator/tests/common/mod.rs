@@ -21,6 +21,7 @@ pub fn spec(w: u32, h: u32, tile: u32, name: &str) -> JobSpec {
         output_name: name.into(),
         scene: String::new(),
         submitter: String::new(),
+        samples: None,
     }
 }
 
