@@ -60,6 +60,8 @@ pub struct Ticket<'a> {
 }
 
 impl Admissions {
+    /// No admission in progress, with the bounds of `limits`
+    /// (`--max-admissions`, `--admission-mib`).
     pub fn new(limits: &Limits) -> Admissions {
         Admissions {
             max: limits.max_admissions,

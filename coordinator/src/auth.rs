@@ -23,15 +23,31 @@ use tonic::{Request, Status};
 /// Why a token cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum TokenError {
+    /// A token that is empty or only whitespace.
     #[error("the {role} token is empty")]
-    Empty { role: &'static str },
+    Empty {
+        /// `"submit"` or `"worker"`.
+        role: &'static str,
+    },
+    /// A token with a space, a control or a non-ASCII character: it could
+    /// not travel in an `authorization` header.
     #[error("the {role} token must be printable ASCII without spaces")]
-    NotPrintable { role: &'static str },
+    NotPrintable {
+        /// `"submit"` or `"worker"`.
+        role: &'static str,
+    },
+    /// A token given both as a value and as a file.
     #[error("give the token or {}, not both", .file.display())]
-    Both { file: PathBuf },
+    Both {
+        /// The token file given.
+        file: PathBuf,
+    },
+    /// The token file could not be read.
     #[error("cannot read {}: {source}", .file.display())]
     Read {
+        /// The token file given.
         file: PathBuf,
+        /// Why reading it failed.
         source: std::io::Error,
     },
 }
@@ -72,6 +88,8 @@ impl Tokens {
         })
     }
 
+    /// Whether neither role has a token: anyone who can reach the farm may
+    /// call anything.
     pub fn is_open(&self) -> bool {
         self.submit.is_none() && self.worker.is_none()
     }
@@ -95,7 +113,9 @@ impl Tokens {
 /// The roles a request's token grants; put in the request's extensions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Granted {
+    /// The request may submit and manage jobs and upload bundles.
     pub submitter: bool,
+    /// The request may act as a worker.
     pub worker: bool,
     presented: bool,
 }
@@ -142,16 +162,22 @@ pub fn granted<T>(req: &Request<T>) -> Granted {
 /// Which roles a service admits.
 #[derive(Debug, Clone, Copy)]
 pub enum Need {
+    /// The submit token (`trevi.v1.Jobs`).
     Submitter,
+    /// The worker token (`trevi.v1.Workers`).
     Worker,
+    /// Either token (`trevi.v1.Bundles`, which checks uploads itself).
     Either,
 }
 
 /// A tonic interceptor checking the token for one service.
 #[derive(Clone)]
 pub struct Auth {
+    /// The farm's tokens.
     pub tokens: Arc<Tokens>,
+    /// The roles the service admits.
     pub need: Need,
+    /// The service's name, for the refusal's message.
     pub service: &'static str,
 }
 

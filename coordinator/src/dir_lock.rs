@@ -16,6 +16,7 @@ pub const LOCK_FILE: &str = "coordinator.lock";
 /// Why the data directory could not be locked.
 #[derive(Debug, thiserror::Error)]
 pub enum DirLockError {
+    /// Another process holds the lock.
     #[error(
         "another coordinator{} is using the data directory {} (it holds {}); stop it, or \
          give this one another --data-dir",
@@ -23,10 +24,20 @@ pub enum DirLockError {
         .dir.display(),
         LOCK_FILE
     )]
-    InUse { dir: PathBuf, pid: Option<u32> },
+    InUse {
+        /// The data directory.
+        dir: PathBuf,
+        /// The holder's PID, as it wrote it in the lock file (`None` when
+        /// the file holds no number).
+        pid: Option<u32>,
+    },
+    /// Creating the directory, or opening, locking or writing the lock
+    /// file failed.
     #[error("cannot lock the data directory {}: {source}", .dir.display())]
     Io {
+        /// The data directory.
         dir: PathBuf,
+        /// The system's error.
         source: std::io::Error,
     },
 }

@@ -3,28 +3,48 @@
 use crate::scheduler::SchedError;
 use trevi_core::SceneError;
 
+/// Why the farm refused or failed a request; [`FarmError::code`] is its
+/// gRPC status code.
 #[derive(Debug, thiserror::Error)]
 pub enum FarmError {
+    /// No job (or sequence) has this id (`NOT_FOUND`).
     #[error("no job {0}")]
     UnknownJob(u64),
+    /// No registered worker has this id: it was forgotten after a long
+    /// silence, or the coordinator restarted (`UNAUTHENTICATED`, which makes workers register again).
     #[error("unknown worker {0}; register again")]
     UnknownWorker(u64),
+    /// No bundle has this hash on the coordinator (`NOT_FOUND`).
     #[error("no bundle {0}; upload it first")]
     UnknownBundle(String),
+    /// Uploaded or stored bytes that are not a bundle the farm takes
+    /// (`INVALID_ARGUMENT`).
     #[error("bad scene bundle: {0}")]
     BadBundle(String),
+    /// A bundle whose scene cannot be rendered on the farm
+    /// (`INVALID_ARGUMENT`).
     #[error("bad scene: {0}")]
     BadScene(BadScene),
+    /// An upload that does not fit its lease: wrong rect, size, values or
+    /// encoding (`INVALID_ARGUMENT`).
     #[error("tile rejected: {0}")]
     BadTile(String),
+    /// A lease that is not (or no longer) the uploading worker's
+    /// (`PERMISSION_DENIED`).
     #[error("tile refused: {0}")]
     NotYourLease(String),
+    /// A request past one of the farm's bounds (`RESOURCE_EXHAUSTED`).
     #[error("{0}")]
     Limit(Limit),
+    /// A request argument out of its range (`INVALID_ARGUMENT`).
     #[error("{0}")]
     Invalid(String),
+    /// The job (or sequence, its id first) has no output to give yet, or
+    /// not the one asked for (`FAILED_PRECONDITION`).
     #[error("job {0} has no output: {1}")]
     NoOutput(u64, String),
+    /// The job is done, failed or cancelled, so it can no longer be
+    /// changed (`FAILED_PRECONDITION`).
     #[error("job {0} is over")]
     JobOver(u64),
     /// Reading or writing the coordinator's own files or database failed.
@@ -32,6 +52,7 @@ pub enum FarmError {
     Io {
         /// What was being done, naming the file or job.
         what: String,
+        /// The underlying error (I/O, SQLite, …).
         source: BoxError,
     },
     /// Stored state that cannot be used as it is (a database SQLite would
@@ -100,6 +121,7 @@ impl LimitKind {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{message}")]
 pub struct Limit {
+    /// Which bound.
     pub kind: LimitKind,
     /// What the request needed (for a count of things held at once, the
     /// count already held).
@@ -169,6 +191,7 @@ impl From<SchedError> for FarmError {
 }
 
 impl FarmError {
+    /// The gRPC status code the error is answered with.
     pub fn code(&self) -> tonic::Code {
         use tonic::Code;
         match self {

@@ -60,10 +60,16 @@ impl Histogram {
 /// What `/metrics` reports of the farm, read in one go.
 #[derive(Debug, Clone)]
 pub struct FarmSnapshot {
+    /// Running totals since the coordinator started.
     pub counters: Counters,
+    /// Work waiting in the queue.
     pub queue: QueueDepth,
+    /// Every job and sequence the farm holds, finished ones included (a
+    /// sequence once, not its frames).
     pub jobs: Vec<JobInfo>,
+    /// Every registered worker.
     pub workers: Vec<WorkerInfo>,
+    /// Rays per second of the whole farm over the last few seconds.
     pub rays_per_second: f64,
     /// How long the farm's state lock has been held since the start: the
     /// serial part of the coordinator's work.
@@ -319,6 +325,7 @@ pub fn render(s: &FarmSnapshot, m: &Metrics) -> String {
 /// Times every request through the wrapped service into [`Metrics`].
 #[derive(Clone)]
 pub struct LatencyLayer {
+    /// Where the latencies go.
     pub metrics: Arc<Metrics>,
 }
 

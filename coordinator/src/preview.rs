@@ -18,7 +18,10 @@ use trevi_core::Rect;
 /// The preview of one frame.
 #[derive(Debug, Clone)]
 pub struct Preview {
+    /// The preview's width in pixels: the frame's divided by `scale`,
+    /// rounded up (at most [`Preview::MAX_EDGE`]).
     pub width: u32,
+    /// The preview's height in pixels, likewise.
     pub height: u32,
     /// Frame pixels per preview pixel along each axis.
     pub scale: u32,

@@ -18,6 +18,8 @@ pub enum SinkError {
 
 /// Takes a job's tiles as they are accepted.
 pub trait TileSink: Send {
+    /// Takes an accepted tile's pixels: `rect.w × rect.h` linear RGB values,
+    /// row by row, checked already.
     fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), SinkError>;
     /// Takes segment `index` of a PNG frame, already encoded (see
     /// [`FrameWriter::write_segment`]). A sink that cannot refuses it.

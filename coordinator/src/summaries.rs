@@ -26,9 +26,13 @@ use trevi_core::SceneDesc;
 /// One camera of a scene, as a job needs it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct CameraSummary {
+    /// The camera's id, unique in its scene.
     pub id: String,
+    /// The frame's width in pixels.
     pub width: u32,
+    /// The frame's height in pixels.
     pub height: u32,
+    /// n: n×n samples per pixel.
     pub supersample: u32,
     /// Samples per pixel: `supersample²`, or `max-samples` with adaptive
     /// sampling (`trevi_core::integrator::samples_per_pixel`).
@@ -42,6 +46,7 @@ pub struct CameraSummary {
 pub struct SceneSummary {
     /// The scene file's name in its bundle.
     pub scene: String,
+    /// The scene's cameras, in document order.
     pub cameras: Vec<CameraSummary>,
     /// What the scene needs once built, in bytes
     /// ([`trevi_core::scene::estimate`]): which workers can take its jobs.

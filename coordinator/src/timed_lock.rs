@@ -25,6 +25,7 @@ pub struct Held<'a, T> {
 }
 
 impl<T> TimedLock<T> {
+    /// `value` behind a lock not yet held.
     pub fn new(value: T) -> Self {
         TimedLock {
             value: Mutex::new(value),

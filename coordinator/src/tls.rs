@@ -8,28 +8,41 @@ use tonic::transport::{Identity, ServerTlsConfig};
 /// Why the coordinator's certificate or key cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum TlsError {
+    /// Only one of `--tls-cert` and `--tls-key` was given (the missing
+    /// flag's name).
     #[error("--tls-cert and --tls-key go together: {0} is missing")]
     Half(&'static str),
+    /// A file could not be read.
     #[error("cannot read the TLS {what} {path}: {source}")]
     Read {
+        /// `"certificate"` or `"key"`.
         what: &'static str,
+        /// The file given.
         path: PathBuf,
+        /// Why reading it failed.
         source: std::io::Error,
     },
+    /// The `--tls-cert` file (given) has no PEM certificate block.
     #[error(
         "the TLS certificate file {0} holds no PEM certificate \
          (no \"-----BEGIN CERTIFICATE-----\" block)"
     )]
     NoCertificate(PathBuf),
+    /// The `--tls-key` file (given) has no PEM private key block.
     #[error(
         "the TLS key file {0} holds no PEM private key \
          (no \"-----BEGIN ... PRIVATE KEY-----\" block)"
     )]
     NoKey(PathBuf),
+    /// rustls refused the pair: a malformed certificate or key, or a key
+    /// that is not the certificate's.
     #[error("the TLS certificate {cert} and key {key} cannot be used together: {reason}")]
     Unusable {
+        /// The certificate file.
         cert: PathBuf,
+        /// The key file.
         key: PathBuf,
+        /// rustls' or tonic's error, with its causes.
         reason: String,
     },
 }

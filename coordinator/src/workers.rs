@@ -7,6 +7,8 @@ use std::collections::HashMap;
 use std::time::{Duration, Instant};
 use trevi_core::Rect;
 
+/// A registered worker's number, given in order at registration from a
+/// base that keeps different coordinator runs' ids apart ([`Workers::new`]).
 pub type WorkerId = u64;
 
 /// Seconds kept by a [`Rate`]: the window plus the second in progress.
@@ -77,6 +79,7 @@ pub enum WorkerState {
 pub const LEAVING: &str = "stopping";
 
 impl WorkerState {
+    /// Every state, in the order `/metrics` lists them.
     pub const ALL: [WorkerState; 5] = [
         WorkerState::Busy,
         WorkerState::Idle,
@@ -85,6 +88,7 @@ impl WorkerState {
         WorkerState::Left,
     ];
 
+    /// The state's lower-case name, as the monitor and `/metrics` show it.
     pub fn name(self) -> &'static str {
         match self {
             WorkerState::Busy => "busy",
@@ -99,11 +103,18 @@ impl WorkerState {
 /// One registered worker.
 #[derive(Debug, Clone)]
 pub struct WorkerEntry {
+    /// The name it registered with (at most 64 characters; empty until
+    /// it said one).
     pub name: String,
+    /// The render threads it registered with.
     pub threads: u32,
+    /// When it was last heard from (registration or any later call).
     pub last_seen: Instant,
+    /// Tiles it finished that were accepted.
     pub tiles_done: u64,
+    /// Rays it traced for them (saturating).
     pub rays: u64,
+    /// Its recent tiles and rays per second.
     pub rate: Rate,
     /// The secret its registration was given, which every later call must
     /// present (none: registered in-process, not reachable over gRPC).
@@ -121,6 +132,8 @@ pub struct WorkerEntry {
 }
 
 impl WorkerEntry {
+    /// A worker registering at `now`, before it has said anything about
+    /// itself.
     pub fn new(now: Instant) -> Self {
         WorkerEntry {
             name: String::new(),
@@ -173,9 +186,13 @@ impl WorkerEntry {
 /// A worker as the monitor shows it.
 #[derive(Debug, Clone)]
 pub struct WorkerInfo {
+    /// Its [`WorkerId`].
     pub id: u64,
+    /// See [`WorkerEntry::name`].
     pub name: String,
+    /// See [`WorkerEntry::threads`].
     pub threads: u32,
+    /// How it is doing now.
     pub state: WorkerState,
     /// Why it is paused (see [`WorkerEntry::paused`]).
     pub paused: Option<String>,
@@ -185,9 +202,13 @@ pub struct WorkerInfo {
     pub silent_for: Duration,
     /// The tiles it holds leases on: (job, tile rectangle).
     pub leases: Vec<(u64, Rect)>,
+    /// See [`WorkerEntry::tiles_done`].
     pub tiles_done: u64,
+    /// See [`WorkerEntry::rays`].
     pub rays: u64,
+    /// Tiles a second over the last [`RATE_WINDOW_S`] seconds.
     pub tiles_per_s: f64,
+    /// Rays a second over the last [`RATE_WINDOW_S`] seconds.
     pub rays_per_s: f64,
 }
 

@@ -27,26 +27,46 @@ pub use crate::scene::source::{
 /// Why bytes are not a scene bundle's canonical encoding.
 #[derive(Debug, thiserror::Error)]
 pub enum BundleError {
+    /// The first 8 bytes are not `TREVIBN1`.
     #[error("not a Trevi scene bundle (bad magic)")]
     BadMagic,
+    /// The bytes end inside a length, a path or a file.
     #[error("truncated scene bundle")]
     Truncated,
+    /// The reader failed ([`check_encoding`] only).
     #[error("reading the bundle: {0}")]
     Read(#[source] io::Error),
+    /// The scene name or a path is not UTF-8.
     #[error("bundle path is not UTF-8")]
     NotUtf8,
+    /// A path's length prefix (given, in bytes) is over [`MAX_PATH_BYTES`]
+    /// ([`check_encoding`] only).
     #[error("a bundle path of {0} bytes is longer than {MAX_PATH_BYTES}")]
     PathTooLong(u64),
+    /// A path is absolute, climbs out with `..` or is otherwise refused by
+    /// [`normalize_rel_path`].
     #[error(transparent)]
     BadPath(#[from] PathError),
+    /// A path is valid but not in its normal form (`a/./b`, `a//b`, …): the
+    /// encoding would not be canonical.
     #[error("bundle path \"{0}\" is not normalised")]
     NotNormalised(String),
+    /// The same path appears twice.
     #[error("bundle holds \"{0}\" twice")]
     Duplicate(String),
+    /// A path does not sort strictly after the one before it
+    /// ([`check_encoding`] only).
     #[error("bundle path \"{path}\" is out of order (after \"{prev}\"): not a canonical encoding")]
-    OutOfOrder { path: String, prev: String },
+    OutOfOrder {
+        /// The path out of order.
+        path: String,
+        /// The path just before it.
+        prev: String,
+    },
+    /// Bytes follow the last file.
     #[error("trailing bytes after the bundle")]
     Trailing,
+    /// The scene file the header names (given) is not among the files.
     #[error("bundle lacks its scene file \"{0}\"")]
     MissingScene(String),
 }
@@ -85,7 +105,10 @@ impl FileSource for Recorder<'_> {
 /// by bundle-relative path.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Bundle {
+    /// The scene file's path inside the bundle (a key of `files`).
     pub scene: String,
+    /// Every file's bytes by bundle-relative path (normalised, `/`-separated),
+    /// the scene file included.
     pub files: BTreeMap<String, Vec<u8>>,
 }
 
@@ -106,7 +129,9 @@ impl FileSource for Bundle {
 /// scene from `desc` with [`crate::Scene::build`] (no second parse).
 #[derive(Debug, Clone)]
 pub struct ParsedBundle {
+    /// The files, exactly as the parse read them.
     pub bundle: Bundle,
+    /// The scene those files describe.
     pub desc: SceneDesc,
 }
 

@@ -14,6 +14,8 @@ use crate::sampling::concentric_disk;
 use crate::scene::{CameraDesc, Lens};
 use glam::{DVec3, Vec3};
 
+/// A scene camera ready to shoot primary rays: its orthonormal frame and
+/// view plane, computed once from its [`CameraDesc`].
 #[derive(Debug, Clone, Copy)]
 pub struct Camera {
     /// The camera's position in the world, in f64: the origin of the
@@ -21,9 +23,13 @@ pub struct Camera {
     pub eye: DVec3,
     /// The pinhole in those coordinates: always zero.
     pub position: Vec3,
+    /// The viewing direction, normalised.
     pub d: Vec3,
+    /// The image's rightward axis: `up × w`, normalised.
     pub u: Vec3,
+    /// The image's upward axis: `w × u` (unit, orthogonal to `d`).
     pub v: Vec3,
+    /// `−d`: the frame's third axis, pointing back out of the image.
     pub w: Vec3,
     c: Vec3,
     /// a/width and b/height: one pixel's step along each (the divisions of
@@ -37,6 +43,8 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// The camera of a description (its direction and up need not be
+    /// normalised; the parser has checked that they are not parallel).
     pub fn new(desc: &CameraDesc) -> Camera {
         let d = desc.direction.normalize();
         let w = -d;
@@ -65,6 +73,8 @@ impl Camera {
         }
     }
 
+    /// Whether the camera is a thin lens (aperture over 0), so that rays
+    /// start at points on the lens and need their lens samples.
     pub fn has_lens(&self) -> bool {
         self.aperture > 0.0
     }

@@ -11,12 +11,16 @@ use std::fmt;
 /// `column` counts characters (not bytes) from the start of the line.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Location {
+    /// The file's bundle-relative path (the scene file's name for the scene).
     pub file: String,
+    /// The line, from 1.
     pub line: u32,
+    /// The column in characters, from 1.
     pub column: u32,
 }
 
 impl Location {
+    /// Line `line`, column `column` (both 1-based) of `file`.
     pub fn new(file: impl Into<String>, line: u32, column: u32) -> Self {
         Location {
             file: file.into(),
@@ -82,8 +86,11 @@ pub enum SceneErrorKind {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{location}: {message}")]
 pub struct SceneError {
+    /// Where the problem is: the element, attribute or line at fault.
     pub location: Location,
+    /// What kind of problem it is.
     pub kind: SceneErrorKind,
+    /// What is wrong, for people, without the location.
     pub message: String,
 }
 
@@ -93,6 +100,7 @@ impl SceneError {
         SceneError::of_kind(SceneErrorKind::Invalid, location, message)
     }
 
+    /// An error of kind `kind` at `location`.
     pub fn of_kind(kind: SceneErrorKind, location: Location, message: impl Into<String>) -> Self {
         SceneError {
             location,
@@ -111,43 +119,89 @@ impl SceneError {
 /// Errors while writing an output image.
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
+    /// Creating, writing, syncing or renaming a file failed.
     #[error("{path}: {source}")]
     Io {
+        /// The output path (the final one, also for its temporary file).
         path: String,
+        /// The system's error.
         #[source]
         source: std::io::Error,
     },
+    /// The output path's extension is not `.png` or `.exr`, or the path has
+    /// no file name.
     #[error("{path}: unsupported output extension (expected .png or .exr)")]
-    UnsupportedFormat { path: String },
+    UnsupportedFormat {
+        /// The output path.
+        path: String,
+    },
+    /// The encoder refused the frame (a size PNG and EXR cannot store, an
+    /// encoder error), or an earlier write failed and the writer is done.
     #[error("{path}: {message}")]
-    Encode { path: String, message: String },
+    Encode {
+        /// The output path.
+        path: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// A tile outside the frame, empty, or overlapping pixels already
+    /// written. Nothing was written.
     #[error("tile {x},{y} {w}x{h} does not fit the {width}x{height} frame or was written twice")]
     BadTile {
+        /// The tile's first column.
         x: u32,
+        /// The tile's first row.
         y: u32,
+        /// The tile's width in pixels.
         w: u32,
+        /// The tile's height in pixels.
         h: u32,
+        /// The frame's width in pixels.
         width: u32,
+        /// The frame's height in pixels.
         height: u32,
     },
+    /// A tile given with more or fewer pixels than its rectangle has.
+    /// Nothing was written.
     #[error("tile {x},{y} {w}x{h} needs {expected} pixels but {got} were given")]
     TilePixelCount {
+        /// The tile's first column.
         x: u32,
+        /// The tile's first row.
         y: u32,
+        /// The tile's width in pixels.
         w: u32,
+        /// The tile's height in pixels.
         h: u32,
+        /// `w * h`.
         expected: usize,
+        /// The number of pixels given.
         got: usize,
     },
     /// An encoded PNG segment the writer cannot take: its framing is
     /// wrong (see `trevi_core::output::check_segment`), or the frame is
     /// not a PNG. Nothing was written.
     #[error("PNG segment {index}: {message}")]
-    BadSegment { index: u32, message: String },
+    BadSegment {
+        /// The segment's index (its band of rows) in the frame.
+        index: u32,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// The frame was finished with rows missing; the output path was left
+    /// as it was.
     #[error("the frame is incomplete: {missing} rows were never written")]
-    Incomplete { missing: u32 },
+    Incomplete {
+        /// How many rows are not complete.
+        missing: u32,
+    },
     /// The output path names something a rename would replace but must not:
     /// a directory, a device (`/dev/full`), a FIFO, a socket.
     #[error("{path} exists and is {what}, not a regular file: refusing to replace it")]
-    NotARegularFile { path: String, what: &'static str },
+    NotARegularFile {
+        /// The output path.
+        path: String,
+        /// What is there ("a directory", "a FIFO", …).
+        what: &'static str,
+    },
 }

@@ -15,15 +15,20 @@ use glam::Vec3;
 /// length (instance transforms scale it), so `t` is a parameter, not a distance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
+    /// Where the ray starts (`t = 0`), in the coordinates of whatever it is
+    /// tested against (camera-relative world, or an instance's object space).
     pub origin: Vec3,
+    /// The direction, any non-zero length: one unit of `t` moves this far.
     pub dir: Vec3,
 }
 
 impl Ray {
+    /// The ray from `origin` along `dir`.
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
         Ray { origin, dir }
     }
 
+    /// The point at parameter `t`: `origin + t·dir`.
     pub fn at(&self, t: f32) -> Vec3 {
         self.origin + self.dir * t
     }
@@ -32,20 +37,26 @@ impl Ray {
 /// An axis-aligned bounding box. The empty box has `min = +inf`, `max = -inf`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Aabb {
+    /// The smallest coordinate on each axis.
     pub min: Vec3,
+    /// The largest coordinate on each axis.
     pub max: Vec3,
 }
 
 impl Aabb {
+    /// The box of nothing: the identity of [`Aabb::union`] and
+    /// [`Aabb::grow`].
     pub const EMPTY: Aabb = Aabb {
         min: Vec3::splat(f32::INFINITY),
         max: Vec3::splat(f32::NEG_INFINITY),
     };
 
+    /// The smallest box holding every point ([`Aabb::EMPTY`] for none).
     pub fn from_points(points: &[Vec3]) -> Aabb {
         points.iter().fold(Aabb::EMPTY, |b, &p| b.grow(p))
     }
 
+    /// The smallest box holding this one and `p`.
     pub fn grow(self, p: Vec3) -> Aabb {
         Aabb {
             min: self.min.min(p),
@@ -53,6 +64,7 @@ impl Aabb {
         }
     }
 
+    /// The smallest box holding both boxes.
     pub fn union(self, o: Aabb) -> Aabb {
         Aabb {
             min: self.min.min(o.min),
@@ -60,10 +72,13 @@ impl Aabb {
         }
     }
 
+    /// Whether the box holds no point: `min > max` on some axis, or a NaN
+    /// bound.
     pub fn is_empty(&self) -> bool {
         !(self.min.x <= self.max.x && self.min.y <= self.max.y && self.min.z <= self.max.z)
     }
 
+    /// The box's centre (meaningless for an empty box).
     pub fn center(&self) -> Vec3 {
         (self.min + self.max) * 0.5
     }
@@ -77,6 +92,7 @@ impl Aabb {
         d.x * d.y + d.y * d.z + d.z * d.x
     }
 
+    /// The length of the diagonal from `min` to `max`; 0 for an empty box.
     pub fn diagonal(&self) -> f32 {
         if self.is_empty() {
             0.0

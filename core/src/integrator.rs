@@ -65,6 +65,7 @@ const TAG_REFRACT: u64 = 8;
 /// Options that are not part of the scene: how to sample.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct RenderOptions {
+    /// The point set of every pixel's sample streams (Sobol by default).
     pub sampler: SamplerKind,
 }
 
@@ -112,6 +113,8 @@ pub struct Integrator<'a, O: RayObserver = ()> {
 pub struct PixelContext {
     sampler: PixelSampler,
     sample: u32,
+    /// Rays traced for this pixel so far, of every kind (camera, shadow,
+    /// secondary).
     pub rays: u64,
     /// The cancellation flag was seen: every further ray misses.
     stopped: bool,

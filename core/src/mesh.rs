@@ -19,9 +19,15 @@ use glam::{Vec2, Vec3};
 /// otherwise: an untextured mesh pays no memory for them.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Mesh {
+    /// The vertices' positions in object space.
     pub positions: Vec<Vec3>,
+    /// The vertices' shading normals in object space, one per position
+    /// (as the file gave them, or computed smooth ones).
     pub normals: Vec<Vec3>,
+    /// The vertices' texture coordinates, one per position, or none.
     pub uvs: Vec<Vec2>,
+    /// Each triangle's three vertex indices `a b c` into `positions`; its
+    /// front is the side `(b−a)×(c−a)` points to.
     pub triangles: Vec<[u32; 3]>,
 }
 

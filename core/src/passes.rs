@@ -31,14 +31,29 @@ use std::sync::atomic::AtomicBool;
 /// Why a range of samples was not rendered into a [`TileState`].
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PassError {
-    /// The range does not start where the state stopped.
+    /// The range does not start where the state stopped, or ends before it
+    /// starts.
     #[error(
         "the samples {start}..{end} do not continue the state, which has its samples 0..{next}"
     )]
-    NotNext { start: u32, end: u32, next: u32 },
+    NotNext {
+        /// The range's first sample index.
+        start: u32,
+        /// The index after the range's last.
+        end: u32,
+        /// The state's [`TileState::next`].
+        next: u32,
+    },
     /// The range goes past the camera's samples per pixel.
     #[error("the samples {start}..{end} go past the camera's {samples} samples per pixel")]
-    PastEnd { start: u32, end: u32, samples: u32 },
+    PastEnd {
+        /// The range's first sample index.
+        start: u32,
+        /// The index after the range's last.
+        end: u32,
+        /// The camera's samples per pixel: the most a range may reach.
+        samples: u32,
+    },
     /// The render was cancelled; the state is as it was.
     #[error(transparent)]
     Cancelled(#[from] Cancelled),

@@ -56,7 +56,9 @@ pub fn pixel_seed(seed: u64, camera_hash: u64, x: u32, y: u32) -> u64 {
 /// The sampler of one pixel.
 #[derive(Debug, Clone, Copy)]
 pub struct PixelSampler {
+    /// The pixel's seed ([`pixel_seed`]): every stream is scrambled by it.
     pub seed: u64,
+    /// Which point set the streams draw from.
     pub kind: SamplerKind,
 }
 

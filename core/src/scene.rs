@@ -20,7 +20,9 @@ use glam::{DMat4, DVec3, Vec2, Vec3};
 /// `<settings>`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Settings {
+    /// `background`: the linear RGB colour of rays that hit nothing.
     pub background: Vec3,
+    /// `ambient`: the linear RGB colour of the ambient light.
     pub ambient: Vec3,
 }
 
@@ -36,6 +38,7 @@ impl Default for Settings {
 /// Which sides of a surface rays can hit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Sided {
+    /// Both sides (the default).
     Two,
     /// Only the side the triangle's winding faces (counter-clockwise seen from
     /// the front; the geometric normal `(b−a)×(c−a)` points to the front).
@@ -45,14 +48,24 @@ pub enum Sided {
 /// `<surface>`: the Phong material plus reflection and refraction.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Surface {
+    /// kd, the diffuse colour (linear RGB, each ≥ 0).
     pub diffuse: Vec3,
+    /// ka, the ambient colour (linear RGB, each ≥ 0).
     pub ambient: Vec3,
+    /// ks, the specular colour (linear RGB, each ≥ 0).
     pub specular: Vec3,
+    /// n, the Phong exponent (≥ 0).
     pub shininess: f32,
+    /// r, the share of mirror reflection, in `[0, 1]`.
     pub reflectivity: f32,
+    /// α, in `[0, 1]`: below 1 the rest is refracted.
     pub opacity: f32,
+    /// The index of refraction (> 0).
     pub ior: f32,
+    /// Shade with the interpolated vertex normals (`true`) or the geometric
+    /// normal.
     pub smooth: bool,
+    /// Which sides rays can hit.
     pub sided: Sided,
     /// `diffuse-texture`: multiplies `diffuse` (and `ambient`) at each hit.
     pub texture: Option<TextureMap>,
@@ -65,8 +78,11 @@ pub struct Surface {
 /// wraps, and the factors `uv` is multiplied by before the lookup.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TextureMap {
+    /// Index into [`SceneDesc::textures`].
     pub texture: u32,
+    /// What a coordinate outside `[0, 1]` looks up (`texture-wrap`).
     pub wrap: Wrap,
+    /// `su sv` of `texture-scale` (or a `.mtl`'s `map_Kd -s`).
     pub scale: Vec2,
 }
 
@@ -93,6 +109,7 @@ impl Default for Surface {
 /// `<model>`: an instance of a mesh.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {
+    /// `id`: unique among models, spheres and planes.
     pub id: String,
     /// Index into [`SceneDesc::meshes`].
     pub mesh: usize,
@@ -110,31 +127,43 @@ pub struct Model {
 /// `<sphere>`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sphere {
+    /// `id`: unique among models, spheres and planes.
     pub id: String,
     /// In f64, like every position: the renderer moves the world next to
     /// each camera before going to f32 (see docs/numerics.md).
     pub center: DVec3,
+    /// The radius (> 0), in scene units.
     pub radius: f32,
+    /// Its one surface.
     pub surface: Surface,
 }
 
 /// `<plane>`: infinite and two-sided.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plane {
+    /// `id`: unique among models, spheres and planes.
     pub id: String,
+    /// A point on the plane (f64, like every position).
     pub point: DVec3,
     /// Normalised.
     pub normal: Vec3,
+    /// Its one surface.
     pub surface: Surface,
 }
 
+/// `<light type>`: how a light's emission depends on direction. (A rect
+/// light is no [`Light`]: the parser makes it an emitting model.)
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LightKind {
+    /// The same in every direction.
     Point,
     /// `direction` normalised; cosines of the `inner` and `outer` half-angles.
     Spot {
+        /// Where the spot points (unit length).
         direction: Vec3,
+        /// The cosine of the full-intensity half-angle.
         cos_inner: f32,
+        /// The cosine of the cut-off half-angle (at most `cos_inner`).
         cos_outer: f32,
     },
 }
@@ -142,18 +171,27 @@ pub enum LightKind {
 /// `<light>`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Light {
+    /// Point or spot.
     pub kind: LightKind,
+    /// Where the light is (f64, like every position).
     pub position: DVec3,
+    /// The light's colour (linear RGB).
     pub color: Vec3,
+    /// The factor on `color` (≥ 0).
     pub intensity: f32,
+    /// Half the side of the square its shadow rays aim at; 0 is a point
+    /// (hard shadows).
     pub radius: f32,
     /// `c l q` of E = color·intensity / (c + l·d + q·d²).
     pub attenuation: Vec3,
 }
 
+/// `<camera lens>`: the shape of a thin lens' aperture.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Lens {
+    /// A square of side `aperture` (the default).
     Square,
+    /// A disk of diameter `aperture`.
     Disk,
 }
 
@@ -162,6 +200,7 @@ pub enum Lens {
 pub enum AoDistance {
     /// Half the diagonal of the scene's bounding box.
     Auto,
+    /// A given distance (> 0), in scene units.
     Fixed(f32),
 }
 
@@ -170,7 +209,11 @@ pub enum AoDistance {
 pub struct Adaptive {
     /// Target standard error of a pixel's mean, in linear units.
     pub threshold: f32,
+    /// `min-samples`: camera samples every pixel takes before it may stop
+    /// (≥ 1).
     pub min_samples: u32,
+    /// `max-samples`: camera samples after which a pixel stops (≥
+    /// `min_samples`).
     pub max_samples: u32,
 }
 
@@ -210,19 +253,35 @@ pub const MAX_OBJECTS: usize = u32::MAX as usize - 1;
 /// `<render>`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RenderSettings {
+    /// The frame's width in pixels, in `1..=`[`MAX_IMAGE_SIDE`].
     pub width: u32,
+    /// The frame's height in pixels, in `1..=`[`MAX_IMAGE_SIDE`].
     pub height: u32,
+    /// n: n×n camera samples per pixel, in `1..=`[`MAX_SUPERSAMPLE`].
     pub supersample: u32,
+    /// Jitter samples inside their strata (else each at its stratum's
+    /// centre).
     pub jitter: bool,
+    /// The reflection and refraction depth, at most [`MAX_DEPTH`].
     pub max_depth: u32,
+    /// Shadow rays per light per sample, in `1..=`[`MAX_RAY_SAMPLES`].
     pub shadow_samples: u32,
+    /// Ambient-occlusion rays per sample (0: no AO), at most
+    /// [`MAX_RAY_SAMPLES`].
     pub ao_samples: u32,
+    /// s_max: how far an ambient-occlusion ray looks for a blocker.
     pub ao_distance: AoDistance,
+    /// Diffuse-interreflection rays per sample at the first level (0:
+    /// none), at most [`MAX_RAY_SAMPLES`].
     pub diffuse_samples: u32,
+    /// Diffuse bounce levels, in `1..=`[`MAX_DEPTH`].
     pub diffuse_depth: u32,
+    /// The random seed: every pixel's samples derive from it.
     pub seed: u64,
     /// Bundle-relative output path (`<camera id>.png` by default).
     pub output: String,
+    /// `noise-threshold`, `min-samples`, `max-samples`: `None` when adaptive
+    /// sampling is off (no `noise-threshold`).
     pub adaptive: Option<Adaptive>,
     /// `integrator=`: the spec's Whitted model or Trevi's path tracer.
     pub integrator: IntegratorKind,
@@ -251,29 +310,42 @@ pub const DEFAULT_MAX_BOUNCES: u32 = 16;
 /// `<camera>` with its `<render>`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraDesc {
+    /// `id`: unique among cameras.
     pub id: String,
+    /// The eye (f64, like every position).
     pub position: DVec3,
     /// Normalised view direction d.
     pub direction: Vec3,
+    /// The image's up, normalised, not parallel to `direction`.
     pub up: Vec3,
     /// Horizontal field of view in degrees.
     pub fov: f32,
+    /// The lens' size (≥ 0); 0 is a pinhole, > 0 gives depth of field.
     pub aperture: f32,
     /// Distance of the focal plane; always set (defaults resolved by the parser).
     pub focus: f32,
+    /// The lens' shape.
     pub lens: Lens,
+    /// Its `<render>` child: what to render and how.
     pub render: RenderSettings,
 }
 
 /// A whole scene, resolved and validated.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SceneDesc {
+    /// `<settings>` (its defaults when the file has none).
     pub settings: Settings,
+    /// The meshes models instance, each loaded once.
     pub meshes: Vec<Mesh>,
+    /// The models, in document order (rect lights among them).
     pub models: Vec<Model>,
+    /// The spheres, in document order.
     pub spheres: Vec<Sphere>,
+    /// The planes, in document order.
     pub planes: Vec<Plane>,
+    /// The point and spot lights, in document order.
     pub lights: Vec<Light>,
+    /// The cameras, in document order: a camera index means this order.
     pub cameras: Vec<CameraDesc>,
     /// The decoded image textures surfaces refer to (each file once).
     pub textures: Vec<Texture>,

@@ -44,16 +44,40 @@ pub const MAX_TEXTURE_TEXELS: u64 = 1 << 24;
 /// large image; this bounds what a worker holds.
 pub const MAX_SCENE_TEXELS: u64 = 4 * MAX_TEXTURE_TEXELS;
 
+/// Why a file is not a texture the renderer takes.
 #[derive(Debug, Error, PartialEq, Eq)]
 pub enum TextureError {
+    /// The content is not PNG, JPEG or OpenEXR.
     #[error("unsupported texture format (expected a PNG, JPEG or OpenEXR file)")]
     Format,
+    /// An image is over [`MAX_TEXTURE_SIDE`] or [`MAX_TEXTURE_TEXELS`].
     #[error("texture is {width} x {height} (expected each side at most {MAX_TEXTURE_SIDE} and at most {MAX_TEXTURE_TEXELS} texels)")]
-    TooLarge { width: u64, height: u64 },
+    TooLarge {
+        /// The image's width in texels, from its header.
+        width: u64,
+        /// Its height in texels.
+        height: u64,
+    },
+    /// The texture (every part of an OpenEXR file together) needs more
+    /// texels than the scene's [`MAX_SCENE_TEXELS`] has left.
     #[error("texture is {width} x {height}, more than the {left} texels left of the scene's {MAX_SCENE_TEXELS} for all its textures")]
-    OverBudget { width: u64, height: u64, left: u64 },
+    OverBudget {
+        /// The (main) image's width in texels.
+        width: u64,
+        /// Its height in texels.
+        height: u64,
+        /// The texels the scene's earlier textures left.
+        left: u64,
+    },
+    /// An image with a width or height of 0.
     #[error("texture has no pixels ({width} x {height})")]
-    Empty { width: u64, height: u64 },
+    Empty {
+        /// The image's width in texels.
+        width: u64,
+        /// Its height in texels.
+        height: u64,
+    },
+    /// The decoder (or a header reader) refused the file: its message.
     #[error("cannot decode the texture: {0}")]
     Decode(String),
     /// Refused from its markers before decoding (see [`jpeg_scan`]).
@@ -68,8 +92,11 @@ pub enum TextureError {
 /// the top.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Level {
+    /// The level's width in texels (≥ 1).
     pub width: u32,
+    /// Its height in texels (≥ 1).
     pub height: u32,
+    /// `width × height` texels, row by row.
     pub texels: Vec<Vec3>,
 }
 
@@ -84,6 +111,7 @@ impl Level {
 /// (rounded down, at least 1) down to 1 × 1.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Texture {
+    /// The MIP chain, level 0 first (at least one level).
     pub levels: Vec<Level>,
 }
 

@@ -12,17 +12,23 @@ use std::sync::atomic::{AtomicBool, Ordering};
 /// A rectangle of pixels: columns `x..x+w`, rows `y..y+h` (row 0 at the top).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Rect {
+    /// The first column.
     pub x: u32,
+    /// The first row.
     pub y: u32,
+    /// The width in pixels.
     pub w: u32,
+    /// The height in pixels.
     pub h: u32,
 }
 
 impl Rect {
+    /// Columns `x..x+w`, rows `y..y+h` (not checked against any frame).
     pub fn new(x: u32, y: u32, w: u32, h: u32) -> Self {
         Rect { x, y, w, h }
     }
 
+    /// `w × h`, the number of pixels.
     pub fn pixel_count(&self) -> usize {
         self.w as usize * self.h as usize
     }
@@ -59,7 +65,9 @@ pub fn band_order_tiles(width: u32, height: u32, tile: u32) -> Vec<Rect> {
 /// by row, and how many rays were traced for them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TileResult {
+    /// The pixels, row by row.
     pub pixels: Vec<[f32; 3]>,
+    /// Rays traced for them, of every kind.
     pub rays: u64,
 }
 

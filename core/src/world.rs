@@ -99,18 +99,29 @@ pub struct View<'a> {
 /// What a closest-hit query found.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum HitKind {
+    /// A triangle of a model.
     Triangle {
+        /// The model instance, an index into the view's instances (each
+        /// names its model in [`SceneDesc::models`]).
         instance: u32,
+        /// The triangle's index in its mesh as stored (the build may have
+        /// renumbered the mesh's triangles).
         triangle: u32,
+        /// The weights of the triangle's three vertices at the hit.
         bary: [f32; 3],
     },
+    /// A sphere: its index in [`SceneDesc::spheres`].
     Sphere(u32),
+    /// A plane: its index in [`SceneDesc::planes`].
     Plane(u32),
 }
 
+/// The closest (or any) hit of a ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
+    /// The ray parameter of the hit: the point is `origin + t·dir`.
     pub t: f32,
+    /// What was hit.
     pub kind: HitKind,
     /// The ray met the front (the side the winding or the normal faces).
     pub front: bool,
@@ -125,16 +136,20 @@ type TieKey = (u32, u32);
 /// The local geometry at a hit.
 #[derive(Debug, Clone, Copy)]
 pub struct SurfacePoint<'a> {
+    /// The hit point, in the view's coordinates.
     pub p: Vec3,
     /// Unit geometric normal, on the side the ray came from.
     pub ng: Vec3,
     /// Unit shading normal, on the side the ray came from.
     pub ns: Vec3,
+    /// The ray met the front (see [`Hit::front`]).
     pub front: bool,
+    /// The material hit.
     pub surface: &'a Surface,
     /// The diffuse and ambient colours here: the surface's, times its
     /// texture once [`View::apply_texture`] has looked it up.
     pub kd: Vec3,
+    /// The ambient colour here, textured like `kd`.
     pub ka: Vec3,
     /// The width of the ray cone at `p` (0 until the integrator sets it,
     /// which it does only in scenes with textures).
@@ -146,6 +161,7 @@ pub struct SurfacePoint<'a> {
 
 /// A scene ready to render.
 pub struct Scene {
+    /// The description it was built from.
     pub desc: SceneDesc,
     blas: Vec<MeshBvh>,
     /// Per mesh, the triangle's index as loaded for each triangle as stored
@@ -169,6 +185,7 @@ pub struct Scene {
     pub bounds: Aabb,
     /// Some surface has opacity < 1: shadow rays must gather every occluder.
     pub has_translucency: bool,
+    /// Per camera of [`SceneDesc::cameras`], in order, its primary-ray setup.
     pub cameras: Vec<Camera>,
     camera_hashes: Vec<u64>,
 }
@@ -206,6 +223,7 @@ impl Scene {
         View { scene: self, world }
     }
 
+    /// The index of the camera whose id is `id`.
     pub fn camera_index(&self, id: &str) -> Option<usize> {
         self.desc.cameras.iter().position(|c| c.id == id)
     }

@@ -22,27 +22,53 @@ pub struct ClientTls {
 /// Why an endpoint could not be built.
 #[derive(Debug, thiserror::Error)]
 pub enum EndpointError {
+    /// The address is not a URI tonic accepts.
     #[error("bad coordinator address \"{url}\": {reason}")]
-    BadAddress { url: String, reason: String },
+    BadAddress {
+        /// The address as given.
+        url: String,
+        /// tonic's error, with its causes ([`error_chain`]).
+        reason: String,
+    },
+    /// The address has no scheme, or one other than `http` and `https`
+    /// (the address as given).
     #[error("bad coordinator address \"{0}\": it must start with http:// or https://")]
     Scheme(String),
+    /// A TLS option (`--tls-ca` or `--tls-domain`) was given for a plain
+    /// `http://` address, where it would be silently ignored.
     #[error(
         "{option} is only for TLS, but the coordinator address \"{url}\" is plain http://; \
          use https://"
     )]
-    TlsOptionWithoutHttps { option: &'static str, url: String },
+    TlsOptionWithoutHttps {
+        /// The option's command-line name.
+        option: &'static str,
+        /// The address as given.
+        url: String,
+    },
+    /// The `--tls-ca` file could not be read.
     #[error("cannot read the CA certificate {path}: {source}")]
     ReadCa {
+        /// The file named by [`ClientTls::ca_file`].
         path: PathBuf,
+        /// Why reading it failed.
         source: std::io::Error,
     },
+    /// The `--tls-ca` file was read but has no PEM certificate block (its
+    /// path).
     #[error(
         "the CA certificate file {0} holds no PEM certificate \
          (no \"-----BEGIN CERTIFICATE-----\" block)"
     )]
     NoCertificate(PathBuf),
+    /// tonic refused the TLS settings for this address.
     #[error("cannot set up TLS for \"{url}\": {reason}")]
-    Tls { url: String, reason: String },
+    Tls {
+        /// The address as given.
+        url: String,
+        /// tonic's error, with its causes ([`error_chain`]).
+        reason: String,
+    },
 }
 
 /// An endpoint for the coordinator at `url` (`http://HOST:PORT` or

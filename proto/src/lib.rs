@@ -16,6 +16,10 @@ pub use connect::{endpoint, ClientTls, EndpointError};
 
 /// Generated prost messages and tonic clients and servers.
 pub mod pb {
+    // This is tonic-prost-build's output, regenerated on every build: it
+    // cannot carry docs of ours (prost copies the .proto comments where
+    // there are some, the tonic glue has none) nor meet our clippy rules.
+    // The contract is documented in proto/proto/trevi/v1/farm.proto.
     #![allow(clippy::all, missing_docs)]
     tonic::include_proto!("trevi.v1");
 
@@ -51,8 +55,11 @@ impl Bearer {
 /// A token that cannot travel in an `authorization` header.
 #[derive(Debug, thiserror::Error)]
 pub enum TokenError {
+    /// The token is empty, or has a space, a control or a non-ASCII
+    /// character.
     #[error("a token must be printable ASCII without spaces")]
     NotPrintable,
+    /// tonic refused `Bearer TOKEN` as a header value.
     #[error("bad token: {0}")]
     Header(#[from] tonic::metadata::errors::InvalidMetadataValue),
 }
@@ -73,8 +80,10 @@ pub type AuthChannel =
 /// A message from the wire that does not make sense.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum WireError {
+    /// A message field that must be set is not (its name).
     #[error("missing field {0}")]
     Missing(&'static str),
+    /// Pixel bytes whose length (given) is not a multiple of 12.
     #[error("pixel data of {0} bytes is not a whole number of RGB f32 triples")]
     RaggedPixels(usize),
 }

@@ -27,6 +27,7 @@ use trevi_core::Rect;
 pub struct SegmentUpload<'a> {
     /// The lease of the span's first tile (the others follow, one each).
     pub lease: LeaseId,
+    /// The job the lease is of.
     pub job: JobId,
     /// The lease's rect: whole segments of full-width rows.
     pub rect: Rect,
@@ -45,15 +46,18 @@ pub struct SegmentUpload<'a> {
 /// What an upload for a rect must hold: [`Farm::segment_plan`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SegmentPlan {
-    /// The frame's size.
+    /// The frame's width in pixels.
     pub width: u32,
+    /// The frame's height in pixels.
     pub height: u32,
-    /// The rect's first segment and how many it has.
+    /// The index of the rect's first segment in the frame.
     pub first: u32,
+    /// How many segments the rect is.
     pub count: u32,
-    /// The preview's cell edge (`Lease.preview_scale`) and the number of
-    /// cells the rect overlaps: the upload carries `3 × cells` sums.
+    /// The preview's cell edge in pixels (`Lease.preview_scale`).
     pub scale: u32,
+    /// The number of preview cells the rect overlaps: the upload carries
+    /// `3 × cells` sums.
     pub cells: usize,
 }
 
@@ -67,68 +71,129 @@ impl SegmentPlan {
 /// What [`inflate_check`] found wrong with a segment's deflate bytes.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum InflateError {
+    /// The bytes inflate past the segment's claimed filtered length.
     #[error("segment {index} does not inflate to {expected} bytes (it inflates to more)")]
-    TooMuch { index: u32, expected: u64 },
+    TooMuch {
+        /// The segment's index in the frame.
+        index: u32,
+        /// Its claimed filtered length.
+        expected: u64,
+    },
+    /// A row starts with a filter type PNG does not have, or (the
+    /// segment's first row) one that reads the row above.
     #[error("segment {index}'s row {row} has filter type {filter}, not 0..={most}")]
     Filter {
+        /// The segment's index in the frame.
         index: u32,
+        /// The row, counted from the segment's first.
         row: u64,
+        /// The filter type found.
         filter: u8,
+        /// The largest allowed there: 1 on the first row, else 4.
         most: u8,
     },
+    /// The deflate stream ends (a final block) before the segment's bytes
+    /// do.
     #[error("segment {index} ends its deflate stream after {at} of its {len} bytes")]
-    EndsEarly { index: u32, at: usize, len: usize },
+    EndsEarly {
+        /// The segment's index in the frame.
+        index: u32,
+        /// The byte offset where the stream ended.
+        at: usize,
+        /// The segment's deflate length.
+        len: usize,
+    },
+    /// The bytes are not valid deflate, or stop short of the claimed
+    /// length.
     #[error("segment {index} does not inflate to {expected} bytes ({status} after {wrote})")]
     Malformed {
+        /// The segment's index in the frame.
         index: u32,
+        /// Its claimed filtered length.
         expected: u64,
         /// miniz_oxide's status where inflating stopped.
         status: String,
+        /// Bytes inflated before it stopped.
         wrote: u64,
     },
+    /// The bytes inflate to fewer bytes than claimed.
     #[error("segment {index} inflates to {wrote} bytes, not the {expected} it claims")]
     Length {
+        /// The segment's index in the frame.
         index: u32,
+        /// Bytes it inflates to.
         wrote: u64,
+        /// Its claimed filtered length.
         expected: u64,
     },
+    /// The inflated bytes' Adler-32 is not the one uploaded with them.
     #[error(
         "segment {index}'s bytes have Adler-32 {got:#010x}, not the {claimed:#010x} it claims"
     )]
-    Adler { index: u32, got: u32, claimed: u32 },
+    Adler {
+        /// The segment's index in the frame.
+        index: u32,
+        /// The Adler-32 of the inflated bytes.
+        got: u32,
+        /// [`PngSegment::adler32`] as uploaded.
+        claimed: u32,
+    },
 }
 
 /// Why an upload of encoded segments is refused ([`check_upload`], and the
 /// uploading worker's encoder); [`FarmError::BadTile`] says it.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum UploadError {
+    /// More or fewer segments than the rect is.
     #[error("{got} segments uploaded, but rows {y}..{end} are {count} segments")]
     SegmentCount {
+        /// Segments uploaded.
         got: usize,
+        /// The rect's first row.
         y: u32,
+        /// The row after its last.
         end: u32,
+        /// Segments the rect is ([`SegmentPlan::count`]).
         count: u32,
     },
+    /// A segment's framing is wrong ([`check_segment`]).
     #[error(transparent)]
     Framing(#[from] SegmentError),
+    /// More or fewer preview sums than three a cell the rect overlaps.
     #[error(
         "{got} preview sums uploaded, but the rect overlaps {cells} preview cells of {scale} \
          pixels: {} sums",
         3 * .cells
     )]
     SumCount {
+        /// Sums uploaded.
         got: usize,
+        /// Preview cells the rect overlaps ([`SegmentPlan::cells`]).
         cells: usize,
+        /// The preview's cell edge in pixels.
         scale: u32,
     },
+    /// A preview sum is negative, infinite or NaN.
     #[error("preview sum {k} (cell {}) is {value}: sums are finite and not negative", .k / 3)]
-    BadSum { k: usize, value: f32 },
+    BadSum {
+        /// The sum's index in the upload (cell `k / 3`, channel `k % 3`).
+        k: usize,
+        /// Its value.
+        value: f32,
+    },
+    /// The segment inflated in full ([`sampled_segment`]) is not what its
+    /// framing claims.
     #[error(transparent)]
     Inflate(#[from] InflateError),
+    /// The uploading worker did not register with [`PNG_ENCODER`], so its
+    /// segments may not be this coordinator's encoding.
     #[error(
         "worker {worker} did not register with this coordinator's PNG encoder \"{PNG_ENCODER}\""
     )]
-    Unregistered { worker: WorkerId },
+    Unregistered {
+        /// The worker.
+        worker: WorkerId,
+    },
 }
 
 /// Which of an upload's `count` segments is inflated in full: one per

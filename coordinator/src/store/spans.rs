@@ -14,12 +14,20 @@ use std::collections::HashMap;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Replayed<'a> {
     /// One tile's float pixels (the wire's little-endian f32 RGB).
-    Floats { tile: u32, bytes: &'a [u8] },
+    Floats {
+        /// The tile's index in the job's tiles (band order).
+        tile: u32,
+        /// `12 × pixels` bytes, row by row.
+        bytes: &'a [u8],
+    },
     /// A span's encoded segments, as [`Store::put_segment_span`] took them:
     /// `tiles` tiles from `first`.
     Segments {
+        /// The index of the span's first tile in the job's tiles.
         first: u32,
+        /// How many tiles the span covers.
         tiles: u32,
+        /// The stored record, as the farm encoded it (`farm::segments`).
         bytes: &'a [u8],
     },
 }

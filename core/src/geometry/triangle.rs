@@ -12,6 +12,7 @@ use glam::Vec3;
 /// A ray prepared for many triangle tests (the shear depends only on the ray).
 #[derive(Debug, Clone, Copy)]
 pub struct ShearedRay {
+    /// The ray's origin, subtracted from every vertex tested.
     pub origin: Vec3,
     pub(crate) kx: usize,
     pub(crate) ky: usize,
@@ -22,6 +23,8 @@ pub struct ShearedRay {
 }
 
 impl ShearedRay {
+    /// The shear of the ray `origin + t·dir` (`dir` non-zero, any length;
+    /// hits come back in units of that `dir`).
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
         let ad = dir.abs();
         let kz = if ad.x >= ad.y && ad.x >= ad.z {
@@ -56,8 +59,11 @@ impl ShearedRay {
 /// `(b−a)×(c−a)` faces).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TriangleHit {
+    /// The ray parameter of the hit, in `(0, t_max)`.
     pub t: f32,
+    /// The weights of vertices `a`, `b`, `c`, each in `[0, 1]`.
     pub bary: [f32; 3],
+    /// Whether the ray met the triangle's front face.
     pub front: bool,
 }
 

@@ -71,7 +71,9 @@ pub struct LightSample {
     /// The unit normal of the emitter at `y` (the front side for a
     /// triangle, outward for a sphere).
     pub n: Vec3,
+    /// The emitter's radiance Le, linear RGB (the same at every point).
     pub radiance: Vec3,
+    /// Whether the emitter emits on both sides; otherwise only towards `n`.
     pub two_sided: bool,
     /// Density of `y` per unit area.
     pub pdf_area: f32,
@@ -198,10 +200,12 @@ impl AreaLights {
         self.emitters.push(e);
     }
 
+    /// Whether the view has no emitter to sample (then nothing is).
     pub fn is_empty(&self) -> bool {
         self.emitters.is_empty()
     }
 
+    /// The number of emitters (a merged parallelogram counts once).
     pub fn len(&self) -> usize {
         self.emitters.len()
     }

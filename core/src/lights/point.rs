@@ -8,8 +8,11 @@ use glam::Vec3;
 /// `l` is the unit direction from `p` to the light; `dist` its distance.
 #[derive(Debug, Clone, Copy)]
 pub struct Incident {
+    /// The irradiance E reaching `p`, linear RGB, before any shadowing.
     pub e: Vec3,
+    /// The unit direction from `p` towards the light's position.
     pub l: Vec3,
+    /// The distance from `p` to the light's position, in scene units.
     pub dist: f32,
 }
 

@@ -52,6 +52,7 @@ impl MeshCounts {
 /// [`super::obj::ObjMaterials`] has them, without the per-triangle table).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ObjCounts {
+    /// The mesh's vertex and triangle counts.
     pub counts: MeshCounts,
     /// `mtllib` file names with the byte offset of each.
     pub libs: Vec<(String, usize)>,

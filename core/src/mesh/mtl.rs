@@ -25,17 +25,25 @@ use crate::error::SceneError;
 /// One `newmtl`: what it gave (absent values are `None`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Material {
+    /// The name after `newmtl` (what `usemtl` names), lossily UTF-8.
     pub name: String,
+    /// `Kd`: the diffuse colour, each component ≥ 0.
     pub kd: Option<Vec3>,
+    /// `Ka`: the ambient colour, each component ≥ 0.
     pub ka: Option<Vec3>,
+    /// `Ks`: the specular colour, each component ≥ 0.
     pub ks: Option<Vec3>,
+    /// `Ns`: the specular exponent (finite, unchecked otherwise).
     pub ns: Option<f32>,
     /// Opacity, from `d` or `1 − Tr`.
     pub d: Option<f32>,
+    /// `Ni`: the index of refraction (finite, unchecked otherwise).
     pub ni: Option<f32>,
+    /// `illum`: the MTL illumination model number.
     pub illum: Option<u32>,
     /// nvdiffrec's `bsdf`: its `Ks` is packed PBR parameters, not a colour.
     pub bsdf: bool,
+    /// `map_Kd`: the diffuse colour's texture.
     pub map_kd: Option<MapKd>,
 }
 
@@ -43,9 +51,16 @@ pub struct Material {
 /// and clamp.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MapKd {
+    /// The image file as written, relative to the `.mtl`'s folder (not yet
+    /// resolved or checked).
     pub file: String,
+    /// The byte offset of the file name in the `.mtl`, for errors about it.
     pub at: usize,
+    /// `-s u v`: texture coordinates are multiplied by it (1 1 without
+    /// `-s`; `-s u` is `u u`, a third value is ignored).
     pub scale: Vec2,
+    /// `-clamp on`: coordinates clamp to the image's edge instead of
+    /// repeating.
     pub clamp: bool,
 }
 

@@ -51,8 +51,12 @@ pub fn parse(file: &str, bytes: &[u8]) -> Result<Mesh, SceneError> {
 /// of the material it uses ([`NO_MATERIAL`] before any `usemtl`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ObjMaterials {
+    /// Each distinct `mtllib` file name, as written, with its byte offset.
     pub libs: Vec<(String, usize)>,
+    /// Each distinct `usemtl` name in order of first use, with the byte
+    /// offset of its first use.
     pub names: Vec<(String, usize)>,
+    /// Per triangle of the mesh, its index in `names`, or [`NO_MATERIAL`].
     pub triangle_material: Vec<u32>,
 }
 

@@ -92,22 +92,46 @@ pub fn max_segment_deflate_len(filtered_len: u64) -> u64 {
 /// have ([`check_segment`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SegmentError {
+    /// The index is past the image's last segment.
     #[error("segment {index} is not one of the image's {count} segments")]
-    NotInImage { index: u32, count: u32 },
+    NotInImage {
+        /// The segment's index.
+        index: u32,
+        /// The image's number of segments ([`segment_count`]).
+        count: u32,
+    },
+    /// The segment claims a filtered length other than its rows'.
     #[error("segment {index} holds {got} filtered bytes, not {expected}")]
-    FilteredLen { index: u32, got: u64, expected: u64 },
+    FilteredLen {
+        /// The segment's index.
+        index: u32,
+        /// [`PngSegment::filtered_len`] as given.
+        got: u64,
+        /// Its rows' filtered length ([`segment_filtered_len`]).
+        expected: u64,
+    },
+    /// More deflate bytes than this encoder can make of the rows.
     #[error(
         "segment {index} has {len} deflate bytes, more than the {most} its {filtered} \
          filtered bytes can take"
     )]
     TooLong {
+        /// The segment's index.
         index: u32,
+        /// Its deflate bytes' length.
         len: u64,
+        /// [`max_segment_deflate_len`] of its filtered length.
         most: u64,
+        /// Its filtered length.
         filtered: u64,
     },
+    /// The deflate bytes do not end in `00 00 FF FF`, so the next segment
+    /// cannot follow them.
     #[error("segment {index} does not end in a sync flush")]
-    NoSyncFlush { index: u32 },
+    NoSyncFlush {
+        /// The segment's index.
+        index: u32,
+    },
 }
 
 /// Checks the framing of `segment` as segment `index` of a `width` ×
@@ -154,17 +178,37 @@ pub fn check_segment(
 /// ([`whole_segments`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SegmentRectError {
+    /// The rect's rows end below the frame's bottom.
     #[error("rows {y}..+{h} are not in the {width}x{height} frame")]
     OutsideFrame {
+        /// The rect's first row.
         y: u32,
+        /// The rect's height in rows.
         h: u32,
+        /// The frame's width in pixels.
         width: u32,
+        /// The frame's height in pixels.
         height: u32,
     },
+    /// The rect does not span columns `0..width`.
     #[error("columns {x}..{end} are not the frame's full width {width}")]
-    NotFullWidth { x: u32, end: u32, width: u32 },
+    NotFullWidth {
+        /// The rect's first column.
+        x: u32,
+        /// The column after its last.
+        end: u32,
+        /// The frame's width in pixels.
+        width: u32,
+    },
+    /// The rect has no rows, or starts or ends inside a segment (other
+    /// than at the frame's bottom).
     #[error("rows {y}..{end} are not whole {SEGMENT_ROWS}-row segments")]
-    NotWholeSegments { y: u32, end: u32 },
+    NotWholeSegments {
+        /// The rect's first row.
+        y: u32,
+        /// The row after its last.
+        end: u32,
+    },
 }
 
 /// The segments `rect` of a `width` × `height` frame is, as (first, count),

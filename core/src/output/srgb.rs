@@ -40,6 +40,7 @@ impl Default for Srgb8 {
 }
 
 impl Srgb8 {
+    /// The encoder, its tables built on first use in the process.
     pub fn new() -> Srgb8 {
         Srgb8 {
             steps: thresholds(),

@@ -46,22 +46,57 @@ pub const MAX_STATE_PIXELS: u64 = 1 << 22;
 /// Why bytes are not a [`TileState`].
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum StateError {
+    /// Fewer bytes than a header.
     #[error("{len} bytes are shorter than the {HEADER_BYTES}-byte header")]
-    Short { len: usize },
+    Short {
+        /// The input's length.
+        len: usize,
+    },
+    /// The first four bytes are not [`MAGIC`].
     #[error("not an accumulation state (bad magic)")]
     Magic,
+    /// The header's version (given) is not [`VERSION`].
     #[error("version {0} of the accumulation state is not known (expected {VERSION})")]
     Version(u16),
+    /// A reserved header field is not zero.
     #[error("reserved header bytes are not zero")]
     Reserved,
+    /// The header's rectangle is empty, or its end column or row passes
+    /// `u32::MAX`.
     #[error("the rectangle {w}×{h} at ({x}, {y}) is empty or passes 2³² pixels")]
-    Rect { x: u32, y: u32, w: u32, h: u32 },
+    Rect {
+        /// The rectangle's first column.
+        x: u32,
+        /// Its first row.
+        y: u32,
+        /// Its width in pixels.
+        w: u32,
+        /// Its height in pixels.
+        h: u32,
+    },
+    /// The rectangle has more than [`MAX_STATE_PIXELS`] pixels.
     #[error("{pixels} pixels are more than the {MAX_STATE_PIXELS} a state may hold")]
-    TooLarge { pixels: u64 },
+    TooLarge {
+        /// Its pixel count.
+        pixels: u64,
+    },
+    /// The input is not exactly a header and the rectangle's pixels long.
     #[error("{got} bytes where the header says {expected}")]
-    Length { expected: u64, got: u64 },
+    Length {
+        /// The length the header implies.
+        expected: u64,
+        /// The input's length.
+        got: u64,
+    },
+    /// A pixel breaks an invariant of the integrator's state, so no render
+    /// left it.
     #[error("pixel {index}: {what}")]
-    Pixel { index: usize, what: &'static str },
+    Pixel {
+        /// The pixel's index, row by row in the rectangle.
+        index: usize,
+        /// Which invariant it breaks.
+        what: &'static str,
+    },
 }
 
 impl TileState {

@@ -211,7 +211,9 @@ pub fn parse_scene_str(scene: &str, text: &str, source: &dyn FileSource) -> Resu
 /// their files' headers.
 #[derive(Debug, Clone)]
 pub struct SceneHeaders {
+    /// The description, without meshes and textures.
     pub desc: SceneDesc,
+    /// The sizes of its meshes and textures, from their files' headers.
     pub sizes: AssetSizes,
 }
 

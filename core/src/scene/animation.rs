@@ -62,12 +62,14 @@ impl<const N: usize> Track<N> {
 }
 
 impl Track<3> {
+    /// The vector at `t` ([`Track::lerp`]).
     pub fn vec3(&self, t: f64) -> DVec3 {
         DVec3::from_array(self.lerp(t))
     }
 }
 
 impl Track<1> {
+    /// The number at `t` ([`Track::lerp`]).
     pub fn scalar(&self, t: f64) -> f64 {
         self.lerp(t)[0]
     }
@@ -99,7 +101,9 @@ impl Track<4> {
 pub struct ModelAnimation {
     /// Index into [`SceneDesc::models`].
     pub model: usize,
+    /// The static transform the keyed channels apply to (`static` above).
     pub base: DMat4,
+    /// The keyed translation, in scene units.
     pub translate: Option<Track<3>>,
     /// `x y z angle` (axis normalised, angle in degrees).
     pub rotate: Option<Track<4>>,
@@ -108,6 +112,7 @@ pub struct ModelAnimation {
 }
 
 impl ModelAnimation {
+    /// The model's object-to-world transform at time `t` (seconds).
     pub fn transform(&self, t: f64) -> DMat4 {
         let mut m = self.base;
         if let Some(s) = &self.scale {
@@ -135,11 +140,15 @@ pub struct CameraAnimation {
     pub lookat: Option<DVec3>,
     /// The camera has an explicit `focus` attribute.
     pub focus_given: bool,
+    /// The keyed eye position.
     pub position: Option<Track<3>>,
     /// Linear, then normalised.
     pub direction: Option<Track<3>>,
+    /// The keyed `lookat` point (only with `lookat`).
     pub lookat_keys: Option<Track<3>>,
+    /// The keyed horizontal field of view, in degrees.
     pub fov: Option<Track<1>>,
+    /// The keyed focus distance (each key > 0).
     pub focus: Option<Track<1>>,
 }
 
@@ -147,12 +156,18 @@ pub struct CameraAnimation {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("camera \"{camera}\" at t = {t} s: {problem}")]
 pub struct FrameError {
+    /// The camera's id.
     pub camera: String,
+    /// The time, in seconds.
     pub t: f64,
+    /// What is wrong with the camera then.
     pub problem: &'static str,
 }
 
 impl CameraAnimation {
+    /// The camera at time `t` (seconds); an error when the keys give no
+    /// camera there (the lookat point at the eye, a zero or up-parallel
+    /// view direction, a focus distance of 0).
     pub fn camera_at(&self, t: f64) -> Result<CameraDesc, FrameError> {
         let b = &self.base;
         let err = |problem| FrameError {
@@ -208,13 +223,16 @@ impl CameraAnimation {
 pub struct LightAnimation {
     /// Index into [`SceneDesc::lights`].
     pub light: usize,
+    /// The light as its attributes say (the unkeyed values).
     pub base: Light,
+    /// The keyed position.
     pub position: Option<Track<3>>,
     /// Each key ≥ 0.
     pub intensity: Option<Track<1>>,
 }
 
 impl LightAnimation {
+    /// The light at time `t` (seconds).
     pub fn light_at(&self, t: f64) -> Light {
         let b = &self.base;
         Light {
@@ -231,12 +249,17 @@ impl LightAnimation {
 /// Every keyed channel of a scene.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Animation {
+    /// The animated models, in document order.
     pub models: Vec<ModelAnimation>,
+    /// The animated cameras, in document order.
     pub cameras: Vec<CameraAnimation>,
+    /// The animated lights, in document order.
     pub lights: Vec<LightAnimation>,
 }
 
 impl Animation {
+    /// Whether nothing in the scene is keyed (the scene is the same at
+    /// every time).
     pub fn is_empty(&self) -> bool {
         self.models.is_empty() && self.cameras.is_empty() && self.lights.is_empty()
     }
@@ -260,7 +283,10 @@ impl Animation {
 /// The range of frames `<render frames="first-last" fps>` renders.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Frames {
+    /// The first frame rendered.
     pub first: u32,
+    /// The last frame rendered (included; `first..=last`, at most
+    /// [`MAX_FRAME`]).
     pub last: u32,
 }
 

@@ -44,7 +44,10 @@ impl Default for ReadLimits {
 #[derive(Debug, thiserror::Error)]
 #[error("\"{rel}\" takes the scene bundle past its limit of {limit} bytes (the scene and every file it references together)")]
 pub struct OverLimit {
+    /// The bundle-relative path of the file that passed the limit.
     pub rel: String,
+    /// The limit passed, in bytes (for all the files together, or for the
+    /// one file).
     pub limit: u64,
 }
 
@@ -61,6 +64,8 @@ pub struct OverLimit {
 /// [`DEFAULT_MAX_BUNDLE_BYTES`]; [`crate::Bundle::from_scene_file_with`]
 /// bounds the bundle as a whole.
 pub struct DirSource {
+    /// The scene's directory: bundle-relative paths are relative to it, and
+    /// no read leaves it.
     pub root: PathBuf,
 }
 
@@ -146,12 +151,18 @@ impl FileSource for DirSource {
 /// Why a file reference is not a usable bundle-relative path.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PathError {
+    /// The reference is `""`.
     #[error("empty file reference")]
     Empty,
+    /// The reference (given) starts at a root, a `/`, a `\` or a drive
+    /// prefix.
     #[error("file \"{0}\" is absolute; references must be relative to the scene's directory")]
     Absolute(String),
+    /// The reference (given) has more `..` than the folders above it, up to
+    /// the scene's directory.
     #[error("file \"{0}\" climbs out of the scene's directory")]
     ClimbsOut(String),
+    /// The reference (given) normalises to nothing, like `.` or `a/..`.
     #[error("file \"{0}\" names no file")]
     NamesNoFile(String),
 }

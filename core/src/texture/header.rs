@@ -38,8 +38,11 @@ pub const MAX_EXR_BLOCK_BYTES: u64 = 64 << 20;
 /// A texture file's format, recognised by its content.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ImageFormat {
+    /// PNG, 8 or 16 bits, sRGB-encoded.
     Png,
+    /// JPEG (baseline or progressive), sRGB-encoded.
     Jpeg,
+    /// OpenEXR, linear.
     Exr,
 }
 
@@ -47,7 +50,9 @@ pub enum ImageFormat {
 /// per part).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Part {
+    /// The image's width in pixels, as the header says (unchecked).
     pub width: u64,
+    /// Its height in pixels, as the header says (unchecked).
     pub height: u64,
     /// Channels of the part (OpenEXR only; 0 for PNG and JPEG).
     pub channels: usize,
@@ -65,6 +70,7 @@ pub struct Part {
 /// What a texture file's headers say.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TextureHeader {
+    /// The file's format, from its first bytes.
     pub format: ImageFormat,
     /// Every image of the file, in file order (at least one).
     pub parts: Vec<Part>,

@@ -24,7 +24,9 @@ pub const MAX_JPEG_SCANS: u32 = 64;
 /// What [`scan`] found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct JpegShape {
+    /// The frame's width in pixels, from its SOF segment.
     pub width: u32,
+    /// The frame's height in pixels, from its SOF segment.
     pub height: u32,
     /// SOS segments seen.
     pub scans: u32,
@@ -35,16 +37,32 @@ pub struct JpegShape {
 /// Why [`scan`] refused the bytes.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum JpegScanError {
+    /// The bytes do not start with `FF D8`.
     #[error("not a JPEG file (no SOI marker)")]
     NotJpeg,
+    /// A segment (at the byte offset given) runs past the end.
     #[error("truncated JPEG: the segment at byte {0} runs past the end of the file")]
     Truncated(usize),
+    /// A marker where none may be, or a segment that cannot be one.
     #[error("malformed JPEG: {what} at byte {at}")]
-    Malformed { what: &'static str, at: usize },
+    Malformed {
+        /// What was found.
+        what: &'static str,
+        /// Its byte offset in the file.
+        at: usize,
+    },
+    /// The markers end with no SOF segment.
     #[error("JPEG has no frame header (SOF) before its end")]
     NoFrame,
+    /// More scans than the caller's `max_scans`: refused at the first scan
+    /// past it.
     #[error("JPEG has more than {MAX_JPEG_SCANS} scans (the {nth}th starts at byte {at}); each scan costs a pass over the whole image when decoded")]
-    TooManyScans { nth: u32, at: usize },
+    TooManyScans {
+        /// The scan's number, from 1.
+        nth: u32,
+        /// The byte offset of its SOS marker.
+        at: usize,
+    },
 }
 
 /// Reads the markers of `b` (see the module's documentation), refusing a

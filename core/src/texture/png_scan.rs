@@ -19,11 +19,17 @@ pub fn max_idat_bytes(raw: u64) -> u64 {
 /// Why [`check`] refused a PNG.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PngScanError {
+    /// The IDAT chunks hold more than [`max_idat_bytes`] of the image's
+    /// inflated size.
     #[error("the PNG's image data (IDAT) is {idat} bytes, more than the {max} its {width} x {height} image can need compressed: inflating it would cost up to a thousand times that")]
     TooMuchData {
+        /// The IDAT chunks' data, in bytes, all together.
         idat: u64,
+        /// [`max_idat_bytes`] of the image's inflated size.
         max: u64,
+        /// The image's width in pixels, from its IHDR.
         width: u32,
+        /// Its height in pixels, from its IHDR.
         height: u32,
     },
 }

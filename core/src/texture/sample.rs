@@ -8,8 +8,10 @@ use glam::{Vec2, Vec3};
 /// extend.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Wrap {
+    /// Coordinates wrap around: the image tiles the plane (the default).
     #[default]
     Repeat,
+    /// Coordinates clamp to `[0, 1]`: the edge texels extend.
     Clamp,
 }
 

@@ -11,11 +11,13 @@
 /// One attribute an element accepts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Attribute {
+    /// The attribute's name, as written in the file.
     pub name: &'static str,
     /// The form of the value the reader accepts.
     pub ty: &'static str,
     /// The value when absent, [`REQUIRED`], or what absence means.
     pub default: &'static str,
+    /// What the value means, in a phrase (the reference's last column).
     pub meaning: &'static str,
     /// A Trevi extension of AISXML v1, documented in
     /// docs/aisxml-extensions.md rather than docs/aisxml.md.
@@ -61,8 +63,11 @@ pub(super) const fn extension(
 /// attributes are looked up in, and how the root's children are read.
 #[derive(Debug, Clone, Copy)]
 pub struct Element<R: 'static> {
+    /// The element's tag name.
     pub name: &'static str,
+    /// Its attribute table.
     pub attributes: &'static [Attribute],
+    /// The names of the elements it may hold.
     pub children: &'static [&'static str],
     /// Its content is text (whitespace-separated numbers), not elements.
     pub text: bool,
