@@ -149,7 +149,7 @@ fn run(args: Args) -> Result<()> {
             bail!(
                 "camera \"{}\" renders a sequence (the scene's frames=): --samples, --pass, \
                  --time-limit and --noise-target are for stills, the farm does not render \
-                 sequences progressively yet (add --camera for a still camera)",
+                 sequences progressively yet (drop those flags, or name a still camera with --camera)",
                 c.id
             );
         }

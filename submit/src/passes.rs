@@ -21,16 +21,17 @@ pub const MAX_TIME_LIMIT: Duration = Duration::from_secs(365 * 86400);
 #[derive(clap::Args, Debug, Clone, Default, PartialEq)]
 pub struct PassFlags {
     /// Samples per pixel in each pass (at least 1, at most --samples; default:
-    /// the coordinator's, from the scene's cost). Makes the job progressive.
+    /// the coordinator's, from the scene's cost). On a render: makes the job
+    /// progressive.
     #[arg(long, env = "TREVI_PASS", value_parser = pass_samples)]
     pub pass: Option<u32>,
     /// Start no new pass once the job has rendered this long (1s to 365d, like
-    /// 90s, 10m, 2h). Makes the job progressive.
+    /// 90s, 10m, 2h). On a render: makes the job progressive.
     #[arg(long = "time-limit", env = "TREVI_TIME_LIMIT", value_parser = time_limit)]
     pub time_limit: Option<Duration>,
     /// Stop after the first pass whose estimated relative error of the frame
-    /// is at most this: a number above 0 and below 1 (0.01: 1 %). Makes the
-    /// job progressive.
+    /// is at most this: a number above 0 and below 1 (0.01: 1 %). On a
+    /// render: makes the job progressive.
     #[arg(long = "noise-target", env = "TREVI_NOISE_TARGET", value_parser = noise_target)]
     pub noise_target: Option<f64>,
 }
