@@ -194,8 +194,13 @@ impl Client {
             } else {
                 String::new()
             };
+            // A progressive still: the samples it reached, its error, and
+            // why it stopped early if it did.
+            let passes = s.passes.as_ref().map_or(String::new(), |p| {
+                format!("; {}", crate::passes::describe(p))
+            });
             eprintln!(
-                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s){waited}",
+                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s){waited}{passes}",
                 s.camera,
                 s.width,
                 s.height,
