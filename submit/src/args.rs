@@ -2,8 +2,10 @@
 //! commands (clap's definitions), read by `main.rs` and `commands.rs`.
 
 use crate::client;
+use crate::passes::{self, PassFlags};
 use anyhow::{bail, Result};
-use clap::Parser;
+use clap::error::ErrorKind;
+use clap::{CommandFactory, Parser};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -70,6 +72,15 @@ pub struct Args {
     /// (at most 512 pixels a side, updated about once a second).
     #[arg(long, env = "TREVI_PREVIEW")]
     pub preview: Option<PathBuf>,
+    /// Render this many samples per pixel (1 to 1048576) instead of the
+    /// scene's, progressively: in passes over the whole frame, the output
+    /// rewritten after each, extendable later (`trevi-submit extend`). This,
+    /// --pass, --time-limit or --noise-target makes a still progressive (not
+    /// a sequence yet: not with --frames).
+    #[arg(long, env = "TREVI_SAMPLES", value_parser = passes::samples)]
+    pub samples: Option<u32>,
+    #[command(flatten)]
+    pub passes: PassFlags,
 }
 
 /// How to reach a farm's coordinator: the flags every farm command shares.
@@ -165,6 +176,73 @@ pub enum Command {
         #[command(flatten)]
         farm: Farm,
     },
+    /// Add samples per pixel to a finished progressive job (one rendered with
+    /// --samples): it runs again from where it stopped, its output replaced
+    /// after every new pass. Needs --coordinator: the job of a local render
+    /// ends with its process.
+    Extend {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// Samples per pixel to add (1 to 1048576; the job's new total must
+        /// stay within 1048576 too).
+        #[arg(long, value_parser = passes::samples)]
+        samples: u32,
+        #[command(flatten)]
+        passes: PassFlags,
+        /// Follow the job until its new passes end, showing progress, then
+        /// download its image (as `wait`).
+        #[arg(long)]
+        wait: bool,
+        /// With --wait: where to write the image (as for `fetch`).
+        #[arg(short = 'o', long = "output", requires = "wait")]
+        output: Option<PathBuf>,
+        /// No progress output.
+        #[arg(short, long, env = "TREVI_QUIET")]
+        quiet: bool,
+        #[command(flatten)]
+        farm: Farm,
+    },
+}
+
+impl Args {
+    /// The command line, with the rules across flags checked as clap checks
+    /// each flag's own: a wrong one ends the process with clap's message and
+    /// exit status 2, before anything is read or uploaded.
+    pub fn parse_checked() -> Args {
+        let args = Args::parse();
+        if let Err(e) = args.check() {
+            e.exit();
+        }
+        args
+    }
+
+    /// The rules across flags: a pass no larger than the samples; a
+    /// progressive render only of stills.
+    pub fn check(&self) -> Result<(), clap::Error> {
+        let (samples, flags) = match &self.command {
+            Some(Command::Extend {
+                samples, passes, ..
+            }) => (Some(*samples), passes),
+            Some(_) => return Ok(()),
+            None => (self.samples, &self.passes),
+        };
+        passes::check(samples, flags)
+            .map_err(|m| Args::command().error(ErrorKind::ValueValidation, m))?;
+        if self.command.is_none() && self.frames.is_some() && self.progressive().is_some() {
+            return Err(Args::command().error(
+                ErrorKind::ArgumentConflict,
+                "--samples, --pass, --time-limit and --noise-target render a still \
+                 progressively: the farm does not render sequences progressively yet \
+                 (drop --frames, or those flags)",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The render's `SubmitJobRequest.progressive` (see [`passes::progressive`]).
+    pub fn progressive(&self) -> Option<trevi_proto::pb::Progressive> {
+        passes::progressive(self.samples, &self.passes)
+    }
 }
 
 impl Command {
@@ -174,7 +252,8 @@ impl Command {
             | Command::List { farm, .. }
             | Command::Cancel { farm, .. }
             | Command::Fetch { farm, .. }
-            | Command::Wait { farm, .. } => farm,
+            | Command::Wait { farm, .. }
+            | Command::Extend { farm, .. } => farm,
         }
     }
 }
@@ -221,3 +300,6 @@ pub fn tile_edge(s: &str) -> Result<u32, String> {
         Err(e) => Err(e.to_string()),
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -8,7 +8,9 @@ use std::path::Path;
 use trevi_proto::pb;
 
 /// The subcommands, for suggestions (`wait` also answers to `attach`).
-pub const SUBCOMMANDS: [&str; 6] = ["status", "list", "cancel", "fetch", "wait", "attach"];
+pub const SUBCOMMANDS: [&str; 7] = [
+    "status", "list", "cancel", "fetch", "wait", "extend", "attach",
+];
 
 /// A scene argument that is no file and does not look like a scene (no
 /// `.xml`, no directory): most likely a mistyped subcommand. Returns the
@@ -37,7 +39,7 @@ pub fn mistyped_subcommand(arg: &Path) -> Option<String> {
         ),
         None => format!(
             "\"{text}\" is neither a scene file nor a subcommand ({}); see --help",
-            SUBCOMMANDS[..5].join(", ")
+            SUBCOMMANDS[..6].join(", ")
         ),
     })
 }
@@ -85,7 +87,9 @@ pub fn seconds(ms: u64) -> String {
 }
 
 /// One job of `list`: its id first (scripts read it), the columns of
-/// [`list_header`], then a sequence's frames and an error if any.
+/// [`list_header`], then a sequence's frames, a progressive job's samples
+/// per pixel (`spp 16/64`: in the output and asked for) and an error if
+/// any.
 pub fn list_row(s: &pb::JobStatus) -> String {
     let mut line = format!(
         "{:>6}  {:<9}  {:<16}  {:<12}  {:>11}  {:>13}  {:>8}  {:>9}  {:>9}  {:<15}  {:<12}  {}",
@@ -107,6 +111,9 @@ pub fn list_row(s: &pb::JobStatus) -> String {
             "  frames {}-{}: {} done",
             f.first, f.last, s.frames_done
         ));
+    }
+    if let Some(p) = &s.passes {
+        line.push_str(&format!("  spp {}", crate::passes::spp(p)));
     }
     if !s.error.is_empty() {
         line.push_str(&format!("  error: {}", s.error));
@@ -282,5 +289,22 @@ mod tests {
         assert_eq!(end(&h, "QUEUED"), end(&r, "2.5 s"));
         assert_eq!(end(&h, "RENDER"), end(&r, "12.0 s"));
         assert_eq!(r.split_whitespace().next(), Some("7"));
+    }
+
+    #[test]
+    fn a_progressive_job_s_row_ends_with_its_samples() {
+        let mut s = pb::JobStatus {
+            id: 7,
+            output_name: "a.png".into(),
+            ..Default::default()
+        };
+        let plain = list_row(&s);
+        assert!(!plain.contains("spp"), "{plain}");
+        s.passes = Some(pb::PassesInfo {
+            samples_done: 16,
+            samples_total: 64,
+            ..Default::default()
+        });
+        assert_eq!(list_row(&s), format!("{plain}  spp 16/64"));
     }
 }

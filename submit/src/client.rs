@@ -1,6 +1,6 @@
 //! The client of a coordinator: upload a bundle, submit jobs (stills and
 //! sequences alike), watch them, download their outputs; and `status`,
-//! `list`, `cancel`, `fetch`.
+//! `list`, `cancel`, `fetch`, `extend`.
 //!
 //! It drives a farm's coordinator and the one embedded in `trevi-submit`
 //! for a local render (see `local.rs`) alike, so both produce the same
@@ -19,7 +19,7 @@ mod submit;
 mod upload;
 mod watch;
 
-pub use submit::Target;
+pub use submit::{JobSpec, Target};
 pub use upload::Encoded;
 
 /// A connection to a coordinator.
@@ -69,8 +69,52 @@ pub fn describe(s: &pb::JobStatus) -> String {
             ));
         }
     }
+    if let Some(p) = &s.passes {
+        line.push_str(&format!("  {}", crate::passes::describe(p)));
+    }
     if !s.error.is_empty() {
         line.push_str(&format!("  error: {}", s.error));
     }
     line
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_progressive_job_s_status_shows_its_passes() {
+        let mut s = pb::JobStatus {
+            id: 4,
+            error: "x".into(),
+            ..Default::default()
+        };
+        let plain = describe(&s);
+        assert!(!plain.contains("samples per pixel"), "{plain}");
+        s.passes = Some(pb::PassesInfo {
+            done: 3,
+            samples_done: 12,
+            samples_total: 64,
+            error: Some(0.021),
+            pass: 4,
+            stopped_by: "time limit".into(),
+            ..Default::default()
+        });
+        let line = describe(&s);
+        assert!(
+            line.contains(
+                "  pass 3, 12 of 64 samples per pixel, estimated error 2.1%, \
+                 stopped by the time limit  error: x"
+            ),
+            "{line}"
+        );
+        assert_eq!(
+            line.replace(
+                "  pass 3, 12 of 64 samples per pixel, estimated error 2.1%, \
+                 stopped by the time limit",
+                ""
+            ),
+            plain
+        );
+    }
 }

@@ -1,14 +1,18 @@
-//! The farm commands: `status`, `list`, `cancel`, `fetch` and `wait` (also
+//! The farm commands: `status`, `list`, `cancel`, `fetch`, `wait` (also
 //! `attach`: follow a job to its end and download its output, as the
-//! submission would have).
+//! submission would have) and `extend` (more samples for a progressive
+//! job; with `--wait`, followed as `wait` does).
 
 use anyhow::{bail, Result};
 use std::io::IsTerminal;
 
+use std::path::Path;
+
 use crate::args::Command;
 use crate::cli::{self, LeftRunning};
-use crate::client;
+use crate::client::{self, Client};
 use crate::local;
+use crate::passes;
 use crate::progress::Progress;
 
 pub async fn run(cmd: Command) -> Result<()> {
@@ -65,31 +69,57 @@ pub async fn run(cmd: Command) -> Result<()> {
         }
         Command::Wait {
             id, output, quiet, ..
+        } => return wait(&mut client, id, output.as_deref(), quiet, &url).await,
+        Command::Extend {
+            id,
+            samples,
+            passes,
+            wait: follow,
+            output,
+            quiet,
+            ..
         } => {
-            let progress = Progress::choose(quiet);
-            let mut signals = local::Signals::catch()?;
-            let work = async {
-                let end = client.watch(id, progress).await?;
-                let (out, s) = client.fetch(id, output.as_deref()).await?;
-                if !quiet {
-                    eprintln!(
-                        "job {id} {}: camera {}, {}x{} -> {}",
-                        end.state().label(),
-                        s.camera,
-                        s.width,
-                        s.height,
-                        out.display()
-                    );
-                }
-                anyhow::Ok(())
-            };
-            tokio::select! {
-                r = work => return r,
-                sig = signals.next() => {
-                    return Err(anyhow::Error::new(LeftRunning::new(sig, &[id], &url)));
-                }
+            let s = client
+                .extend(passes::extend_request(id, samples, &passes))
+                .await?;
+            println!("{}", client::describe(&s));
+            if follow {
+                return wait(&mut client, id, output.as_deref(), quiet, &url).await;
             }
         }
     }
     Ok(())
+}
+
+/// `wait`: follows job `id` to its end with the progress display (none with
+/// `quiet`), then downloads its output to `output` as `fetch` does. A
+/// signal stops only the following: the job goes on.
+async fn wait(
+    client: &mut Client,
+    id: u64,
+    output: Option<&Path>,
+    quiet: bool,
+    url: &str,
+) -> Result<()> {
+    let progress = Progress::choose(quiet);
+    let mut signals = local::Signals::catch()?;
+    let work = async {
+        let end = client.watch(id, progress).await?;
+        let (out, s) = client.fetch(id, output).await?;
+        if !quiet {
+            eprintln!(
+                "job {id} {}: camera {}, {}x{} -> {}",
+                end.state().label(),
+                s.camera,
+                s.width,
+                s.height,
+                out.display()
+            );
+        }
+        anyhow::Ok(())
+    };
+    tokio::select! {
+        r = work => r,
+        sig = signals.next() => Err(anyhow::Error::new(LeftRunning::new(sig, &[id], url))),
+    }
 }

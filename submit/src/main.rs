@@ -5,8 +5,9 @@
 //! sequence for a camera with frames. With `--coordinator URL` the frames
 //! are rendered on a farm; without it, by a coordinator and a worker
 //! embedded in this process with every core, through the same client code.
-//! `trevi-submit status|list|cancel|fetch|wait` manage a farm's jobs
-//! (commands.rs).
+//! `trevi-submit status|list|cancel|fetch|wait|extend` manage a farm's
+//! jobs (commands.rs). `--samples`, `--pass`, `--time-limit` and
+//! `--noise-target` make a still progressive (passes.rs).
 //!
 //! The output's format follows its name (`-o FILE`, else the camera's
 //! `output`): `.png` or `.exr`, anything else is refused before rendering.
@@ -22,16 +23,16 @@ mod cli;
 mod client;
 mod commands;
 mod local;
+mod passes;
 mod progress;
 mod sequence;
 
 use anyhow::{bail, Context, Result};
 use args::Args;
-use clap::Parser;
 use std::path::PathBuf;
 
 fn main() {
-    let args = Args::parse();
+    let args = Args::parse_checked();
     if let (None, Some(scene)) = (&args.command, &args.scene) {
         if let Some(msg) = cli::mistyped_subcommand(scene) {
             eprintln!("trevi-submit: error: {msg}");
@@ -86,7 +87,9 @@ fn run(args: Args) -> Result<()> {
     // farm submission says what it leaves running.
     let mut signals = runtime.block_on(async { local::Signals::catch() })?;
     let Some(scene_path) = args.scene.clone() else {
-        bail!("name a scene file (or one of status, list, cancel, fetch, wait); see --help");
+        bail!(
+            "name a scene file (or one of status, list, cancel, fetch, wait, extend); see --help"
+        );
     };
     if args.detach && args.coordinator.is_none() {
         bail!("--detach needs --coordinator URL: the embedded farm ends with this process");
@@ -128,6 +131,12 @@ fn run(args: Args) -> Result<()> {
     // Every output is checked (format, pattern, not a device or directory)
     // before anything renders. A camera with frames (its own, or --frames)
     // renders a sequence, the others a still, in one run: the stills first.
+    let progressive = args.progressive();
+    let job = client::JobSpec {
+        priority: args.priority,
+        tile_size: args.tile_size,
+        progressive,
+    };
     let mut targets = Vec::new();
     for &cam in &cameras {
         let c = &desc.cameras[cam];
@@ -136,6 +145,14 @@ fn run(args: Args) -> Result<()> {
             None => scene_dir.join(&c.render.output),
         };
         let frames = args.frames.or(c.render.frames);
+        if frames.is_some() && progressive.is_some() {
+            bail!(
+                "camera \"{}\" renders a sequence (the scene's frames=): --samples, --pass, \
+                 --time-limit and --noise-target are for stills, the farm does not render \
+                 sequences progressively yet (drop those flags, or name a still camera with --camera)",
+                c.id
+            );
+        }
         targets.push(
             client::Target::new(c.id.clone(), out, frames)
                 .with_context(|| format!("camera \"{}\"", c.id))?,
@@ -147,14 +164,7 @@ fn run(args: Args) -> Result<()> {
             drop(desc);
             let mut client = args.auth.connect(url).await?;
             client.preview = args.preview.clone();
-            let work = client.render(
-                &bundle,
-                &targets,
-                args.priority,
-                args.tile_size,
-                args.detach,
-                progress,
-            );
+            let work = client.render(&bundle, &targets, &job, args.detach, progress);
             let signal = tokio::select! {
                 r = work => return r,
                 sig = signals.next() => sig,
@@ -176,14 +186,7 @@ fn run(args: Args) -> Result<()> {
             client.announce = false;
             client.preview = args.preview.clone();
             client
-                .render(
-                    &bundle,
-                    &targets,
-                    args.priority,
-                    args.tile_size,
-                    false,
-                    progress,
-                )
+                .render(&bundle, &targets, &job, false, progress)
                 .await
         };
         // A signal drops the render, and with it the half-written output

@@ -1,7 +1,9 @@
-//! How a job's progress is shown while it is followed: a still's tiles, or
-//! a sequence's frames done and its current frame's share, with an ETA; as
-//! a bar at a terminal, as a line every 10 % (a still) or every frame (a
-//! sequence) otherwise, or not at all (`-q`).
+//! How a job's progress is shown while it is followed: a still's tiles, a
+//! progressive still's passes (the current pass's tiles, the samples per
+//! pixel and the estimated error), or a sequence's frames done and its
+//! current frame's share, with an ETA; as a bar at a terminal, as a line
+//! every 10 % (a still), every pass (a progressive still) or every frame
+//! (a sequence) otherwise, or not at all (`-q`).
 
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
@@ -55,6 +57,9 @@ impl ProgressView {
             return self.show_frames(s, f, secs);
         }
         let rate = s.rays as f64 / secs.max(1e-9) / 1e6;
+        if let Some(p) = &s.passes {
+            return self.show_passes(s, p, secs, rate);
+        }
         let eta = eta(s, secs);
         match self.mode {
             Progress::Quiet => {}
@@ -125,6 +130,40 @@ impl ProgressView {
         }
     }
 
+    /// A progressive still: the current pass's tiles on the bar, the samples
+    /// per pixel and the error beside it; a line at each pass completed.
+    fn show_passes(&mut self, s: &pb::JobStatus, p: &pb::PassesInfo, secs: f64, rate: f64) {
+        let eta = passes_eta(s, p, secs);
+        let mut said = pass_text(s, p);
+        match self.mode {
+            Progress::Quiet => {}
+            Progress::Bar => {
+                let bar = self.bar.get_or_insert_with(|| {
+                    let b = ProgressBar::new(s.tiles_total);
+                    b.set_style(
+                        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} tiles {msg}")
+                            .expect("static template")
+                            .progress_chars("=> "),
+                    );
+                    b.set_prefix(s.camera.clone());
+                    b
+                });
+                // Each pass counts its own tiles.
+                bar.set_length(s.tiles_total);
+                bar.set_position(s.tiles_done);
+                bar.set_message(format!("{said}, {rate:.2} M rays/s {eta}"));
+            }
+            Progress::Lines => {
+                let done = u64::from(p.done);
+                if self.last_pct != Some(done) {
+                    self.last_pct = Some(done);
+                    said.push_str(&format!(", {rate:.2} M rays/s, {eta}"));
+                    eprintln!("{}: {said}", s.camera);
+                }
+            }
+        }
+    }
+
     /// Clears the bar, if any: the job has ended or is no longer followed.
     pub fn done(&mut self) {
         if let Some(b) = self.bar.take() {
@@ -141,6 +180,55 @@ fn eta(s: &pb::JobStatus, secs: f64) -> String {
     } else {
         "ETA -".to_string()
     }
+}
+
+/// A progressive still's passes for the progress display: the pass
+/// rendering now (or the last one, once it ended), the samples per pixel
+/// in the output and asked for, the estimated error, why it stopped early.
+fn pass_text(s: &pb::JobStatus, p: &pb::PassesInfo) -> String {
+    let running = !s.state().is_final() && p.samples_done < p.samples_total;
+    let mut t = if running {
+        format!(
+            "pass {}, {}/{} spp done",
+            p.done + 1,
+            p.samples_done,
+            p.samples_total
+        )
+    } else {
+        format!(
+            "pass {}, {}/{} spp",
+            p.done, p.samples_done, p.samples_total
+        )
+    };
+    if let Some(e) = p.error {
+        t.push_str(&format!(", error {}", crate::passes::percent(e)));
+    }
+    if let Some(why) = crate::passes::stopped_by(p) {
+        t.push_str(&format!(", {why}"));
+    }
+    t
+}
+
+/// The time left of a progressive still: the samples left at the pace of
+/// those rendered in `secs` (the current pass's share counted by its
+/// tiles), no later than the end of the pass that runs when the time
+/// limit comes. A noise target may stop it sooner.
+fn passes_eta(s: &pb::JobStatus, p: &pb::PassesInfo, secs: f64) -> String {
+    let total = f64::from(p.samples_total);
+    let this_pass = f64::from(p.pass.min(p.samples_total.saturating_sub(p.samples_done)));
+    let share = s.tiles_done as f64 / s.tiles_total.max(1) as f64;
+    let rendered = f64::from(p.samples_done) + this_pass * share;
+    if rendered <= 0.0 || rendered >= total || s.state().is_final() {
+        return "ETA -".to_string();
+    }
+    let per_sample = secs / rendered;
+    let mut left = per_sample * (total - rendered);
+    if p.time_limit_ms > 0 {
+        let to_limit = (p.time_limit_ms as f64 / 1e3 - secs).max(0.0);
+        let pass_left = per_sample * this_pass * (1.0 - share);
+        left = left.min(to_limit.max(pass_left));
+    }
+    format!("ETA {left:.0} s")
 }
 
 #[cfg(test)]

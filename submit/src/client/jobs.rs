@@ -1,7 +1,7 @@
 //! A farm's jobs as they stand: one job's status, the list of them (every
-//! page, by id) and cancelling one.
+//! page, by id), cancelling one, and extending a progressive one.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use trevi_proto::pb;
 
 use super::connect::status_error;
@@ -55,6 +55,19 @@ impl Client {
             .cancel_job(pb::JobId { id, frame: None })
             .await
             .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// Adds samples to finished progressive job `id` (see
+    /// [`crate::passes::extend_request`]); returns its status after.
+    pub async fn extend(&mut self, request: pb::ExtendJobRequest) -> Result<pb::JobStatus> {
+        let id = request.id;
+        Ok(self
+            .jobs
+            .extend_job(request)
+            .await
+            .map_err(status_error)
+            .with_context(|| format!("the coordinator did not extend job {id}"))?
             .into_inner())
     }
 }

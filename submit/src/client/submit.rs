@@ -24,6 +24,18 @@ pub enum Output {
     Sequence(Sequence),
 }
 
+/// What every job of a submission asks of the farm besides its camera.
+#[derive(Debug, Clone, Default)]
+pub struct JobSpec {
+    /// Higher runs first.
+    pub priority: i32,
+    /// Tile edge in pixels.
+    pub tile_size: u32,
+    /// Set for a progressive still (`--samples`, `--pass`, `--time-limit`,
+    /// `--noise-target`; see `passes.rs`).
+    pub progressive: Option<pb::Progressive>,
+}
+
 /// One camera to render and where its output goes.
 pub struct Target {
     pub camera: String,
@@ -68,6 +80,22 @@ impl Target {
             Output::Sequence(seq) => Some(seq.frames),
         }
     }
+
+    /// The request that submits this camera of bundle `bundle_hash` as `job`.
+    pub fn request(&self, bundle_hash: &str, job: &JobSpec) -> pb::SubmitJobRequest {
+        pb::SubmitJobRequest {
+            bundle_hash: bundle_hash.to_string(),
+            camera: self.camera.clone(),
+            priority: job.priority,
+            tile_size: job.tile_size,
+            output_format: self.format.extension().to_string(),
+            frames: self.frames().map(|f| pb::FrameRange {
+                first: f.first,
+                last: f.last,
+            }),
+            progressive: job.progressive,
+        }
+    }
 }
 
 impl Client {
@@ -77,25 +105,17 @@ impl Client {
         &mut self,
         bundle_hash: &str,
         target: &Target,
-        priority: i32,
-        tile_size: u32,
+        job: &JobSpec,
     ) -> Result<pb::JobStatus> {
-        let frames = target.frames().map(|f| pb::FrameRange {
-            first: f.first,
-            last: f.last,
-        });
-        let what = if frames.is_some() { "'s sequence" } else { "" };
+        let request = target.request(bundle_hash, job);
+        let what = if request.frames.is_some() {
+            "'s sequence"
+        } else {
+            ""
+        };
         Ok(self
             .jobs
-            .submit_job(pb::SubmitJobRequest {
-                bundle_hash: bundle_hash.to_string(),
-                camera: target.camera.clone(),
-                priority,
-                tile_size,
-                output_format: target.format.extension().to_string(),
-                frames,
-                progressive: None,
-            })
+            .submit_job(request)
             .await
             .map_err(status_error)
             .with_context(|| format!("the coordinator refused camera \"{}\"{what}", target.camera))?
@@ -109,15 +129,14 @@ impl Client {
         &mut self,
         bundle: &Encoded,
         targets: &[Target],
-        priority: i32,
-        tile_size: u32,
+        job: &JobSpec,
         detach: bool,
         progress: Progress,
     ) -> Result<()> {
         let hash = self.upload(bundle).await?;
         let mut jobs = Vec::new();
         for t in targets {
-            let s = self.submit(&hash, t, priority, tile_size).await?;
+            let s = self.submit(&hash, t, job).await?;
             self.submitted.push(s.id);
             let say = self.announce && progress != Progress::Quiet;
             match t.frames() {
@@ -175,8 +194,13 @@ impl Client {
             } else {
                 String::new()
             };
+            // A progressive still: the samples it reached, its error, and
+            // why it stopped early if it did.
+            let passes = s.passes.as_ref().map_or(String::new(), |p| {
+                format!("; {}", crate::passes::describe(p))
+            });
             eprintln!(
-                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s){waited}",
+                "{}: {}x{} -> {} in {:.2} s, {:.1} M rays ({:.2} M rays/s){waited}{passes}",
                 s.camera,
                 s.width,
                 s.height,

@@ -25,3 +25,25 @@ fn each_kind_follows_its_rule_for_hash() {
     let e = Target::new("a".into(), PathBuf::from("a.#.tga"), frames).err();
     assert!(e.is_some(), "an unknown format is refused");
 }
+
+#[test]
+fn the_request_carries_the_job_s_settings() {
+    let still = Target::new("a".into(), PathBuf::from("a.png"), None).unwrap();
+    let progressive = Some(pb::Progressive {
+        samples: 64,
+        pass: 8,
+        ..Default::default()
+    });
+    let job = JobSpec {
+        priority: 3,
+        tile_size: 32,
+        progressive,
+    };
+    let r = still.request("h", &job);
+    assert_eq!(r.progressive, progressive);
+    assert_eq!((r.bundle_hash.as_str(), r.camera.as_str()), ("h", "a"));
+    assert_eq!((r.priority, r.tile_size, r.frames), (3, 32, None));
+    assert_eq!(r.output_format, "png");
+    let plain = still.request("h", &JobSpec::default());
+    assert_eq!(plain.progressive, None);
+}
