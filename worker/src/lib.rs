@@ -65,6 +65,7 @@ mod error;
 mod lease;
 mod machine;
 pub mod memory;
+mod pass;
 pub mod pause;
 pub mod priority;
 mod render;
@@ -85,4 +86,4 @@ pub use priority::Priority;
 pub use run::run;
 #[cfg(feature = "test-hooks")]
 pub use test_hooks::{TestFault, ABORT_ON_TILE, PANIC_ON_TILE};
-pub use upload::{segment_messages, tile_messages, Rendered};
+pub use upload::{segment_messages, state_messages, tile_messages, Rendered};
