@@ -267,4 +267,6 @@ pub(crate) fn render_pass(
 }
 
 #[cfg(test)]
+mod fetch_tests;
+#[cfg(test)]
 mod tests;
