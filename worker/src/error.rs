@@ -2,6 +2,7 @@
 //! cannot be loaded ([`SceneLoadError`]).
 
 use crate::memory::MaxMemory;
+use trevi_core::scene::estimate::human_bytes;
 
 /// Why [`run`](fn@crate::run) could not start or had to give up.
 #[derive(Debug, thiserror::Error)]
@@ -43,11 +44,32 @@ pub enum SceneLoadError {
     /// The blocking task that builds the scene panicked or was cancelled.
     #[error(transparent)]
     Task(#[from] tokio::task::JoinError),
-    /// The scene's estimate exceeds the worker's `--max-memory`: not built.
-    #[error("the scene needs about {} of memory, more than --max-memory {}",
-        trevi_core::scene::estimate::human_bytes(*.needs), trevi_core::scene::estimate::human_bytes(.limit.0))]
-    TooBig { needs: u64, limit: MaxMemory },
+    /// The scene's estimate (with a pass's accumulation state, `state`
+    /// bytes of `needs`, see [`crate::memory::pass_state_bytes`]) exceeds
+    /// the worker's `--max-memory`: not built.
+    #[error("the scene needs about {} of memory{}, more than --max-memory {}",
+        human_bytes(*.needs), with_state(*.state), human_bytes(.limit.0))]
+    TooBig {
+        needs: u64,
+        state: u64,
+        limit: MaxMemory,
+    },
     /// The scene cannot be moved to the lease's frame.
     #[error("cannot move the scene to the frame: {0}")]
     Frame(String),
+    /// The lease's pass names a camera the scene does not have.
+    #[error("the scene has no camera \"{0}\" to give the pass's samples")]
+    NoCamera(String),
+}
+
+/// The part of [`SceneLoadError::TooBig`]'s message for a pass's state.
+fn with_state(state: u64) -> String {
+    if state == 0 {
+        String::new()
+    } else {
+        format!(
+            " (the pass's accumulation state's {} included)",
+            human_bytes(state)
+        )
+    }
 }

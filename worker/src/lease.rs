@@ -5,6 +5,7 @@
 //! is bigger than `--max-memory`, [`crate::memory`]).
 
 use crate::memory;
+use crate::pass::Pass;
 use crate::render::TileEnd;
 use crate::session::{reconnect, span_ids, End, Me, Session};
 use crate::upload::Rendered;
@@ -70,15 +71,33 @@ impl Session {
                     continue;
                 }
             };
+            // A pass of a progressive job: its range and rect checked first.
+            let pass = lease
+                .samples
+                .map(|r| Pass::check(lease.lease_id, rect, r))
+                .transpose();
+            // What the lease needs: its scene, and a pass's state.
+            let needs = match pass {
+                Ok(Some(_)) => lease
+                    .memory_estimate
+                    .saturating_add(memory::pass_state_bytes(rect)),
+                _ => lease.memory_estimate,
+            };
             let end = if *shutdown.borrow() {
                 TileEnd::Stopped
             } else if self.paused.borrow().is_some() {
                 TileEnd::Paused
-            } else if !self.max_memory.allows(lease.memory_estimate) {
-                // The coordinator's estimate says no: not even downloaded.
-                TileEnd::Declined(lease.memory_estimate)
             } else {
-                self.tile(&me, &lease, rect, beat, &mut shutdown).await
+                match pass {
+                    Err(e) => TileEnd::Failed(e.to_string()),
+                    // The coordinator's estimate (and the state) says no:
+                    // not even downloaded.
+                    Ok(_) if !self.max_memory.allows(needs) => TileEnd::Declined(needs),
+                    Ok(pass) => {
+                        self.tile(&me, &lease, rect, pass, beat, &mut shutdown)
+                            .await
+                    }
+                }
             };
             drop(permit);
             let (x, y, id) = (rect.x, rect.y, lease.lease_id);
@@ -144,6 +163,11 @@ impl Session {
                     for id in span_ids(&lease) {
                         self.decline(&me, id, needs).await;
                     }
+                }
+                TileEnd::Lost(s) => {
+                    // The connection (or the session) is gone: the lease
+                    // runs out on the coordinator, like the others.
+                    return reconnect("fetching a tile's state", s);
                 }
                 TileEnd::Failed(why) => {
                     tracing::error!(lease = id, job = lease.job_id, x, y, "tile failed: {why}");

@@ -1,4 +1,5 @@
-//! The Trevi worker: a stateless tile renderer around `trevi_core::render_tile`.
+//! The Trevi worker: a stateless tile renderer around `trevi_core::render_tile`
+//! (and `trevi_core::passes::TileState` for a progressive job's passes).
 //!
 //! [`run`](fn@run) loops: connect (with exponential backoff), register, lease a tile,
 //! fetch its scene bundle by hash (verifying the SHA-256, keeping the last few
@@ -20,6 +21,16 @@
 //! and non-negative fails the lease, which goes back with an error naming
 //! it) and encodes the segments on the render threads.
 //!
+//! A lease with `samples` is a pass of a progressive job (`pass.rs`,
+//! docs/progressive.md): the worker renders its sample range
+//! on the rect's accumulation state (a new one when the range starts at 0,
+//! otherwise fetched with `FetchState`, at most the state's encoded length
+//! and checked: its rect and `next` are the lease's), under the job's own
+//! samples per pixel when it has one (the scene kept apart in the cache),
+//! and uploads the finished pixels (floats or segments) followed by the new
+//! state. A pass stopped midway uploads nothing: the worker loses at most
+//! that pass of that lease.
+//!
 //! A lease is held only by a tile being worked on: a loop takes the render
 //! threads before it asks for a lease, so no tile waits behind another while
 //! its lease is kept alive. A render stops within a pixel once its lease is
@@ -34,7 +45,8 @@
 //!
 //! A scene whose estimated size exceeds the worker's memory limit
 //! ([`memory`], `--max-memory`) is declined, not built: the coordinator
-//! learns the limit at registration and leases such jobs elsewhere.
+//! learns the limit at registration and leases such jobs elsewhere. A
+//! pass's accumulation state (64 bytes a pixel, twice) counts with it.
 //!
 //! # Where things are
 //!
@@ -44,10 +56,11 @@
 //! | `run.rs` | [`run`](fn@run): the render threads, connecting (and again, with backoff), registering |
 //! | `session.rs` | what one session's loops share, and how a session ends |
 //! | `lease.rs` | a loop: lease a tile, then upload it, give it back or decline it |
-//! | `render.rs` | rendering a leased tile while heartbeating its lease; stopping it |
-//! | `scene_cache.rs` | the built scenes kept between leases (stills' and frames') |
-//! | `scene_load.rs` | a lease's scene: from the cache, or downloaded, checked, built, moved to its frame |
-//! | `upload.rs` | a rendered tile's upload: floats, or PNG segments and preview sums |
+//! | `render.rs` | rendering a leased tile (or a pass on its state) while heartbeating its lease; stopping it |
+//! | `scene_cache.rs` | the built scenes kept between leases (stills' and frames', by their samples too) |
+//! | `scene_load.rs` | a lease's scene: from the cache, or downloaded, checked, built, moved to its frame, given a pass's samples |
+//! | `upload.rs` | a rendered tile's upload: floats, or PNG segments and preview sums; a pass's state after them |
+//! | `pass.rs` | a progressive job's pass (`Lease.samples`): the range checked, the state fetched (bounded) and checked, the range rendered on it |
 //! | [`segments`] | checking and encoding a lease's pixels as PNG segments |
 //! | [`pause`] | when a worker pauses: the load and active-hours rules |
 //! | `machine.rs` | the machine watcher: samples the machine, publishes and reports the pause |
@@ -65,6 +78,7 @@ mod error;
 mod lease;
 mod machine;
 pub mod memory;
+mod pass;
 pub mod pause;
 pub mod priority;
 mod render;
@@ -85,4 +99,4 @@ pub use priority::Priority;
 pub use run::run;
 #[cfg(feature = "test-hooks")]
 pub use test_hooks::{TestFault, ABORT_ON_TILE, PANIC_ON_TILE};
-pub use upload::{segment_messages, tile_messages, Rendered};
+pub use upload::{segment_messages, state_messages, tile_messages, Rendered};

@@ -12,12 +12,21 @@
 //! before downloading the bundle when the lease carries the estimate, and
 //! otherwise after parsing it but before building.
 //!
+//! A pass of a progressive job (`Lease.samples`, `crate::pass`) also holds
+//! its rect's accumulation state, 64 bytes a pixel, at most twice at once
+//! ([`pass_state_bytes`]): the lease's check adds it to the scene's
+//! estimate, and so does the check before a build, so a pass lease is
+//! declined when scene and state together pass the limit (and the
+//! coordinator hears that sum as what the job needs).
+//!
 //! By default the limit is [`DEFAULT_SHARE`] of the machine's RAM
 //! (`MemTotal` in `/proc/meminfo`); where that cannot be read, no limit.
 
 use std::fmt;
 use std::str::FromStr;
+use trevi_core::passes::{HEADER_BYTES, PIXEL_BYTES};
 use trevi_core::scene::estimate::human_bytes;
+use trevi_core::Rect;
 
 /// The share of the machine's RAM a worker allows a scene by default.
 pub const DEFAULT_SHARE: f64 = 0.5;
@@ -45,6 +54,20 @@ impl MaxMemory {
     pub fn allows(self, bytes: u64) -> bool {
         self.0 == 0 || bytes <= self.0
     }
+}
+
+/// The most memory a pass lease of `rect` holds for its accumulation
+/// state: twice its encoding (`TileState::encoded_len`, 32 + 64 bytes a
+/// pixel), since a pass holds two copies at once at most: the fetched
+/// bytes and the decoded state, the state and the copy it renders on, the
+/// state and its encoding, the encoding and its upload chunks. Saturates
+/// rather than overflows for any rect.
+pub fn pass_state_bytes(rect: Rect) -> u64 {
+    let pixels = u64::from(rect.w) * u64::from(rect.h);
+    (PIXEL_BYTES as u64)
+        .saturating_mul(pixels)
+        .saturating_add(HEADER_BYTES as u64)
+        .saturating_mul(2)
 }
 
 /// `MemTotal` of a `/proc/meminfo` text, in bytes.

@@ -1,20 +1,25 @@
 //! Where a leased tile is rendered: its scene loaded ([`crate::scene_load`]),
 //! the rectangle rendered on the render threads (and, for a segment lease,
 //! checked and encoded there, [`crate::segments`]) while the lease is
-//! heartbeated. The render stops within a pixel when the coordinator drops
-//! the lease, the worker pauses or `shutdown` turns true; a render that
-//! panics becomes a failure of the tile, not of the worker.
+//! heartbeated. A pass of a progressive job (`Lease.samples`,
+//! [`crate::pass`]) fetches the state it continues (or starts a new one) and
+//! renders its range on it instead. The render (or the fetch) stops when the
+//! coordinator drops the lease, the worker pauses or `shutdown` turns true;
+//! a render that panics becomes a failure of the tile, not of the worker.
 
 use crate::error::SceneLoadError;
+use crate::memory;
+use crate::pass::{self, Pass, PassError};
 use crate::scene_cache::Key;
 use crate::segments;
 use crate::session::{span_ids, Me, Session};
-use crate::upload::Payload;
+use crate::upload::{Payload, Pixels};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::watch;
 use tonic::Code;
+use trevi_core::passes::TileState;
 use trevi_core::Rect;
 use trevi_proto::pb;
 
@@ -30,21 +35,61 @@ pub(crate) enum TileEnd {
     Stopped,
     /// The worker stepped aside (see [`crate::pause`]): the render was stopped.
     Paused,
-    /// The scene could not be loaded, or the render panicked.
+    /// The scene could not be loaded, the pass's state was refused, or the
+    /// render panicked.
     Failed(String),
+    /// Fetching the pass's state failed on the connection or the session
+    /// ([`pass::connection_lost`]): the session ends, as after the worker's
+    /// other calls.
+    Lost(tonic::Status),
     /// The scene needs about this many bytes, more than `--max-memory`:
     /// declined without building it (see [`crate::memory`]).
     Declined(u64),
 }
 
-/// Sets a render's cancellation flag when dropped, so a loop aborted midway
+/// A render's cancellation: the flag the render polls, and the same news
+/// for a fetch to wait on.
+#[derive(Clone)]
+struct Cancel {
+    flag: Arc<AtomicBool>,
+    said: Arc<watch::Sender<bool>>,
+}
+
+impl Cancel {
+    fn new() -> Self {
+        Cancel {
+            flag: Arc::new(AtomicBool::new(false)),
+            said: Arc::new(watch::channel(false).0),
+        }
+    }
+
+    fn set(&self) {
+        self.flag.store(true, Ordering::Relaxed);
+        self.said.send_replace(true);
+    }
+
+    /// Returns once [`Cancel::set`] was called.
+    async fn wait(&self) {
+        let mut said = self.said.subscribe();
+        // The sender lives as long as `self`: no error.
+        let _ = said.wait_for(|&c| c).await;
+    }
+}
+
+/// Sets a render's cancellation when dropped, so a loop aborted midway
 /// (the session ends) does not leave its render running.
-struct CancelOnDrop(Arc<AtomicBool>);
+struct CancelOnDrop(Cancel);
 
 impl Drop for CancelOnDrop {
     fn drop(&mut self) {
-        self.0.store(true, Ordering::Relaxed);
+        self.0.set();
     }
+}
+
+/// Why a render on the render threads did not give a payload.
+pub(crate) enum Stop {
+    Cancelled,
+    Failed(String),
 }
 
 /// The message of a caught panic.
@@ -56,18 +101,19 @@ fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
 }
 
 impl Session {
-    /// Loads the scene and renders the tile while heartbeating its lease;
-    /// stops the render when the lease is dropped, the worker pauses or
-    /// `shutdown` turns true.
+    /// Loads the scene and renders the tile (or the pass `pass` on its
+    /// fetched state) while heartbeating its lease; stops the render when
+    /// the lease is dropped, the worker pauses or `shutdown` turns true.
     pub(crate) async fn tile(
         &mut self,
         me: &Me,
         lease: &pb::Lease,
         rect: Rect,
+        pass: Option<Pass>,
         beat: Duration,
         shutdown: &mut watch::Receiver<bool>,
     ) -> TileEnd {
-        let cancel = Arc::new(AtomicBool::new(false));
+        let cancel = Cancel::new();
         let _guard = CancelOnDrop(cancel.clone());
         let work = {
             let mut s = self.clone();
@@ -77,10 +123,17 @@ impl Session {
                 None => Key::still(&lease.bundle_hash),
                 Some(f) => Key::frame(&lease.bundle_hash, &camera, f),
             };
+            let key = match pass {
+                Some(p) => key.with_samples(&camera, p.total),
+                None => key,
+            };
+            let state_bytes = pass.map_or(0, |_| memory::pass_state_bytes(rect));
+            let (me, lease_id) = (me.clone(), lease.lease_id);
+            let (png, preview_scale) = (lease.png_segments, lease.preview_scale);
             #[cfg(feature = "test-hooks")]
             let fault = self.fault;
             async move {
-                let scene = s.scene(key).await;
+                let scene = s.scene(key, state_bytes).await;
                 let scene = match scene {
                     Ok(s) => s,
                     Err(SceneLoadError::TooBig { needs, .. }) => return TileEnd::Declined(needs),
@@ -89,12 +142,32 @@ impl Session {
                 let Some(camera) = scene.camera_index(&camera) else {
                     return TileEnd::Failed(format!("the scene has no camera \"{camera}\""));
                 };
+                // A pass's state: fetched (bounded) unless it starts at 0.
+                let pass = match pass {
+                    Some(p) if p.start > 0 => {
+                        let fetched = tokio::select! {
+                            r = s.fetch_state(&me, lease_id, rect) => r,
+                            () = cancel.wait() => return TileEnd::Dropped,
+                        };
+                        match fetched {
+                            Ok(bytes) => Some((p, Some(bytes))),
+                            Err(PassError::Fetch { status, .. })
+                                if pass::connection_lost(&status) =>
+                            {
+                                return TileEnd::Lost(status)
+                            }
+                            Err(e) => return TileEnd::Failed(e.to_string()),
+                        }
+                    }
+                    Some(p) => Some((p, None)),
+                    None => None,
+                };
                 let pool = s.pool.clone();
                 // For a segment lease: the frame's size and the preview's
                 // cell edge, to check the rect and encode it.
-                let segments = lease.png_segments.then(|| {
+                let segments = png.then(|| {
                     let r = &scene.desc.cameras[camera].render;
-                    (r.width, r.height, lease.preview_scale)
+                    (r.width, r.height, preview_scale)
                 });
                 let job = tokio::task::spawn_blocking(move || {
                     pool.install(|| {
@@ -103,28 +176,22 @@ impl Session {
                             if let Some(f) = fault {
                                 f.strike(rect);
                             }
-                            let start = std::time::Instant::now();
-                            let r = trevi_core::tile::render_tile_cancellable(
-                                &scene, camera, rect, &cancel,
-                            )?;
-                            // The encoding counts as the lease's render time:
-                            // it is the worker's time that the coordinator
-                            // sizes leases from.
-                            let payload = match segments {
-                                None => Ok(Payload::Floats(r.pixels)),
-                                Some((w, h, scale)) => {
-                                    segments::encode_rect(rect, w, h, scale, &r.pixels)
-                                        .map(Payload::Segments)
-                                }
-                            };
-                            Ok((payload, r.rays, start.elapsed()))
+                            render_lease(
+                                &scene,
+                                camera,
+                                rect,
+                                lease_id,
+                                pass,
+                                segments,
+                                &cancel.flag,
+                            )
                         }))
                     })
                 });
                 match job.await {
-                    Ok(Ok(Ok((Ok(payload), rays, took)))) => TileEnd::Rendered(payload, rays, took),
-                    Ok(Ok(Ok((Err(e), ..)))) => TileEnd::Failed(e.to_string()),
-                    Ok(Ok(Err(trevi_core::tile::Cancelled))) => TileEnd::Dropped,
+                    Ok(Ok(Ok((payload, rays, took)))) => TileEnd::Rendered(payload, rays, took),
+                    Ok(Ok(Err(Stop::Failed(e)))) => TileEnd::Failed(e),
+                    Ok(Ok(Err(Stop::Cancelled))) => TileEnd::Dropped,
                     Ok(Err(panic)) => TileEnd::Failed(format!(
                         "the render panicked: {}",
                         panic_message(panic.as_ref())
@@ -164,7 +231,7 @@ impl Session {
                         }
                     };
                     if dropped {
-                        cancel.store(true, Ordering::Relaxed);
+                        cancel.set();
                     }
                 }
                 r = self.paused.changed(), if !pausing && watched => match r {
@@ -172,17 +239,70 @@ impl Session {
                     Err(_) => watched = false,
                     Ok(()) => if self.paused.borrow().is_some() {
                         pausing = true;
-                        cancel.store(true, Ordering::Relaxed);
+                        cancel.set();
                     }
                 },
                 r = shutdown.changed(), if !stopping => {
                     // A closed channel means the sender is gone: stop too.
                     if r.is_err() || *shutdown.borrow() {
                         stopping = true;
-                        cancel.store(true, Ordering::Relaxed);
+                        cancel.set();
                     }
                 }
             }
         }
     }
+}
+
+/// Renders lease `lease_id`'s `rect` of camera `camera` on the current rayon
+/// pool: at once, or `pass` on its state (`Some(bytes)`: fetched, checked
+/// here; `None`: a new one). Gives the payload (floats, or for a segment
+/// lease, `segments` = the frame's size and the preview's cell edge, the
+/// encoded segments), the rays traced and the time it took (the state's
+/// decoding aside: like loading the scene, it is not the render).
+pub(crate) fn render_lease(
+    scene: &trevi_core::Scene,
+    camera: usize,
+    rect: Rect,
+    lease_id: u64,
+    pass: Option<(Pass, Option<Vec<u8>>)>,
+    segments: Option<(u32, u32, u32)>,
+    cancel: &AtomicBool,
+) -> Result<(Payload, u64, Duration), Stop> {
+    let failed = |e: PassError| match e {
+        PassError::Cancelled => Stop::Cancelled,
+        e => Stop::Failed(e.to_string()),
+    };
+    let pass = match pass {
+        None => None,
+        Some((p, None)) => Some((p, TileState::new(rect))),
+        Some((p, Some(bytes))) => {
+            let state = pass::accept_state(lease_id, rect, p.start, &bytes).map_err(failed)?;
+            drop(bytes);
+            Some((p, state))
+        }
+    };
+    let start = std::time::Instant::now();
+    let (pixels, rays, state) = match pass {
+        None => {
+            let r = trevi_core::tile::render_tile_cancellable(scene, camera, rect, cancel)
+                .map_err(|trevi_core::tile::Cancelled| Stop::Cancelled)?;
+            (r.pixels, r.rays, None)
+        }
+        Some((p, state)) => {
+            let done =
+                pass::render_pass(scene, camera, lease_id, p, state, cancel).map_err(failed)?;
+            (done.pixels, done.rays, Some(done.state))
+        }
+    };
+    // The encoding counts as the lease's render time: it is the worker's
+    // time that the coordinator sizes leases from.
+    let pixels = match segments {
+        None => Pixels::Floats(pixels),
+        Some((w, h, scale)) => Pixels::Segments(
+            segments::encode_rect(rect, w, h, scale, &pixels)
+                .map_err(|e| Stop::Failed(e.to_string()))?,
+        ),
+    };
+    Ok((Payload { pixels, state }, rays, start.elapsed()))
 }

@@ -4,13 +4,17 @@
 //! is what a lease costs before its first ray, so the worker keeps the last
 //! few it built, each under a [`Key`]: its bundle's hash and, for a lease of
 //! a sequence's frame (`Lease.frame`), the camera and frame it was moved
-//! to. A still's scene is kept as built; a frame's is moved from frame to
-//! frame with `Scene::set_frame`, which rebuilds only what a frame changes
+//! to, and, for a pass of a job with its own samples per pixel
+//! (`Lease.samples.total` above 0), the camera and that total
+//! (`Scene::set_samples`; a job without it never gets such a scene). A
+//! still's scene is kept as built; a frame's is moved from frame to frame
+//! with `Scene::set_frame`, which rebuilds only what a frame changes
 //! (instance transforms, the top-level trees, cameras, lights).
 //!
 //! A lookup ([`SceneCache::take`]) finds the scene at that very key; for a
-//! frame it may instead hand out a frame scene of the same bundle at another
-//! frame that no render is using, to be moved in place and put back. One in
+//! frame it may instead hand out a frame scene of the same bundle and the
+//! same samples at another frame that no render is using, to be moved in
+//! place and put back. One in
 //! use (another lease of the same bundle rendering meanwhile) is left alone
 //! and another copy is built. At most `cap` stills' scenes and `cap` frames'
 //! scenes are kept, the least recently used of each going first, so the
@@ -31,6 +35,9 @@ pub struct Key {
     /// The camera and frame the scene was moved to (`None`: as built, for
     /// a still).
     pub frame: Option<(String, u32)>,
+    /// The camera and samples per pixel `Scene::set_samples` gave it
+    /// (`None`: the scene's own sampling).
+    pub samples: Option<(String, u32)>,
 }
 
 impl Key {
@@ -39,6 +46,7 @@ impl Key {
         Key {
             hash: hash.to_string(),
             frame: None,
+            samples: None,
         }
     }
 
@@ -47,6 +55,17 @@ impl Key {
         Key {
             hash: hash.to_string(),
             frame: Some((camera.to_string(), frame)),
+            samples: None,
+        }
+    }
+
+    /// This key's scene with camera `camera` rendering `total` samples per
+    /// pixel (`Scene::set_samples`); a `total` of 0 is the scene's own
+    /// sampling, this very key.
+    pub fn with_samples(self, camera: &str, total: u32) -> Key {
+        Key {
+            samples: (total > 0).then(|| (camera.to_string(), total)),
+            ..self
         }
     }
 }
@@ -55,8 +74,9 @@ impl Key {
 pub enum Found {
     /// The scene at that very key.
     Ready(Arc<Scene>),
-    /// For a frame: a scene of that bundle at another frame, no longer in
-    /// use: move it with `Scene::set_frame` and [`SceneCache::put`] it back.
+    /// For a frame: a scene of that bundle and samples at another frame,
+    /// no longer in use: move it with `Scene::set_frame` (and give it the
+    /// samples again) and [`SceneCache::put`] it back.
     Reuse(Box<Scene>),
     /// Nothing to reuse: build the scene.
     Miss,
@@ -96,7 +116,10 @@ impl SceneCache {
             return Found::Miss;
         }
         let free = self.entries.iter().position(|e| {
-            e.key.frame.is_some() && e.key.hash == key.hash && Arc::strong_count(&e.scene) == 1
+            e.key.frame.is_some()
+                && e.key.hash == key.hash
+                && e.key.samples == key.samples
+                && Arc::strong_count(&e.scene) == 1
         });
         if let Some(i) = free {
             let e = self.entries.remove(i);

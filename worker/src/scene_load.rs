@@ -1,7 +1,8 @@
 //! Where a leased tile's scene comes from: the scene cache
 //! ([`crate::scene_cache`]), or its bundle downloaded by hash, checked
 //! (SHA-256, the memory estimate against `--max-memory`) and built, then
-//! moved to the lease's frame for a sequence.
+//! moved to the lease's frame for a sequence and given a pass's samples per
+//! pixel (`Scene::set_samples`) for a job with its own.
 
 use crate::error::SceneLoadError;
 use crate::scene_cache::{Found, Key};
@@ -14,26 +15,35 @@ impl Session {
     /// The scene at `key`: kept from an earlier lease, or a kept one moved
     /// to the key's frame, or fetched and built (see
     /// [`crate::scene_cache`]). The cache stays locked meanwhile, so a
-    /// scene is built once however many loops want it.
-    pub(crate) async fn scene(&mut self, key: Key) -> Result<Arc<Scene>, SceneLoadError> {
+    /// scene is built once however many loops want it. `state`: the bytes
+    /// a pass's accumulation state holds besides the scene
+    /// ([`crate::memory::pass_state_bytes`], 0 for other leases), counted
+    /// with the scene's estimate against `--max-memory` before a build.
+    pub(crate) async fn scene(
+        &mut self,
+        key: Key,
+        state: u64,
+    ) -> Result<Arc<Scene>, SceneLoadError> {
         let scenes = self.scenes.clone();
         let mut cache = scenes.lock().await;
         let scene = match cache.take(&key) {
             Found::Ready(s) => return Ok(s),
             Found::Reuse(s) => *s,
-            Found::Miss => self.build(&key.hash).await?,
+            Found::Miss => self.build(&key.hash, state).await?,
         };
-        let scene = match &key.frame {
-            None => scene,
-            Some((camera, frame)) => to_frame(scene, &key.hash, camera, *frame).await?,
+        let scene = if key.frame.is_none() && key.samples.is_none() {
+            scene
+        } else {
+            to_key(scene, &key).await?
         };
         let scene = Arc::new(scene);
         cache.put(key, scene.clone());
         Ok(scene)
     }
 
-    /// Fetches bundle `hash` and builds its scene.
-    async fn build(&mut self, hash: &str) -> Result<Scene, SceneLoadError> {
+    /// Fetches bundle `hash` and builds its scene, unless its estimate and
+    /// `state` bytes together pass `--max-memory`.
+    async fn build(&mut self, hash: &str, state: u64) -> Result<Scene, SceneLoadError> {
         let start = std::time::Instant::now();
         let mut stream = self
             .bundles
@@ -59,9 +69,15 @@ impl Session {
             drop(bytes);
             let desc = trevi_core::ParsedBundle::parse(bundle)?.desc;
             // Checked before the build, which is what takes the memory.
-            let needs = trevi_core::scene::estimate::estimate(&desc).total();
+            let needs = trevi_core::scene::estimate::estimate(&desc)
+                .total()
+                .saturating_add(state);
             if !limit.allows(needs) {
-                return Err(SceneLoadError::TooBig { needs, limit });
+                return Err(SceneLoadError::TooBig {
+                    needs,
+                    state,
+                    limit,
+                });
             }
             Ok(Scene::build(desc))
         })
@@ -78,25 +94,39 @@ impl Session {
     }
 }
 
-/// Moves `scene` (of bundle `hash`) to frame `frame` of `camera`.
-async fn to_frame(
-    mut scene: Scene,
-    hash: &str,
-    camera: &str,
-    frame: u32,
-) -> Result<Scene, SceneLoadError> {
-    let cam = scene
-        .camera_index(camera)
-        .ok_or_else(|| SceneLoadError::Frame(format!("the scene has no camera \"{camera}\"")))?;
+/// Moves `scene` to `key`'s frame and gives it `key`'s samples, off the
+/// async threads.
+async fn to_key(mut scene: Scene, key: &Key) -> Result<Scene, SceneLoadError> {
     let start = std::time::Instant::now();
-    let scene = tokio::task::spawn_blocking(move || {
-        scene
-            .set_frame(cam, frame)
-            .map(|()| scene)
-            .map_err(|e| SceneLoadError::Frame(e.to_string()))
-    })
-    .await??;
-    tracing::info!(bundle = %hash, frame, set_up_us = start.elapsed().as_micros() as u64,
-        "scene moved to the frame");
+    let moved = key.clone();
+    let scene = tokio::task::spawn_blocking(move || apply_key(&mut scene, &moved).map(|()| scene))
+        .await??;
+    if let Some((_, frame)) = &key.frame {
+        tracing::info!(bundle = %key.hash, frame, set_up_us = start.elapsed().as_micros() as u64,
+            "scene moved to the frame");
+    }
     Ok(scene)
+}
+
+/// Makes a scene as built into `key`'s: moved to its frame
+/// (`Scene::set_frame`), then, for a pass with its own total, that camera
+/// given `min-samples = max-samples = total` (`Scene::set_samples`, which a
+/// move does not undo: it is applied after). A scene at another frame of
+/// the same key's bundle and samples may be given too (a reused one).
+pub(crate) fn apply_key(scene: &mut Scene, key: &Key) -> Result<(), SceneLoadError> {
+    if let Some((camera, frame)) = &key.frame {
+        let cam = scene.camera_index(camera).ok_or_else(|| {
+            SceneLoadError::Frame(format!("the scene has no camera \"{camera}\""))
+        })?;
+        scene
+            .set_frame(cam, *frame)
+            .map_err(|e| SceneLoadError::Frame(e.to_string()))?;
+    }
+    if let Some((camera, total)) = &key.samples {
+        let cam = scene
+            .camera_index(camera)
+            .ok_or_else(|| SceneLoadError::NoCamera(camera.clone()))?;
+        scene.set_samples(cam, *total);
+    }
+    Ok(())
 }

@@ -2,7 +2,9 @@
 //! result, as floats ([`tile_messages`]) or, for a lease with
 //! `png_segments`, as the encoded segments and preview sums
 //! ([`segment_messages`], encoded by [`crate::segments`]). Both start with
-//! the same header ([`header_message`]).
+//! the same header ([`header_message`]). A pass of a progressive job
+//! (`Lease.samples`, [`crate::pass`]) then sends its new accumulation state
+//! in chunks ([`state_messages`]).
 
 use crate::segments::EncodedRect;
 use crate::session::{Me, Session};
@@ -12,7 +14,14 @@ use trevi_proto::pb;
 use trevi_proto::{pixels_to_bytes, CHUNK_SIZE};
 
 /// What a rendered lease uploads.
-pub(crate) enum Payload {
+pub(crate) struct Payload {
+    pub(crate) pixels: Pixels,
+    /// For a pass (`Lease.samples`): the new accumulation state, encoded.
+    pub(crate) state: Option<Vec<u8>>,
+}
+
+/// A rendered lease's pixels, as the lease asks for them.
+pub(crate) enum Pixels {
     /// The pixels, as floats.
     Floats(Vec<[f32; 3]>),
     /// For a lease with `png_segments`: the rect's encoded segments and
@@ -40,14 +49,7 @@ impl Session {
         rendered: Rendered,
         payload: Payload,
     ) -> Result<bool, tonic::Status> {
-        let msgs = match payload {
-            Payload::Floats(pixels) => {
-                tile_messages(me.id, &me.session, lease, rect, rendered, &pixels)
-            }
-            Payload::Segments(encoded) => {
-                segment_messages(me.id, &me.session, lease, rect, rendered, encoded)
-            }
-        };
+        let msgs = upload_messages(me.id, &me.session, lease, rect, rendered, payload);
         let ack = self
             .workers
             .submit_tile(tokio_stream::iter(msgs))
@@ -55,6 +57,46 @@ impl Session {
             .into_inner();
         Ok(ack.accepted)
     }
+}
+
+/// The messages of a lease's upload: the header, the pixels (floats, or
+/// segments and preview sums), then for a pass the state in chunks.
+pub(crate) fn upload_messages(
+    worker: u64,
+    session: &[u8],
+    lease: &pb::Lease,
+    rect: Rect,
+    rendered: Rendered,
+    payload: Payload,
+) -> Vec<pb::TileUpload> {
+    let mut msgs = match payload.pixels {
+        Pixels::Floats(pixels) => tile_messages(worker, session, lease, rect, rendered, &pixels),
+        Pixels::Segments(encoded) => {
+            segment_messages(worker, session, lease, rect, rendered, encoded)
+        }
+    };
+    if let Some(state) = payload.state {
+        msgs.extend(state_messages(state));
+    }
+    msgs
+}
+
+/// An encoded accumulation state as the `state` parts of an upload, in
+/// chunks of at most `CHUNK_SIZE` bytes (one chunk is the state itself,
+/// not a copy).
+pub fn state_messages(state: Vec<u8>) -> Vec<pb::TileUpload> {
+    use pb::tile_upload::Part;
+    if state.len() <= CHUNK_SIZE {
+        return vec![pb::TileUpload {
+            part: Some(Part::State(state)),
+        }];
+    }
+    state
+        .chunks(CHUNK_SIZE)
+        .map(|c| pb::TileUpload {
+            part: Some(Part::State(c.to_vec())),
+        })
+        .collect()
 }
 
 /// The messages of a tile upload: the header, then the pixels in chunks.

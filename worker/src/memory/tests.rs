@@ -62,3 +62,19 @@ fn no_limit_allows_everything() {
     assert!(MaxMemory(100).allows(100));
     assert!(!MaxMemory(100).allows(101));
 }
+
+#[test]
+fn a_pass_counts_its_state_twice() {
+    use trevi_core::passes::TileState;
+    let rect = Rect::new(16, 32, 64, 48);
+    assert_eq!(
+        pass_state_bytes(rect),
+        2 * TileState::encoded_len(rect) as u64
+    );
+    assert_eq!(pass_state_bytes(rect), 2 * (32 + 64 * 64 * 48));
+    // No overflow for a rect no state may have.
+    assert_eq!(
+        pass_state_bytes(Rect::new(0, 0, u32::MAX, u32::MAX)),
+        u64::MAX
+    );
+}

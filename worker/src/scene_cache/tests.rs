@@ -93,3 +93,38 @@ fn stills_and_frames_keep_their_own_room() {
     assert!(matches!(c.take(&Key::still("g")), Found::Ready(_)));
     assert!(matches!(c.take(&Key::frame("h", "c", 2)), Found::Ready(_)));
 }
+
+/// A pass's scene (`set_samples`) is kept under a key of its own: a lease
+/// without samples, or with another total or camera, never gets it, and a
+/// frame scene is reused only for the same samples.
+#[test]
+fn samples_are_part_of_the_key() {
+    let mut c = SceneCache::new(NonZeroUsize::new(4).unwrap());
+    let eight = Key::still("h").with_samples("c", 8);
+    assert_eq!(Key::still("h").with_samples("c", 0), Key::still("h"));
+    c.put(eight.clone(), Arc::new(built()));
+    assert!(matches!(c.take(&Key::still("h")), Found::Miss));
+    assert!(matches!(
+        c.take(&Key::still("h").with_samples("c", 9)),
+        Found::Miss
+    ));
+    assert!(matches!(
+        c.take(&Key::still("h").with_samples("d", 8)),
+        Found::Miss
+    ));
+    assert!(matches!(c.take(&eight), Found::Ready(_)));
+    // Frames combine with samples.
+    c.put(
+        Key::frame("h", "c", 3).with_samples("c", 8),
+        Arc::new(built()),
+    );
+    assert!(matches!(c.take(&Key::frame("h", "c", 4)), Found::Miss));
+    assert!(matches!(
+        c.take(&Key::frame("h", "c", 4).with_samples("c", 16)),
+        Found::Miss
+    ));
+    assert!(matches!(
+        c.take(&Key::frame("h", "c", 4).with_samples("c", 8)),
+        Found::Reuse(_)
+    ));
+}

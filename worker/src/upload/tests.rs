@@ -76,3 +76,93 @@ fn a_float_upload_is_header_then_chunks_of_pixels() {
     }
     assert_eq!(bytes, pixels_to_bytes(&px));
 }
+
+/// The parts after the pixels: `state` chunks, at most CHUNK_SIZE each,
+/// whose concatenation is returned.
+fn state_after(msgs: &[pb::TileUpload]) -> Vec<u8> {
+    use pb::tile_upload::Part;
+    let mut bytes = Vec::new();
+    for m in msgs {
+        let Some(Part::State(c)) = &m.part else {
+            panic!("only state chunks after the pixels: {:?}", m.part)
+        };
+        assert!(!c.is_empty() && c.len() <= CHUNK_SIZE);
+        bytes.extend_from_slice(c);
+    }
+    bytes
+}
+
+/// A pass's upload: the header, the pixels (floats or segments and the
+/// preview), then the new state in chunks that decode to it; a state of
+/// more than one chunk is split at CHUNK_SIZE.
+#[test]
+fn a_pass_uploads_its_state_after_the_pixels() {
+    use pb::tile_upload::Part;
+    use trevi_core::passes::TileState;
+    // 130 rows of 128 pixels: a state of just over 1 MiB, two chunks.
+    let rect = Rect::new(0, 0, 128, 130);
+    let state = TileState::new(rect);
+    let encoded = state.encode();
+    assert!(encoded.len() > CHUNK_SIZE && encoded.len() <= 2 * CHUNK_SIZE);
+    let px = pixels(rect);
+    let lease = pb::Lease {
+        lease_id: 4,
+        job_id: 2,
+        samples: Some(pb::SampleRange {
+            start: 0,
+            end: 3,
+            total: 8,
+        }),
+        ..Default::default()
+    };
+    let rendered = Rendered {
+        rays: 9,
+        took: Duration::from_micros(5),
+    };
+    let payload = Payload {
+        pixels: Pixels::Floats(px.clone()),
+        state: Some(encoded.clone()),
+    };
+    let msgs = upload_messages(1, b"s", &lease, rect, rendered, payload);
+    assert!(matches!(msgs[0].part, Some(Part::Header(_))));
+    let floats = tile_messages(1, b"s", &lease, rect, rendered, &px);
+    assert_eq!(
+        msgs[..floats.len()],
+        floats[..],
+        "the pixels as without a state"
+    );
+    assert_eq!(msgs.len(), floats.len() + 2);
+    let sent = state_after(&msgs[floats.len()..]);
+    assert_eq!(TileState::decode(&sent).unwrap(), state);
+
+    // Segments: header, segments, preview, then the state (one chunk).
+    let rect = Rect::new(0, 16, 8, 40);
+    let enc = encode_rect(rect, 8, 56, 4, &pixels(rect)).unwrap();
+    let state = TileState::new(rect);
+    let lease = pb::Lease {
+        png_segments: true,
+        preview_scale: 4,
+        ..lease
+    };
+    let payload = Payload {
+        pixels: Pixels::Segments(enc.clone()),
+        state: Some(state.encode()),
+    };
+    let msgs = upload_messages(1, b"s", &lease, rect, rendered, payload);
+    let segs = segment_messages(1, b"s", &lease, rect, rendered, enc);
+    assert!(matches!(segs.last().unwrap().part, Some(Part::Preview(_))));
+    assert_eq!(msgs[..segs.len()], segs[..]);
+    assert_eq!(msgs.len(), segs.len() + 1);
+    assert_eq!(
+        TileState::decode(&state_after(&msgs[segs.len()..])).unwrap(),
+        state
+    );
+
+    // No pass, no state.
+    let payload = Payload {
+        pixels: Pixels::Floats(pixels(rect)),
+        state: None,
+    };
+    let msgs = upload_messages(1, b"s", &lease, rect, rendered, payload);
+    assert!(!msgs.iter().any(|m| matches!(m.part, Some(Part::State(_)))));
+}
