@@ -276,7 +276,11 @@ impl pb::workers_server::Workers for WorkersService {
                 frame: l.frame,
                 png_segments: l.png_segments,
                 preview_scale,
-                samples: None,
+                samples: l.samples.map(|r| pb::SampleRange {
+                    start: r.start,
+                    end: r.end,
+                    total: r.total,
+                }),
             }),
         }))
     }
