@@ -96,6 +96,12 @@ pub enum LimitKind {
     AdmissionBytes,
     /// Files in one bundle (`--max-bundle-files`).
     BundleFiles,
+    /// Pixels of one tile of a progressive job, whose lease carries its
+    /// state (`Limits::max_state_lease_pixels`, no flag).
+    StateLeasePixels,
+    /// Bytes of a progressive job's states on disk
+    /// (`Limits::max_job_state_bytes`, no flag).
+    JobStateBytes,
 }
 
 impl LimitKind {
@@ -103,7 +109,9 @@ impl LimitKind {
     pub fn flag(self) -> Option<&'static str> {
         Some(match self {
             LimitKind::ImageSamples => "--max-image-samples",
-            LimitKind::JobTiles => return None,
+            LimitKind::JobTiles | LimitKind::StateLeasePixels | LimitKind::JobStateBytes => {
+                return None
+            }
             LimitKind::Window => "--window-mib",
             LimitKind::JobsPerSubmitter => "--max-jobs-per-submitter",
             LimitKind::Workers => "--max-workers",

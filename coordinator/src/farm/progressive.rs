@@ -19,7 +19,7 @@
 
 use super::pass_states::{state_bytes, state_path, StateFile};
 use super::Farm;
-use crate::error::FarmError;
+use crate::error::{FarmError, LimitKind};
 use crate::scheduler::{JobId, JobSpec, JobState, PassesInfo, SampleRange, StopReason, WorkerId};
 use crate::store::StoredPasses;
 use std::collections::HashMap;
@@ -364,7 +364,7 @@ impl Farm {
         let samples = u64::from(spec.width) * u64::from(spec.height) * u64::from(total);
         if samples > limits.max_image_samples {
             return Err(FarmError::limit(
-                crate::error::LimitKind::ImageSamples,
+                LimitKind::ImageSamples,
                 samples,
                 limits.max_image_samples,
                 format!(
@@ -376,19 +376,30 @@ impl Farm {
         }
         let tile = u64::from(spec.tile_size.max(1)).pow(2);
         if tile > limits.max_state_lease_pixels {
-            return Err(FarmError::Invalid(format!(
-                "a progressive job's tiles carry their state (64 bytes a pixel): tiles of {} \
-                 pixels are more than the {} a lease of one may hold; use a smaller --tile-size",
-                tile, limits.max_state_lease_pixels
-            )));
+            return Err(FarmError::limit(
+                LimitKind::StateLeasePixels,
+                tile,
+                limits.max_state_lease_pixels,
+                format!(
+                    "a progressive job's tiles carry their state (64 bytes a pixel): tiles of \
+                     {tile} pixels are more than the {} a lease of one may hold; use a smaller \
+                     --tile-size",
+                    limits.max_state_lease_pixels
+                ),
+            ));
         }
         let bytes = state_bytes(spec.width, spec.height);
         if bytes > limits.max_job_state_bytes {
-            return Err(FarmError::Invalid(format!(
-                "a progressive job keeps 128 bytes a pixel of accumulation state on the \
-                 coordinator's disk: {}x{} is {bytes} bytes, more than the {} a job may keep",
-                spec.width, spec.height, limits.max_job_state_bytes
-            )));
+            return Err(FarmError::limit(
+                LimitKind::JobStateBytes,
+                bytes,
+                limits.max_job_state_bytes,
+                format!(
+                    "a progressive job keeps 128 bytes a pixel of accumulation state on the \
+                     coordinator's disk: {}x{} is {bytes} bytes, more than the {} a job may keep",
+                    spec.width, spec.height, limits.max_job_state_bytes
+                ),
+            ));
         }
         Ok(())
     }
