@@ -63,7 +63,7 @@ use crate::bundles::BundleStore;
 use crate::error::FarmError;
 use crate::limits::Limits;
 use crate::metrics::Metrics;
-use crate::scheduler::{JobId, JobInfo, Scheduler, WorkerId};
+use crate::scheduler::{JobId, JobInfo, Outcome, Scheduler, WorkerId};
 use crate::store::Store;
 use crate::summaries::Summaries;
 use crate::timed_lock::TimedLock;
@@ -118,7 +118,7 @@ struct State {
     final_previews: VecDeque<(JobId, Arc<job_previews::FinalPreview>)>,
     /// Jobs that ended but whose end the database did not take (a full
     /// disk): held unfinished, as stored, until [`Farm::expire`] records it.
-    unrecorded: HashMap<JobId, Result<(), String>>,
+    unrecorded: HashMap<JobId, Outcome>,
     /// Sequences, by id (their frames are jobs of `sched`).
     seqs: HashMap<JobId, sequences::Sequence>,
     /// Each frame job's sequence.

@@ -47,6 +47,7 @@
 //! This file holds the [`Scheduler`] itself and the workers' registration.
 
 mod expiry;
+mod failure;
 mod job;
 mod jobs;
 mod lease;
@@ -60,6 +61,7 @@ mod whole_span;
 mod window;
 
 pub use crate::workers::WorkerId;
+pub use failure::{JobFailure, Outcome};
 pub use results::ray_shares;
 pub use types::{
     Accepted, Counters, FramesInfo, JobId, JobInfo, JobSpec, JobState, Lease, LeaseId, PassesInfo,
@@ -137,7 +139,7 @@ pub struct Scheduler {
     next_lease: LeaseId,
     finished: u64,
     /// Jobs failed by their tiles' failures, for the caller to wind up.
-    failed: Vec<(JobId, String)>,
+    failed: Vec<(JobId, JobFailure)>,
     sizer: LeaseSizer,
     /// Which workers can hold which jobs (see [`memory`]).
     memory: MemoryGate,

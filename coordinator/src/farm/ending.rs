@@ -5,7 +5,7 @@
 
 use super::{lock, Farm};
 use crate::error::FarmError;
-use crate::scheduler::{JobId, JobInfo, JobState};
+use crate::scheduler::{JobFailure, JobId, JobInfo, JobState, Outcome};
 use crate::store::{SeqLink, StoredJob, StoredPasses};
 use std::time::Instant;
 
@@ -20,13 +20,13 @@ impl Farm {
             .map(|j| j.id)
             .collect();
         for &job in &doomed {
-            self.end_job(job, Err(why.to_string()));
+            self.end_job(job, Err(JobFailure::Bundle(why.to_string())));
         }
         doomed
     }
 
     /// Ends jobs whose tiles failed too often.
-    pub(super) fn fail_jobs(&self, failed: Vec<(JobId, String)>) {
+    pub(super) fn fail_jobs(&self, failed: Vec<(JobId, JobFailure)>) {
         for (job, why) in failed {
             self.end_job(job, Err(why));
         }
@@ -37,7 +37,7 @@ impl Farm {
     /// database does not take it (a full disk), the job stays as stored:
     /// unfinished, taking no more work; [`Farm::expire`] records the end
     /// later, and a restart meanwhile resumes the job from its stored tiles.
-    pub(super) fn end_job(&self, job: JobId, mut result: Result<(), String>) {
+    pub(super) fn end_job(&self, job: JobId, mut result: Outcome) {
         let image = self.final_preview(job);
         // A pass of a progressive job: the frame's noise after it (read
         // before the lock: it may read the disk).
@@ -57,7 +57,7 @@ impl Farm {
         if let Some(seq) = parent {
             if result.is_ok() {
                 if let Err(e) = self.file_frame(seq, job, &ending.spec) {
-                    result = Err(e.to_string());
+                    result = Err(JobFailure::Output(e.to_string()));
                     ending = st
                         .sched
                         .finish_info(job, &result, now)

@@ -194,7 +194,7 @@ impl Farm {
             self.work.notify_waiters();
         }
         self.fail_jobs(failed);
-        let unrecorded: Vec<(JobId, Result<(), String>)> = self
+        let unrecorded: Vec<(JobId, crate::scheduler::Outcome)> = self
             .state
             .lock()
             .unrecorded

@@ -7,6 +7,7 @@ use super::segments::decode_stored;
 use super::{lock, validate_pixels, Farm, Output};
 use crate::error::FarmError;
 use crate::preview::Preview;
+use crate::scheduler::JobFailure;
 use crate::scheduler::{JobInfo, Restored};
 use crate::store::{wall_ms, Replayed, Store};
 use std::sync::{Arc, Mutex};
@@ -114,10 +115,18 @@ impl Farm {
                     if complete {
                         let sink = lock(&out).sink.take().expect("just made");
                         let result = sink.finish();
-                        self.end_job(id, result.map_err(|e| format!("finishing the output: {e}")));
+                        self.end_job(
+                            id,
+                            result.map_err(|e| {
+                                JobFailure::Output(format!("finishing the output: {e}"))
+                            }),
+                        );
                     }
                 }
-                Err(e) => self.end_job(id, Err(format!("resuming after a restart: {e}"))),
+                Err(e) => self.end_job(
+                    id,
+                    Err(JobFailure::Output(format!("resuming after a restart: {e}"))),
+                ),
             }
         }
         self.resume_sequences();

@@ -612,7 +612,10 @@ impl Farm {
                 lock(&out).sink = None;
                 self.end_job(
                     job,
-                    Err(format!("storing the segments of tile {}: {e}", stored[0].0)),
+                    Err(crate::scheduler::JobFailure::Output(format!(
+                        "storing the segments of tile {}: {e}",
+                        stored[0].0
+                    ))),
                 );
                 return Err(e);
             }

@@ -25,7 +25,9 @@ use super::{Farm, State};
 use crate::error::FarmError;
 #[cfg(doc)]
 use crate::limits::Limits;
-use crate::scheduler::{FramesInfo, JobId, JobInfo, JobSpec, JobState, Scheduler};
+use crate::scheduler::{
+    FramesInfo, JobFailure, JobId, JobInfo, JobSpec, JobState, Outcome, Scheduler,
+};
 use crate::store::{wall_ms, SeqLink, StoredJob};
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
@@ -362,7 +364,7 @@ impl Farm {
             if let Some(why) = s.failed.clone() {
                 let running: Vec<JobId> = s.running.values().copied().collect();
                 drop(st);
-                self.end_sequence(seq, Err(why));
+                self.end_sequence(seq, Err(JobFailure::Part(why)));
                 for job in running {
                     let _ = self.cancel(job);
                 }
@@ -469,7 +471,7 @@ impl Farm {
     }
 
     /// Ends a sequence and records it.
-    fn end_sequence(&self, seq: JobId, result: Result<(), String>) {
+    fn end_sequence(&self, seq: JobId, result: Outcome) {
         let mut st = self.state.lock();
         let now = Instant::now();
         let Some(s) = st.seqs.get_mut(&seq) else {
@@ -483,7 +485,7 @@ impl Farm {
             Ok(()) => s.state = JobState::Done,
             Err(e) => {
                 s.state = JobState::Failed;
-                s.error = Some(e);
+                s.error = Some(e.message());
             }
         }
         let info = st.info(seq, now).expect("just ended");

@@ -8,6 +8,7 @@ use super::results::Admitted;
 use super::{lock, Farm};
 use crate::error::FarmError;
 use crate::preview::Preview;
+use crate::scheduler::JobFailure;
 use crate::scheduler::JobId;
 use crate::sink::TileSink;
 use std::sync::Mutex;
@@ -39,7 +40,13 @@ impl Farm {
                 .collect();
             if let Err(e) = store.put_tiles(job, &rows) {
                 lock(&first.out).close();
-                self.end_job(job, Err(format!("storing tile {}: {e}", first.idx)));
+                self.end_job(
+                    job,
+                    Err(JobFailure::Output(format!(
+                        "storing tile {}: {e}",
+                        first.idx
+                    ))),
+                );
                 return Err(e);
             }
         }
@@ -88,7 +95,7 @@ impl Farm {
                 Err(e) => {
                     drop(guard); // end_job takes the output's lock for its preview.
                     let e = FarmError::io(format!("creating the output of job {job}"), e);
-                    self.end_job(job, Err(e.to_string()));
+                    self.end_job(job, Err(JobFailure::Output(e.to_string())));
                     Err(e)
                 }
             };
@@ -97,7 +104,7 @@ impl Farm {
             o.close();
             drop(guard); // end_job takes the output's lock for its preview.
             let e = FarmError::io(format!("writing the output of job {job}"), e);
-            self.end_job(job, Err(e.to_string()));
+            self.end_job(job, Err(JobFailure::Output(e.to_string())));
             return Err(e);
         }
         o.max_rows_held = o.max_rows_held.max(sink.rows_held());
@@ -108,7 +115,7 @@ impl Farm {
             drop(guard);
             self.end_job(
                 job,
-                result.map_err(|e| format!("finishing the output: {e}")),
+                result.map_err(|e| JobFailure::Output(format!("finishing the output: {e}"))),
             );
         }
         Ok(true)

@@ -9,7 +9,7 @@ use super::checks::output_name;
 use super::outputs::Output;
 use super::{Farm, State};
 use crate::error::{FarmError, LimitKind};
-use crate::scheduler::{JobId, JobInfo, JobSpec};
+use crate::scheduler::{JobFailure, JobId, JobInfo, JobSpec};
 use crate::sink::TileSink;
 use crate::store::{SeqLink, StoredJob};
 use std::sync::{Arc, Mutex};
@@ -173,7 +173,8 @@ impl Farm {
             Some(make) => match make(id) {
                 Ok(sink) => Output::new(sink, &info.spec, info.tiles_total),
                 Err(e) => {
-                    st.sched.finish(id, Err(e.to_string()), now);
+                    st.sched
+                        .finish(id, Err(JobFailure::Output(e.to_string())), now);
                     return Err(e);
                 }
             },
@@ -185,7 +186,8 @@ impl Farm {
             };
             let stored = StoredJob::submitted(id, info.spec.clone(), info.state, seq);
             if let Err(e) = store.insert_job(&stored) {
-                st.sched.finish(id, Err(e.to_string()), now);
+                st.sched
+                    .finish(id, Err(JobFailure::Output(e.to_string())), now);
                 return Err(e);
             }
         }

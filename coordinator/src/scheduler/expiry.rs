@@ -7,6 +7,7 @@
 //! worker too often fails its job, and so does a job every live worker is
 //! kept from or none can hold ([`Scheduler::take_failed`]).
 
+use super::failure::JobFailure;
 use super::types::{JobId, LeaseId, SchedError};
 use super::window::TileState;
 use super::Scheduler;
@@ -111,7 +112,7 @@ impl Scheduler {
                 continue;
             }
             if let Some(msg) = self.memory.too_big(id, &limits, self.cfg.memory_grace, now) {
-                self.failed.push((id, msg));
+                self.failed.push((id, JobFailure::Memory(msg)));
             }
         }
     }
@@ -184,7 +185,7 @@ impl Scheduler {
                  from it{last}",
                 live.len()
             );
-            self.failed.push((id, msg));
+            self.failed.push((id, JobFailure::Tiles(msg)));
         }
     }
 
@@ -231,11 +232,12 @@ impl Scheduler {
         // Several tiles may reach their limit at once (a worker lost while
         // holding more than one): the job's error names them all.
         match self.failed.iter_mut().find(|(j, _)| *j == e.job) {
-            Some((_, m)) => {
+            Some((_, JobFailure::Tiles(m))) => {
                 m.push_str("; also ");
                 m.push_str(&msg);
             }
-            None => self.failed.push((e.job, msg)),
+            Some(_) => {}
+            None => self.failed.push((e.job, JobFailure::Tiles(msg))),
         }
     }
 
@@ -273,7 +275,7 @@ impl Scheduler {
 
     /// Jobs that failed because a tile failed too often, with the reason;
     /// the caller ends them with [`Scheduler::finish`].
-    pub fn take_failed(&mut self) -> Vec<(JobId, String)> {
+    pub fn take_failed(&mut self) -> Vec<(JobId, JobFailure)> {
         std::mem::take(&mut self.failed)
     }
 }

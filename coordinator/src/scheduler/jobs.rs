@@ -4,6 +4,7 @@
 //! [`Scheduler::finish`], [`Scheduler::cancel`] or [`Scheduler::hold`],
 //! and [`Scheduler::remove`] once it has ended; and the job ids.
 
+use super::failure::Outcome;
 use super::job::Job;
 use super::types::{JobId, JobInfo, JobSpec, JobState, Restored, SchedError, FRAME_IDS};
 use super::window::BandWindow;
@@ -145,7 +146,7 @@ impl Scheduler {
     }
 
     /// Ends a job: `Ok` when its output is in place, `Err` when it failed.
-    pub fn finish(&mut self, job: JobId, result: Result<(), String>, now: Instant) {
+    pub fn finish(&mut self, job: JobId, result: Outcome, now: Instant) {
         let Some(j) = self.jobs.get_mut(&job) else {
             return;
         };
@@ -159,7 +160,7 @@ impl Scheduler {
             Ok(()) => j.state = JobState::Done,
             Err(e) => {
                 j.state = JobState::Failed;
-                j.error = Some(e);
+                j.error = Some(e.message());
             }
         }
         self.retire(job);
@@ -167,19 +168,14 @@ impl Scheduler {
 
     /// What [`Scheduler::finish`] would make of `job` (`None` when there is
     /// no such job or it is over already), for recording before it is done.
-    pub fn finish_info(
-        &self,
-        job: JobId,
-        result: &Result<(), String>,
-        now: Instant,
-    ) -> Option<JobInfo> {
+    pub fn finish_info(&self, job: JobId, result: &Outcome, now: Instant) -> Option<JobInfo> {
         let mut info = self.info(job, now).filter(|i| !i.state.is_final())?;
         info.finish_order = self.finished + 1;
         match result {
             Ok(()) => info.state = JobState::Done,
             Err(e) => {
                 info.state = JobState::Failed;
-                info.error = Some(e.clone());
+                info.error = Some(e.message());
             }
         }
         Some(info)

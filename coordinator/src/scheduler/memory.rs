@@ -215,10 +215,12 @@ mod tests {
         let failed = s.take_failed();
         assert_eq!(failed.len(), 1);
         assert_eq!(failed[0].0, huge);
+        let crate::scheduler::JobFailure::Memory(why) = &failed[0].1 else {
+            panic!("{:?}", failed[0].1);
+        };
         assert!(
-            failed[0].1.contains("5.0 GiB") && failed[0].1.contains("is 4.0 GiB"),
-            "{}",
-            failed[0].1
+            why.contains("5.0 GiB") && why.contains("is 4.0 GiB"),
+            "{why}"
         );
     }
 

@@ -6,6 +6,15 @@ use crate::workers::WorkerState;
 use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
 
+/// The sentence of a job failed by its tiles (any other cause fails the
+/// test).
+fn tiles(f: &JobFailure) -> &str {
+    match f {
+        JobFailure::Tiles(m) => m,
+        other => panic!("not a failure of tiles: {other:?}"),
+    }
+}
+
 fn spec(priority: i32, w: u32, h: u32, tile: u32) -> JobSpec {
     JobSpec {
         priority,
@@ -266,7 +275,7 @@ fn finish_order_is_recorded() {
     let a = s.submit(spec(0, 4, 4, 4), t0);
     let b = s.submit(spec(0, 4, 4, 4), t0);
     s.finish(b, Ok(()), t0);
-    s.finish(a, Err("disk full".into()), t0);
+    s.finish(a, Err(JobFailure::Output("disk full".into())), t0);
     let (ia, ib) = (s.info(a, t0).unwrap(), s.info(b, t0).unwrap());
     assert_eq!((ib.state, ib.finish_order), (JobState::Done, 1));
     assert_eq!((ia.state, ia.finish_order), (JobState::Failed, 2));
@@ -472,12 +481,9 @@ fn a_job_every_live_worker_is_kept_from_fails_instead_of_waiting() {
     let failed = s.take_failed();
     assert_eq!(failed.len(), 1, "{failed:?}");
     assert_eq!(failed[0].0, j);
-    assert!(
-        failed[0].1.contains("every live worker (1)"),
-        "{}",
-        failed[0].1
-    );
-    assert!(failed[0].1.contains("NaN in pixel"), "{}", failed[0].1);
+    let m = tiles(&failed[0].1);
+    assert!(m.contains("every live worker (1)"), "{m}");
+    assert!(m.contains("NaN in pixel"), "{m}");
     // w2 comes back: too late, the job is over once the farm ends it.
     assert_eq!(s.heartbeat(w2, &[], t1), Ok(vec![]));
 }
@@ -502,7 +508,7 @@ fn a_tile_that_loses_its_worker_three_times_fails_its_job_naming_the_tile() {
         } else {
             assert_eq!(failed.len(), 1, "{failed:?}");
             assert_eq!(failed[0].0, j);
-            let m = &failed[0].1;
+            let m = tiles(&failed[0].1);
             assert!(m.contains("tile 1 (4x4 at (4, 0))"), "{m}");
             assert!(m.contains("lost the worker rendering it 3 times"), "{m}");
         }
@@ -528,7 +534,7 @@ fn tiles_lost_together_are_all_named() {
     let failed = s.take_failed();
     assert_eq!(failed.len(), 1, "one entry per job: {failed:?}");
     assert_eq!(failed[0].0, j);
-    let m = &failed[0].1;
+    let m = tiles(&failed[0].1);
     assert!(m.contains("at (0, 0)") && m.contains("at (4, 0)"), "{m}");
 }
 
@@ -561,18 +567,9 @@ fn a_returned_lease_requeues_for_free_and_a_failed_render_counts() {
     }
     let failed = s.take_failed();
     assert_eq!(failed.len(), 1, "{failed:?}");
-    assert!(
-        failed[0]
-            .1
-            .contains("tile 0 (4x4 at (0, 0)) failed 5 times"),
-        "{}",
-        failed[0].1
-    );
-    assert!(
-        failed[0].1.contains("the render panicked: boom"),
-        "{}",
-        failed[0].1
-    );
+    let m = tiles(&failed[0].1);
+    assert!(m.contains("tile 0 (4x4 at (0, 0)) failed 5 times"), "{m}");
+    assert!(m.contains("the render panicked: boom"), "{m}");
     // A lease that is gone already is left alone.
     assert_eq!(s.return_lease(w, 12345, Some("late"), t0), Ok(()));
 }
