@@ -26,7 +26,7 @@ which it removes afterwards.
 
 Run (from the repository root; Linux only, it reads /proc):
 
-    TREVI_BIN=/work/bench-bin python3 bench/progressive.py [--big 8192] \
+    TREVI_BIN=/work/bench-bin python3 bench/progressive.py [--big 8192,4096] [--reuse-ref] \
         [--ref 1024] [--work /tmp/trevi-progressive-bench] > out.txt
 
 The binaries are found in $TREVI_BIN, else target/release, else target/debug.
@@ -190,13 +190,15 @@ class Farm:
             os.path.join(self.data, "jobs")) else set()
 
     def submit(self, scene, out, samples, pass_, snapshot=None):
-        """Run one job; returns (wall s, coordinator CPU s, [(spp, t since start)], job dir).
+        """Run one job; returns (wall s, coordinator CPU s, [(spp, t since start, coordinator
+        CPU s since start)], job dir, client lines); self.last_worker_cpu is the worker's CPU s.
 
         snapshot: a sample count after whose pass the coordinator's copy of the
         output is copied to out + '.at<spp>.png' as soon as the line arrives.
         """
         before = self.jobs()
         c0 = cpu_seconds(self.coord.pid)
+        w0 = cpu_seconds(self.worker.pid)
         t0 = time.monotonic()
         p = subprocess.Popen(
             [find_bin("trevi-submit"), scene, "--coordinator", self.url, "--camera", "front",
@@ -212,7 +214,7 @@ class Farm:
                     k = int(word.split("/")[0])
                     if k > seen:
                         seen = k
-                        marks.append((k, t))
+                        marks.append((k, t, cpu_seconds(self.coord.pid) - c0))
                         if snapshot == k:
                             new = sorted(self.jobs() - before, key=int)
                             for f in glob.glob(os.path.join(self.data, "jobs", new[-1], "*.png")) if new else []:
@@ -221,6 +223,7 @@ class Farm:
         rc = p.wait()
         wall = time.monotonic() - t0
         cpu = cpu_seconds(self.coord.pid) - c0
+        self.last_worker_cpu = cpu_seconds(self.worker.pid) - w0
         if rc != 0:
             raise RuntimeError(f"trevi-submit exited {rc}: {lines[-5:]}")
         new = sorted(self.jobs() - before, key=int)
@@ -256,23 +259,30 @@ def write_small_cornell(work, size):
     return path
 
 
-def part1(farm, work, scene, n, p, ref_samples):
+def part1(farm, work, scene, n, p, ref_samples, reuse_ref):
     say(f"== 1. error against time: N = {n}, passes of {p}, reference {ref_samples} samples")
     ref = os.path.join(work, f"ref{ref_samples}.png")
-    wall, _, _, _, _ = farm.submit(scene, ref, ref_samples, ref_samples)
-    say(f"reference: {ref_samples} samples in one pass, {wall:.2f} s")
+    if reuse_ref and os.path.exists(ref):
+        say(f"reference: {ref_samples} samples in one pass, reused from an earlier run ({ref})")
+    else:
+        wall, _, _, _, _ = farm.submit(scene, ref, ref_samples, ref_samples)
+        say(f"reference: {ref_samples} samples in one pass, {wall:.2f} s, worker CPU "
+            f"{farm.last_worker_cpu:.1f} s")
     mid = (n // 2 // p) * p
     prog = os.path.join(work, f"prog{n}x{p}.png")
     wall, cpu, marks, jobdir, lines = farm.submit(scene, prog, n, p, snapshot=mid)
-    say(f"progressive: {n} in passes of {p}: {wall:.2f} s wall, coordinator CPU {cpu:.2f} s")
+    pw = farm.last_worker_cpu
+    say(f"progressive: {n} in passes of {p}: {wall:.2f} s wall, coordinator CPU {cpu:.2f} s, "
+        f"worker CPU {pw:.2f} s")
     for line in lines:
         say("  client: " + line)
-    at = dict(marks)
+    at = {k: t for k, t, _ in marks}
     ks = [k for k in (p, 2 * p, 4 * p, 8 * p, 16 * p, 32 * p) if k <= n]
     if n not in ks:
         ks.append(n)
-    say("| samples | one-shot s | progressive s at that pass | RMSE one-shot | RMSE progressive |")
-    say("|---|---|---|---|---|")
+    say("| samples | one-shot s | one-shot worker CPU s | progressive s at that pass | "
+        "RMSE one-shot | RMSE progressive |")
+    say("|---|---|---|---|---|---|")
     rows = {}
     for k in ks:
         one = os.path.join(work, f"one{k}.png")
@@ -285,9 +295,9 @@ def part1(farm, work, scene, n, p, ref_samples):
             ep = f"{rmse(prog + f'.at{k}.png', ref):.4e}"
         rows[k] = one
         tp = f"{at[k]:.2f}" if k in at else "—"
-        say(f"| {k} | {w1:.2f} | {tp} | {e1:.4e} | {ep} |")
+        say(f"| {k} | {w1:.2f} | {farm.last_worker_cpu:.2f} | {tp} | {e1:.4e} | {ep} |")
     say("progressive pass ends (samples: s since submission): "
-        + ", ".join(f"{k}: {t:.2f}" for k, t in marks))
+        + ", ".join(f"{k}: {t:.2f}" for k, t, _ in marks))
     say(f"final output == one-shot {n}: {same_bytes(prog, rows[n])}")
     snap = prog + f".at{mid}.png"
     if mid in rows and os.path.exists(snap):
@@ -307,14 +317,15 @@ def part2(farm, work, scene, size, n=64):
     for p in (64, 16, 4, 1):
         out = os.path.join(work, f"over{p}.png")
         wall, cpu, marks, _, _ = farm.submit(scene, out, n, p)
-        res[p] = (wall, cpu, n // p)
-    say("| pass size | passes | wall s | overhead per pass s | coordinator CPU s | coordinator CPU per pass per pixel ns |")
-    say("|---|---|---|---|---|---|")
+        res[p] = (wall, cpu, n // p, farm.last_worker_cpu)
+    say("| pass size | passes | wall s | overhead per pass s | worker CPU s | coordinator CPU s | "
+        "coordinator CPU per pass per pixel ns |")
+    say("|---|---|---|---|---|---|---|")
     t64 = res[64][0]
     for p in (64, 16, 4, 1):
-        wall, cpu, passes = res[p]
+        wall, cpu, passes, wcpu = res[p]
         over = "—" if passes == 1 else f"{(wall - t64) / (passes - 1):.3f}"
-        say(f"| {p} | {passes} | {wall:.2f} | {over} | {cpu:.2f} | "
+        say(f"| {p} | {passes} | {wall:.2f} | {over} | {wcpu:.2f} | {cpu:.2f} | "
             f"{cpu / passes / (size * size) * 1e9:.0f} |")
 
 
@@ -367,8 +378,11 @@ def part3(work, size):
         w_hwm = vm_hwm_kib(farm.worker.pid)
         states = {os.path.basename(f): (os.path.getsize(f), os.stat(f).st_blocks * 512)
                   for f in glob.glob(os.path.join(jobdir, "state.*"))}
-        say(f"wall {wall:.1f} s; pass ends: " + ", ".join(f"{k}: {t:.1f} s" for k, t in marks))
-        say(f"coordinator CPU {cpu:.1f} s; VmHWM coordinator {c_hwm / 1024:.1f} MiB "
+        say(f"wall {wall:.1f} s; pass ends (samples: s since submission, coordinator CPU s): "
+            + ", ".join(f"{k}: {t:.1f} s, {c:.1f} s" for k, t, c in marks))
+        px = size * size
+        say(f"coordinator CPU {cpu:.1f} s ({cpu / 2 / px * 1e9:.0f} ns a pixel a pass), worker CPU "
+            f"{farm.last_worker_cpu:.1f} s; VmHWM coordinator {c_hwm / 1024:.1f} MiB "
             f"(at start {c_hwm0 / 1024:.1f} MiB), worker {w_hwm / 1024:.1f} MiB")
         for name, (size_b, used) in sorted(states.items()):
             say(f"{name}: {size_b / 2**30:.3f} GiB long, {used / 2**30:.3f} GiB on disk")
@@ -391,7 +405,9 @@ def main():
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--pass", dest="pass_", type=int, default=4)
     ap.add_argument("--ref", type=int, default=1024)
-    ap.add_argument("--big", type=int, default=8192, help="part 3's frame edge; 0 skips it")
+    ap.add_argument("--big", default="8192", help="part 3's frame edges, comma-separated; 0 skips it")
+    ap.add_argument("--reuse-ref", action="store_true",
+                    help="keep the reference render already in the work dir, if any")
     ap.add_argument("--parts", default="123")
     a = ap.parse_args()
     os.makedirs(a.work, exist_ok=True)
@@ -405,14 +421,18 @@ def main():
         try:
             time.sleep(0.5)
             if "1" in a.parts:
-                part1(farm, a.work, scene, a.samples, a.pass_, a.ref)
+                part1(farm, a.work, scene, a.samples, a.pass_, a.ref, a.reuse_ref)
             if "2" in a.parts:
                 part2(farm, a.work, scene, a.size)
+            c0 = cpu_seconds(farm.coord.pid)
+            time.sleep(5)
+            say(f"coordinator CPU while idle: {(cpu_seconds(farm.coord.pid) - c0) / 5 * 1000:.1f} ms/s")
         finally:
             farm.stop()
         say(f"coordinator log: {farm.clog.name}")
-    if "3" in a.parts and a.big:
-        part3(a.work, a.big)
+    if "3" in a.parts:
+        for big in (int(b) for b in a.big.split(",") if int(b) > 0):
+            part3(a.work, big)
     say(f"total {time.monotonic() - t0:.0f} s")
     say("uptime after: " + uptime())
 
