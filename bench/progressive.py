@@ -190,6 +190,7 @@ class Farm:
             os.path.join(self.data, "jobs")) else set()
 
     def submit(self, scene, out, samples, pass_, snapshot=None):
+        """samples None: a plain (not progressive) job of the scene's own samples."""
         """Run one job; returns (wall s, coordinator CPU s, [(spp, t since start, coordinator
         CPU s since start)], job dir, client lines); self.last_worker_cpu is the worker's CPU s.
 
@@ -202,7 +203,7 @@ class Farm:
         t0 = time.monotonic()
         p = subprocess.Popen(
             [find_bin("trevi-submit"), scene, "--coordinator", self.url, "--camera", "front",
-             "--samples", str(samples), "--pass", str(pass_), "-o", out],
+             "-o", out] + ([] if samples is None else ["--samples", str(samples), "--pass", str(pass_)]),
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         marks, seen, lines = [], 0, []
         for line in p.stderr:
@@ -355,6 +356,14 @@ def part3(work, size):
         time.sleep(0.5)  # let the worker register; the wall time includes its first lease
         c_hwm0 = vm_hwm_kib(farm.coord.pid)
         out = os.path.join(work, f"big{size}.png")
+        # First a plain job of the same frame (1 sample a pixel, no states): the
+        # stitching baseline of the coordinator's CPU and memory.
+        wall0, cpu0, _, _, _ = farm.submit(scene, out, None, None)
+        c_hwm_plain = vm_hwm_kib(farm.coord.pid)
+        say(f"plain job first (1 sample a pixel, not progressive): wall {wall0:.1f} s, coordinator CPU "
+            f"{cpu0:.1f} s ({cpu0 / (size * size) * 1e9:.0f} ns a pixel), worker CPU "
+            f"{farm.last_worker_cpu:.1f} s, coordinator VmHWM after it {c_hwm_plain / 1024:.1f} MiB")
+        os.remove(out)
         peak_state = [0]
         stop = threading.Event()
 
