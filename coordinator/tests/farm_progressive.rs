@@ -35,6 +35,15 @@ fn scene(total: u32) -> Scene {
     s
 }
 
+/// [`scene`] at frame `frame` of a sequence, when given.
+fn scene_at(total: u32, frame: Option<u32>) -> Scene {
+    let mut s = scene(total);
+    if let Some(f) = frame {
+        s.set_frame(0, f).unwrap();
+    }
+    s
+}
+
 fn spec(name: &str) -> JobSpec {
     JobSpec {
         frame: None,
@@ -81,7 +90,7 @@ fn work(f: &Farm, mut stop: impl FnMut(&Farm) -> bool) -> Vec<(u32, u32)> {
             TileState::decode(&bytes).unwrap()
         };
         state
-            .render(&scene(r.total), 0, r.start..r.end, &never)
+            .render(&scene_at(r.total, l.frame), 0, r.start..r.end, &never)
             .unwrap();
         f.put_state(l.job, l.rect, &[l.rect], Some(&state.encode()))
             .unwrap();
@@ -325,4 +334,104 @@ fn states_that_do_not_fit_the_lease_are_refused() {
     // A first pass has no state to fetch.
     let e = f.state_source(worker, l.id).unwrap_err();
     assert!(e.to_string().contains("does not continue"), "{e}");
+}
+
+/// The frames `0..frames` of a sequence of `total` samples rendered at
+/// once, by tiles of the one-shot renderer.
+fn one_shot_frames(total: u32, frames: u32) -> Vec<Vec<u8>> {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path());
+    let seq = f
+        .submit_sequence(spec("shot.exr"), 0, frames - 1, "me")
+        .unwrap()
+        .id;
+    let worker = f.register_worker(WorkerOptions::default()).unwrap().id;
+    while let Some(l) = f.lease(worker).unwrap() {
+        let pixels = trevi_core::tile::render_tile(&scene_at(total, l.frame), 0, l.rect).pixels;
+        f.put_tile(LeaseResult {
+            lease: l.id,
+            job: l.job,
+            rect: l.rect,
+            rays: 1,
+            pixels: &pixels,
+            worker: Some(worker),
+        })
+        .unwrap();
+    }
+    (0..frames)
+        .map(|n| std::fs::read(f.frame_file(seq, Some(n)).unwrap()).unwrap())
+        .collect()
+}
+
+#[test]
+fn a_sequence_in_passes_renders_each_frame_s_passes_in_turn() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path());
+    let info = f
+        .submit_progressive_sequence(spec("shot.exr"), 0, 2, progressive(6, 3), "me")
+        .unwrap();
+    let seq = info.id;
+    assert_eq!(info.tiles_total, 3 * 2 * 6, "frames × passes × tiles");
+    let ranges = work(&f, |_| false);
+    let want: Vec<(u32, u32)> = (0..3)
+        .flat_map(|_| [(0, 3), (3, 6)])
+        .flat_map(|r| std::iter::repeat_n(r, 6))
+        .collect();
+    assert_eq!(ranges, want, "each frame's passes, frame after frame");
+    let info = f.info(seq).unwrap();
+    assert_eq!(info.state, JobState::Done);
+    assert_eq!(info.frames.unwrap().done, 3);
+    let once = one_shot_frames(6, 3);
+    assert_ne!(once[0], once[1], "frames differ");
+    for (n, frame) in once.iter().enumerate() {
+        let got = std::fs::read(f.frame_file(seq, Some(n as u32)).unwrap()).unwrap();
+        assert!(&got == frame, "frame {n} differs from its one-shot render");
+    }
+    // A time limit or a noise target would stop mid-frame: refused.
+    let e = f
+        .submit_progressive_sequence(
+            spec("shot.exr"),
+            0,
+            2,
+            Progressive {
+                noise_target: Some(0.1),
+                ..progressive(6, 3)
+            },
+            "me",
+        )
+        .unwrap_err();
+    assert!(e.to_string().contains("--samples and --pass only"), "{e}");
+    assert!(f.extend(seq, 4, Progressive::default()).is_err());
+}
+
+#[test]
+fn a_sequence_in_passes_resumes_after_a_restart_mid_frame() {
+    let once = one_shot_frames(6, 3);
+    for stop_after in [9, 15, 18] {
+        let dir = tempfile::tempdir().unwrap();
+        let seq = {
+            let f = farm(dir.path());
+            let seq = f
+                .submit_progressive_sequence(spec("shot.exr"), 0, 2, progressive(6, 3), "me")
+                .unwrap()
+                .id;
+            let mut leases = 0;
+            work(&f, |_| {
+                leases += 1;
+                leases > stop_after
+            });
+            seq
+        };
+        let f = farm(dir.path());
+        work(&f, |_| false);
+        let info = f.info(seq).unwrap();
+        assert_eq!(info.state, JobState::Done, "stopped after {stop_after}");
+        for (n, frame) in once.iter().enumerate() {
+            let got = std::fs::read(f.frame_file(seq, Some(n as u32)).unwrap()).unwrap();
+            assert!(
+                &got == frame,
+                "frame {n} after a restart at lease {stop_after}"
+            );
+        }
+    }
 }

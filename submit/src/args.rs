@@ -75,8 +75,9 @@ pub struct Args {
     /// Render this many samples per pixel (1 to 1048576) instead of the
     /// scene's, progressively: in passes over the whole frame, the output
     /// rewritten after each, extendable later (`trevi-submit extend`). This,
-    /// --pass, --time-limit or --noise-target makes a still progressive (not
-    /// a sequence yet: not with --frames).
+    /// --pass, --time-limit or --noise-target makes a still progressive; a
+    /// sequence (--frames) renders each frame in passes with --samples and
+    /// --pass, and takes no --time-limit or --noise-target.
     #[arg(long, env = "TREVI_SAMPLES", value_parser = passes::samples)]
     pub samples: Option<u32>,
     #[command(flatten)]
@@ -228,13 +229,11 @@ impl Args {
         };
         passes::check(samples, flags)
             .map_err(|m| Args::command().error(ErrorKind::ValueValidation, m))?;
-        if self.command.is_none() && self.frames.is_some() && self.progressive().is_some() {
-            return Err(Args::command().error(
-                ErrorKind::ArgumentConflict,
-                "--samples, --pass, --time-limit and --noise-target render a still \
-                 progressively: the farm does not render sequences progressively yet \
-                 (drop --frames, or those flags)",
-            ));
+        if self.command.is_none()
+            && self.frames.is_some()
+            && (self.passes.time_limit.is_some() || self.passes.noise_target.is_some())
+        {
+            return Err(Args::command().error(ErrorKind::ArgumentConflict, SEQUENCE_STOPS));
         }
         Ok(())
     }
@@ -244,6 +243,12 @@ impl Args {
         passes::progressive(self.samples, &self.passes)
     }
 }
+
+/// Why a sequence takes no stop condition (`--frames`, or a camera whose
+/// scene has `frames=`).
+pub const SEQUENCE_STOPS: &str = "a sequence renders each frame in passes with --samples and \
+     --pass, but takes no --time-limit or --noise-target: they would stop it in the middle of a \
+     frame (drop them, or render a still)";
 
 impl Command {
     pub fn farm(&self) -> &Farm {

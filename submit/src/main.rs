@@ -145,12 +145,14 @@ fn run(args: Args) -> Result<()> {
             None => scene_dir.join(&c.render.output),
         };
         let frames = args.frames.or(c.render.frames);
-        if frames.is_some() && progressive.is_some() {
+        let stops = progressive
+            .as_ref()
+            .is_some_and(|p| p.time_limit_ms > 0 || p.noise_target > 0.0);
+        if frames.is_some() && stops {
             bail!(
-                "camera \"{}\" renders a sequence (the scene's frames=): --samples, --pass, \
-                 --time-limit and --noise-target are for stills, the farm does not render \
-                 sequences progressively yet (drop those flags, or name a still camera with --camera)",
-                c.id
+                "camera \"{}\" renders a sequence (the scene's frames=): {}",
+                c.id,
+                args::SEQUENCE_STOPS
             );
         }
         targets.push(

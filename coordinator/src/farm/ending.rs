@@ -77,6 +77,7 @@ impl Farm {
                     p.samples_done = range.end;
                     p.error = noise.map(|n| n.relative_error());
                     p.noise.clear();
+                    p.resize(range.end - range.start, ending.render());
                     p
                 })
             }

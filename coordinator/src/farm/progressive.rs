@@ -32,9 +32,16 @@ use trevi_core::Rect;
 /// the frame's states, and a restart a pass job row).
 pub const MAX_PASSES: u32 = 4096;
 /// Passes a job's samples are split into when it does not say
-/// (`--pass`): a first look after an eighth of the samples, then
-/// evenly.
+/// (`--pass`): a first look after an eighth of the samples; after that a
+/// still's passes are sized from the scene's measured cost (see
+/// [`PASS_TARGET`]).
 pub const DEFAULT_PASSES: u32 = 8;
+/// The render time a still's pass aims at when the job does not say
+/// `--pass`: each pass after the first takes as many samples as the one
+/// before rendered in this long (at most twice as many), so a cheap frame
+/// finishes in a few passes and an expensive one shows a new image about
+/// this often.
+pub const PASS_TARGET: Duration = Duration::from_secs(10);
 
 /// What a submission asks of a progressive job (`SubmitJobRequest.progressive`).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -85,6 +92,11 @@ pub struct Passes {
     /// The noise of the tiles of the pass in progress, by tile origin
     /// (a tile taken twice counts once).
     pub(super) noise: HashMap<(u32, u32), Noise>,
+    /// The pass size is the coordinator's to choose (no `--pass`).
+    pub(super) auto: bool,
+    /// The passes are each frame's of a sequence (`samples_done` then
+    /// counts the current frame's), not a still's.
+    pub(super) frames: bool,
 }
 
 impl Passes {
@@ -108,7 +120,28 @@ impl Passes {
             error: None,
             stopped_by: None,
             noise: HashMap::new(),
+            auto: p.pass == 0,
+            frames: false,
         }
+    }
+
+    /// After a pass of `samples` samples that rendered in `took`: the next
+    /// pass's size, when the coordinator chooses it (a still without
+    /// `--pass`), from what a sample cost, towards [`PASS_TARGET`].
+    pub fn resize(&mut self, samples: u32, took: Duration) {
+        if !self.auto || self.frames || samples == 0 {
+            return;
+        }
+        let per_sample = took.as_secs_f64() / f64::from(samples);
+        let want = if per_sample > 0.0 {
+            (PASS_TARGET.as_secs_f64() / per_sample)
+                .floor()
+                .min(f64::from(u32::MAX)) as u32
+        } else {
+            u32::MAX
+        };
+        let floor = self.total.div_ceil(MAX_PASSES);
+        self.pass = want.clamp(1, self.pass.saturating_mul(2)).max(floor);
     }
 
     /// The passes still to render.
@@ -168,6 +201,8 @@ impl Passes {
             samples_done: self.samples_done,
             error: self.error,
             stopped_by: self.stopped_by,
+            frames: self.frames,
+            auto: self.auto,
         }
     }
 
@@ -183,6 +218,8 @@ impl Passes {
             error: p.error,
             stopped_by: p.stopped_by,
             noise: HashMap::new(),
+            frames: p.frames,
+            auto: p.auto,
         }
     }
 }
@@ -309,21 +346,18 @@ impl Farm {
             (counted, tiles)
         };
         let path = state_path(&self.job_dir(parent), range.pass);
+        // The pass's states reach the disk before its end is recorded: a
+        // restart after it reads them.
+        let file = StateFile::open(&path, width, false).ok()?;
+        if let Err(e) = file.sync() {
+            tracing::error!(job, error = %e, "cannot sync the pass's states");
+        }
         let mut total = Noise::default();
-        let mut file = None;
         for t in tiles {
             match counted.get(&(t.x, t.y)) {
                 Some(n) => total += *n,
-                None => {
-                    if file.is_none() {
-                        file = Some(StateFile::open(&path, width, false).ok()?);
-                    }
-                    total += file.as_ref()?.noise(t, range.end).ok()?;
-                }
+                None => total += file.noise(t, range.end).ok()?,
             }
-        }
-        if let Some(f) = &file {
-            let _ = f.sync();
         }
         Some(total)
     }
@@ -337,7 +371,43 @@ impl Farm {
         who: &str,
     ) -> Result<crate::scheduler::JobInfo, FarmError> {
         p.check()?;
-        let (total, own) = match p.samples {
+        let (total, own) = self.job_samples(&spec, &p);
+        self.check_progressive(&spec, total)?;
+        let passes = Passes::new(total, own, &p);
+        self.submit_runs(spec, super::sequences::Runs::Passes(passes), who)
+    }
+
+    /// Queues a sequence in passes: frames `first..=last` of `spec`'s
+    /// camera, each rendered in passes as `p` asks (its samples and pass
+    /// size; a sequence takes no time limit or noise target), one frame
+    /// after the other.
+    pub fn submit_progressive_sequence(
+        &self,
+        spec: JobSpec,
+        first: u32,
+        last: u32,
+        p: Progressive,
+        who: &str,
+    ) -> Result<crate::scheduler::JobInfo, FarmError> {
+        p.check()?;
+        if p.time_limit.is_some() || p.noise_target.is_some() {
+            return Err(FarmError::Invalid(
+                "a sequence in passes takes --samples and --pass only: a time limit or a \
+                 noise target would stop it in the middle of a frame"
+                    .into(),
+            ));
+        }
+        let (total, own) = self.job_samples(&spec, &p);
+        self.check_progressive(&spec, total)?;
+        let mut passes = Passes::new(total, own, &p);
+        passes.frames = true;
+        self.submit_frames(spec, first, last, Some(passes), who)
+    }
+
+    /// A job's samples per pixel and whether they are its own (`p.samples`)
+    /// or its scene's.
+    fn job_samples(&self, spec: &JobSpec, p: &Progressive) -> (u32, bool) {
+        match p.samples {
             0 => (
                 self.summaries
                     .get(&spec.bundle_hash)
@@ -351,10 +421,7 @@ impl Farm {
                 false,
             ),
             n => (n, true),
-        };
-        self.check_progressive(&spec, total)?;
-        let passes = Passes::new(total, own, &p);
-        self.submit_runs(spec, super::sequences::Runs::Passes(passes), who)
+        }
     }
 
     /// The bounds a progressive job of `total` samples per pixel must fit:
@@ -429,7 +496,7 @@ impl Farm {
                     FarmError::UnknownJob(job)
                 });
             };
-            let Some(passes) = s.passes.clone() else {
+            let Some(passes) = s.passes.clone().filter(|p| !p.frames) else {
                 return Err(FarmError::Invalid(format!(
                     "job {job} is a sequence: only a still rendered in passes can be extended"
                 )));
@@ -471,6 +538,7 @@ impl Farm {
         };
         if p.pass > 0 {
             next.pass = p.pass.min(total - next.samples_done).max(1);
+            next.auto = false;
         }
         next.time_limit = p.time_limit.or(next.time_limit);
         next.noise_target = p.noise_target.or(next.noise_target);
@@ -534,6 +602,24 @@ mod tests {
         assert_eq!(p.stop(Duration::ZERO), Some(StopReason::NoiseTarget));
         p.samples_done = 64;
         assert_eq!(p.stop(Duration::from_secs(99)), None, "done anyway");
+    }
+
+    #[test]
+    fn without_pass_the_coordinator_sizes_passes_from_their_cost() {
+        let mut p = passes(64, 0);
+        assert_eq!((p.pass, p.auto), (8, true));
+        // A sample took 10 s: one sample a pass.
+        p.resize(8, Duration::from_secs(80));
+        assert_eq!(p.pass, 1);
+        // A sample took 0.1 s: 100 wanted, at most twice the last pass.
+        p.resize(1, Duration::from_millis(100));
+        assert_eq!(p.pass, 2);
+        p.resize(2, Duration::ZERO);
+        assert_eq!(p.pass, 4);
+        // --pass given: kept.
+        let mut fixed = passes(64, 4);
+        fixed.resize(4, Duration::from_secs(400));
+        assert_eq!(fixed.pass, 4);
     }
 
     #[test]

@@ -70,18 +70,24 @@ pub struct Sequence {
     /// download without a frame fetches, found without looking at the
     /// disk.
     pub(super) latest: Option<(u32, Option<JobId>)>,
-    /// For a progressive job (see `progressive.rs`): its passes, which are
-    /// then its "frames" (`first` 0, `last` the last pass planned, one in
-    /// progress at a time).
+    /// For a progressive job (see `progressive.rs`): its passes, one in
+    /// progress at a time. A progressive still's passes are its "frames"
+    /// (`first` 0, `last` the last pass planned); a sequence in passes
+    /// renders each frame's passes before the next frame, and `done` counts
+    /// passes.
     pub(super) passes: Option<Passes>,
 }
 
 /// What a [`Sequence`] runs one after the other: frames of an animation,
 /// or the passes of a progressive still.
 pub enum Runs {
-    /// Frames `first..=last` of the camera.
-    Frames { first: u32, last: u32 },
-    /// Passes (see `progressive.rs`).
+    /// Frames `first..=last` of the camera, each in `passes` when set.
+    Frames {
+        first: u32,
+        last: u32,
+        passes: Option<Passes>,
+    },
+    /// A still's passes (see `progressive.rs`).
     Passes(Passes),
 }
 
@@ -91,8 +97,23 @@ pub(super) fn run_index(spec: &JobSpec) -> Option<u32> {
 }
 
 impl Sequence {
-    fn count(&self) -> u32 {
-        self.last - self.first + 1
+    /// Whether the runs are frames (with or without passes each), not a
+    /// still's passes.
+    pub(super) fn frames(&self) -> bool {
+        self.passes.as_ref().is_none_or(|p| p.frames)
+    }
+
+    /// The runs of one frame: its passes in a sequence in passes, else 1.
+    fn runs_per_frame(&self) -> u32 {
+        match &self.passes {
+            Some(p) if p.frames => p.total.div_ceil(p.pass).max(1),
+            _ => 1,
+        }
+    }
+
+    /// The runs in all: frames, a still's passes, or frames × passes.
+    fn count(&self) -> u64 {
+        u64::from(self.last - self.first + 1) * u64::from(self.runs_per_frame())
     }
 
     fn tiles_per_frame(&self) -> u64 {
@@ -117,7 +138,7 @@ impl Sequence {
                 current.get_or_insert((f, i.tiles_done, i.tiles_total));
             }
         }
-        if self.passes.is_some() {
+        if !self.frames() {
             // A pass's tiles are the job's: the current pass's, or all of
             // them once one is done and none is running.
             let current = current.map_or(0, |c| c.1);
@@ -136,9 +157,9 @@ impl Sequence {
             id,
             spec: self.spec.clone(),
             state,
-            tiles_total: match self.passes {
-                Some(_) => per,
-                None => u64::from(self.count()) * per,
+            tiles_total: match self.frames() {
+                false => per,
+                true => self.count() * per,
             },
             tiles_done,
             rays,
@@ -149,14 +170,18 @@ impl Sequence {
                 .saturating_duration_since(self.submitted),
             error: self.error.clone(),
             finish_order: 0,
-            frames: self.passes.is_none().then_some(FramesInfo {
+            frames: self.frames().then_some(FramesInfo {
                 first: self.first,
                 last: self.last,
-                done: self.done,
+                done: self.done / self.runs_per_frame(),
                 in_progress: self.running.len() as u32,
                 current,
             }),
-            passes: self.passes.as_ref().map(|p| p.info(self.done)),
+            passes: self.passes.as_ref().map(|p| match p.frames {
+                // The current frame's passes.
+                true => p.info(self.done % self.runs_per_frame()),
+                false => p.info(self.done),
+            }),
         }
     }
 }
@@ -276,12 +301,32 @@ impl Farm {
         last: u32,
         who: &str,
     ) -> Result<JobInfo, FarmError> {
+        self.submit_frames(spec, first, last, None, who)
+    }
+
+    /// [`Farm::submit_sequence`], each frame in `passes` when given.
+    pub(super) fn submit_frames(
+        &self,
+        spec: JobSpec,
+        first: u32,
+        last: u32,
+        passes: Option<Passes>,
+        who: &str,
+    ) -> Result<JobInfo, FarmError> {
         if first > last || last > MAX_FRAME {
             return Err(FarmError::Invalid(format!(
                 "frames {first}-{last}: a range is first-last, both in [0, {MAX_FRAME}]"
             )));
         }
-        self.submit_runs(spec, Runs::Frames { first, last }, who)
+        self.submit_runs(
+            spec,
+            Runs::Frames {
+                first,
+                last,
+                passes,
+            },
+            who,
+        )
     }
 
     /// Queues a sequence of `runs`: frames, or a progressive still's passes.
@@ -296,9 +341,13 @@ impl Farm {
         }
         self.check_memory(&spec)?;
         let (first, last, passes) = match runs {
-            Runs::Frames { first, last } => {
+            Runs::Frames {
+                first,
+                last,
+                passes,
+            } => {
                 spec.output_name = sequence_pattern(&spec.output_name);
-                (first, last, None)
+                (first, last, passes)
             }
             Runs::Passes(p) => (0, p.remaining().max(1) - 1, Some(p)),
         };
@@ -370,7 +419,20 @@ impl Farm {
                 }
                 return;
             }
-            if s.done >= s.count() {
+            // A still's passes left, as sized now (its pass size may
+            // change after each pass), unless it was stopped.
+            let replan = s
+                .passes
+                .as_ref()
+                .filter(|p| !p.frames && p.stopped_by.is_none())
+                .map(|p| s.done + p.remaining());
+            if let Some(runs) = replan.filter(|&r| r > 0) {
+                st.seqs.get_mut(&seq).expect("checked above").last = runs - 1;
+            }
+            let Some(s) = st.seqs.get(&seq) else {
+                return;
+            };
+            if u64::from(s.done) >= s.count() {
                 drop(st);
                 self.end_sequence(seq, Ok(()));
                 return;
@@ -380,7 +442,12 @@ impl Farm {
                 Some(_) => 1,
                 None => self.cfg.limits.frames_in_progress.max(1),
             };
-            if s.running.len() >= most || s.next > s.last {
+            // A sequence in passes between two passes of a frame.
+            let mid_frame = s
+                .passes
+                .as_ref()
+                .is_some_and(|p| p.frames && p.samples_done > 0 && p.samples_done < p.total);
+            if s.running.len() >= most || (s.next > s.last && !mid_frame) {
                 return;
             }
             let rendered = s.started.map_or(Duration::ZERO, |t| t.elapsed());
@@ -397,22 +464,38 @@ impl Farm {
                 );
                 continue;
             }
-            let f = s.next;
+            // The frame (or a still's pass) the run renders, and whether it
+            // starts a frame.
+            let (f, starts) = if mid_frame {
+                (s.next - 1, false)
+            } else {
+                (s.next, true)
+            };
+            let done = s.done;
+            let s = st.seqs.get_mut(&seq).expect("checked above");
+            if let Some(p) = s.passes.as_mut().filter(|p| p.frames && starts) {
+                p.samples_done = 0;
+            }
             let spec = match &s.passes {
-                Some(p) => JobSpec {
+                Some(p) if !p.frames => JobSpec {
                     samples: Some(p.range(f)),
                     ..s.spec.clone()
                 },
-                None => JobSpec {
+                passes => JobSpec {
                     frame: Some(f),
                     output_name: frame_output(&s.spec.output_name, f),
+                    // A sequence's passes are counted across its frames
+                    // (which state file each uses).
+                    samples: passes.as_ref().map(|p| p.range(done)),
                     ..s.spec.clone()
                 },
             };
             let who = s.spec.submitter.clone();
             let queued = self.submit_locked(&mut st, spec, None, &who, Some(seq));
             let s = st.seqs.get_mut(&seq).expect("checked above");
-            s.next = f + 1;
+            if starts {
+                s.next = f + 1;
+            }
             match queued {
                 Ok(info) => {
                     s.running.insert(f, info.id);
@@ -585,7 +668,7 @@ impl Farm {
             let Some(s) = st.seqs.get(&seq) else {
                 return Err(self.not_a_sequence(&st, seq, frame));
             };
-            if s.passes.is_some() {
+            if !s.frames() {
                 // A progressive still: the output of its last pass done.
                 let path = self.output_path(seq, &s.spec.output_name);
                 return match frame {
@@ -681,7 +764,7 @@ impl Farm {
         st.seqs
             .get(&job)
             .and_then(|s| {
-                if s.passes.is_some() {
+                if !s.frames() {
                     if let Some(done) = s.latest.and_then(|l| l.1) {
                         return Some(done);
                     }
@@ -777,7 +860,9 @@ impl Farm {
         for id in ids {
             let s = st.seqs.get_mut(&id).expect("listed");
             if !s.state.is_final() {
-                s.next = s.first + s.done + s.running.len() as u32;
+                // Frames started: a sequence in passes counts passes.
+                let runs = s.done + s.running.len() as u32;
+                s.next = s.first + runs.div_ceil(s.runs_per_frame());
                 s.rays = rays.get(&id).copied().unwrap_or(0);
                 // The frames before `next` not in progress are done.
                 if s.latest.is_none() {

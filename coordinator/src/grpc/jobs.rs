@@ -94,11 +94,13 @@ impl pb::jobs_server::Jobs for JobsService {
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
             match (r.frames, r.progressive) {
-                (Some(_), Some(_)) => Err(FarmError::Invalid(
-                    "a sequence cannot be rendered in passes (yet): submit its frames without \
-                     progressive settings"
-                        .into(),
-                )),
+                (Some(f), Some(p)) => farm.submit_progressive_sequence(
+                    spec,
+                    f.first,
+                    f.last,
+                    progressive_from(&p),
+                    &who,
+                ),
                 (None, Some(p)) => farm.submit_progressive(spec, progressive_from(&p), &who),
                 (Some(f), None) => farm.submit_sequence(spec, f.first, f.last, &who),
                 (None, None) => farm.submit(

@@ -84,6 +84,10 @@ pub struct StoredPasses {
     /// The estimated relative error after the last pass done.
     pub error: Option<f64>,
     pub stopped_by: Option<StopReason>,
+    /// The passes are each frame's of a sequence, not a still's.
+    pub frames: bool,
+    /// The coordinator sizes the passes (no `--pass`).
+    pub auto: bool,
 }
 
 fn set_passes(tx: &rusqlite::Transaction, job: JobId, p: &StoredPasses) -> Result<(), FarmError> {
@@ -131,9 +135,10 @@ impl Store {
                 "INSERT INTO jobs (id, bundle_hash, camera, priority, width, height, tile_size,
                      output_name, submitter, state, submitted_ms, frame, parent, first_frame,
                      last_frame, scene, pass, sample_start, sample_end, sample_total,
-                     passes_total, passes_own, pass_samples, time_limit_ms, noise_target)
+                     passes_total, passes_own, pass_samples, time_limit_ms, noise_target,
+                     pass_frames, pass_auto)
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16,
-                     ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25)",
+                     ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27)",
                 params![
                     j.id as i64,
                     s.bundle_hash,
@@ -160,6 +165,8 @@ impl Store {
                     j.seq.passes.map(|p| p.pass),
                     j.seq.passes.map(|p| p.time_limit_ms as i64),
                     j.seq.passes.map(|p| p.noise_target),
+                    j.seq.passes.map(|p| p.frames),
+                    j.seq.passes.map(|p| p.auto),
                 ],
             )
             .map_err(db_err)?;
@@ -264,7 +271,7 @@ impl Store {
                      rays, frame, parent, first_frame, last_frame, frames_done, render_ms, scene,
                      pass, sample_start, sample_end, sample_total, passes_total, passes_own,
                      pass_samples, time_limit_ms, noise_target, samples_done, noise_error,
-                     stopped_by
+                     stopped_by, pass_frames, pass_auto
                  FROM jobs ORDER BY id",
             )
             .map_err(db_err)?;
@@ -336,6 +343,8 @@ impl Store {
                                     .get::<_, Option<String>>(34)?
                                     .as_deref()
                                     .and_then(StopReason::from_label),
+                                frames: r.get::<_, Option<bool>>(35)?.unwrap_or(false),
+                                auto: r.get::<_, Option<bool>>(36)?.unwrap_or(false),
                             }),
                         },
                     },

@@ -126,6 +126,8 @@ impl Store {
             ("samples_done", "INTEGER"),
             ("noise_error", "REAL"),
             ("stopped_by", "TEXT"),
+            ("pass_frames", "INTEGER"),
+            ("pass_auto", "INTEGER"),
         ] {
             if !have.iter().any(|h| h == col) {
                 conn.execute(&format!("ALTER TABLE jobs ADD COLUMN {col} {decl}"), [])
