@@ -38,6 +38,10 @@ pub struct StateFile {
     file: File,
     path: PathBuf,
     width: u32,
+    /// The file's length when opened for reading (what a pass wrote
+    /// before; records past it were never written): one `stat`, not one
+    /// a row.
+    len: u64,
 }
 
 impl StateFile {
@@ -54,10 +58,18 @@ impl StateFile {
             .truncate(false)
             .open(path)
             .map_err(|e| FarmError::io(format!("opening {}", path.display()), e))?;
+        let len = match write {
+            true => u64::MAX,
+            false => file
+                .metadata()
+                .map_err(|e| FarmError::io(format!("reading {}", path.display()), e))?
+                .len(),
+        };
         Ok(StateFile {
             file,
             path: path.to_path_buf(),
             width,
+            len,
         })
     }
 
@@ -71,11 +83,14 @@ impl StateFile {
         let at = self.offset(rect.x, y);
         // Past the end: records never written (a file is sparse until its
         // first pass is complete), read as zeros.
-        let len = self
-            .file
-            .metadata()
-            .map_err(|e| FarmError::io(format!("reading {}", self.path.display()), e))?
-            .len();
+        let len = match self.len {
+            u64::MAX => self
+                .file
+                .metadata()
+                .map_err(|e| FarmError::io(format!("reading {}", self.path.display()), e))?
+                .len(),
+            len => len,
+        };
         out.fill(0);
         let have = len.saturating_sub(at).min(out.len() as u64) as usize;
         self.file
