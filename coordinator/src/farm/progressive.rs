@@ -48,9 +48,13 @@ pub const PASS_TARGET: Duration = Duration::from_secs(10);
 pub struct Progressive {
     /// The job's own samples per pixel; 0: the scene's.
     pub samples: u32,
-    /// Samples per pass; 0: the default ([`DEFAULT_PASSES`] passes).
+    /// Samples per pass; 0: the coordinator's ([`DEFAULT_PASSES`] passes
+    /// at first, then sized towards [`PASS_TARGET`]).
     pub pass: u32,
+    /// No pass starts once the job has rendered this long.
     pub time_limit: Option<Duration>,
+    /// The job stops after a pass whose estimated relative error is at
+    /// most this (above 0).
     pub noise_target: Option<f64>,
 }
 
