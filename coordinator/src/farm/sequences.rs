@@ -78,7 +78,12 @@ pub struct Sequence {
 /// or the passes of a progressive still.
 pub enum Runs {
     /// Frames `first..=last` of the camera.
-    Frames { first: u32, last: u32 },
+    Frames {
+        /// The first frame number.
+        first: u32,
+        /// The last frame number (inclusive).
+        last: u32,
+    },
     /// Passes (see `progressive.rs`).
     Passes(Passes),
 }
