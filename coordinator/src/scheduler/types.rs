@@ -40,7 +40,8 @@ impl JobState {
         )
     }
 
-    /// Every state, in life order (for the metrics' per-state gauges).
+    /// Every state, in life order (the metrics count jobs per state; a
+    /// stored state name is read back by finding it here).
     pub const ALL: [JobState; 5] = [
         JobState::Queued,
         JobState::Running,
