@@ -76,13 +76,17 @@ use tokio::sync::{watch, Notify};
 /// Coordinator settings.
 #[derive(Debug, Clone)]
 pub struct FarmConfig {
+    /// Where the coordinator keeps its files: the bundles (`bundles/`), the
+    /// database and the tile files (see [`crate::store`]), the outputs.
     pub data_dir: PathBuf,
     /// Tile edge used when a submission does not ask for one.
     pub default_tile: u32,
     /// Keep jobs and accepted tiles in `data_dir/state.db`, and pick up the
     /// unfinished jobs found there on start (see [`crate::store`]).
     pub durable: bool,
+    /// Every bound the coordinator works within.
     pub limits: Limits,
+    /// How long, and how many, ended jobs' outputs are kept.
     pub retention: Retention,
 }
 
@@ -169,6 +173,8 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Farm {
+    /// Opens the farm on `cfg.data_dir`: the bundle store, and when
+    /// `durable` the database, whose unfinished jobs are queued again.
     pub fn new(cfg: FarmConfig) -> Result<Self, FarmError> {
         let bundles = BundleStore::open(&cfg.data_dir.join("bundles"))?;
         let base = std::time::SystemTime::now()
@@ -208,10 +214,12 @@ impl Farm {
         Ok(farm)
     }
 
+    /// The settings the farm was opened with.
     pub fn config(&self) -> &FarmConfig {
         &self.cfg
     }
 
+    /// The uploaded scene bundles on disk.
     pub fn bundles(&self) -> &BundleStore {
         &self.bundles
     }

@@ -61,7 +61,9 @@ pub struct WorkerConfig {
 /// [`WorkerConfig::preloaded`]).
 #[derive(Clone)]
 pub struct Preloaded {
+    /// The bundle's hash (hex SHA-256), as leases name it.
     pub hash: String,
+    /// The scene built from that bundle, used for every lease naming it.
     pub scene: Arc<Scene>,
 }
 

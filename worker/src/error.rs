@@ -7,6 +7,8 @@ use trevi_core::scene::estimate::human_bytes;
 /// Why [`run`](fn@crate::run) could not start or had to give up.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
+    /// The coordinator's address (or its TLS settings) cannot make an
+    /// endpoint.
     #[error(transparent)]
     Endpoint(#[from] trevi_proto::EndpointError),
     /// The coordinator's TLS certificate is not trusted or not for its name:
@@ -14,12 +16,21 @@ pub enum WorkerError {
     /// on one line, without tonic's repetitions (see
     /// [`trevi_proto::connect::error_chain`]).
     #[error("cannot connect to {coordinator}: {why}")]
-    Certificate { coordinator: String, why: String },
+    Certificate {
+        /// The coordinator's address, as given.
+        coordinator: String,
+        /// What was wrong with its certificate.
+        why: String,
+    },
+    /// The render thread pool could not be made.
     #[error("cannot start {threads} render threads")]
     Pool {
+        /// How many threads were asked for.
         threads: usize,
+        /// Why rayon could not start them.
         source: rayon::ThreadPoolBuildError,
     },
+    /// The worker's token cannot travel in an `authorization` header.
     #[error(transparent)]
     Token(#[from] trevi_proto::TokenError),
 }
@@ -34,7 +45,12 @@ pub enum SceneLoadError {
     Download(#[source] tonic::Status),
     /// The bytes that arrived are not the bundle that was asked for.
     #[error("bundle {want} arrived with hash {got}")]
-    HashMismatch { want: String, got: String },
+    HashMismatch {
+        /// The hash the lease named (hex SHA-256).
+        want: String,
+        /// The hash of the bytes received (hex SHA-256).
+        got: String,
+    },
     /// The bytes are not a bundle encoding.
     #[error(transparent)]
     Bundle(#[from] trevi_core::bundle::BundleError),
@@ -50,8 +66,12 @@ pub enum SceneLoadError {
     #[error("the scene needs about {} of memory{}, more than --max-memory {}",
         human_bytes(*.needs), with_state(*.state), human_bytes(.limit.0))]
     TooBig {
+        /// The estimate in bytes, the pass's state included.
         needs: u64,
+        /// The part of `needs` that is a pass's accumulation state (0
+        /// outside progressive jobs).
         state: u64,
+        /// The worker's `--max-memory`.
         limit: MaxMemory,
     },
     /// The scene cannot be moved to the lease's frame.

@@ -43,8 +43,12 @@ pub const SAMPLE: Duration = Duration::from_secs(1);
 /// Why a worker is not taking tiles.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Pause {
-    /// Other programs kept this many cores busy.
-    Busy { load: f64 },
+    /// Other programs kept the machine busy.
+    Busy {
+        /// The load not ours, in cores (the highest sample that made the
+        /// machine busy).
+        load: f64,
+    },
     /// Outside `--active-hours`.
     OutsideHours,
 }
@@ -79,8 +83,13 @@ pub struct PauseConfig {
     pub yield_when_busy: bool,
     /// Cores of load not ours above which the machine is busy.
     pub busy_threshold: f64,
+    /// How long the load stays above the threshold before the worker
+    /// pauses (`--busy-for-ms`).
     pub busy_for: Duration,
+    /// How long the load stays at or below the threshold before a paused
+    /// worker works again (`--quiet-for-ms`).
     pub quiet_for: Duration,
+    /// How often the load is sampled (`--sample-ms`, more than zero).
     pub sample: Duration,
     /// Work only within these hours (`--active-hours`).
     pub active_hours: Option<ActiveHours>,
@@ -204,6 +213,7 @@ pub struct BusyWatch {
 }
 
 impl BusyWatch {
+    /// A watch that starts quiet; `threshold` is in cores of load not ours.
     pub fn new(threshold: f64, busy_for: Duration, quiet_for: Duration) -> Self {
         BusyWatch {
             threshold,
@@ -242,6 +252,7 @@ impl BusyWatch {
         self.busy.then_some(self.peak)
     }
 
+    /// Whether the machine is busy after the samples fed so far.
     pub fn is_busy(&self) -> bool {
         self.busy
     }
@@ -253,6 +264,7 @@ impl BusyWatch {
 pub struct ActiveHours {
     /// Minutes after midnight.
     pub from: u32,
+    /// Minutes after midnight; the end (out of the hours).
     pub to: u32,
 }
 
@@ -338,6 +350,8 @@ pub struct Watcher {
 }
 
 impl Watcher {
+    /// Watchers for `cfg` on a machine of `cores` cores (the
+    /// `/proc/stat` ticks are shared among them to give a load in cores).
     pub fn new(cfg: PauseConfig, cores: usize) -> Self {
         Watcher {
             busy: BusyWatch::new(cfg.busy_threshold, cfg.busy_for, cfg.quiet_for),

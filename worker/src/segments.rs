@@ -26,15 +26,18 @@ use trevi_proto::pb;
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 #[error("pixel ({x}, {y}) is ({}, {}, {}): not finite and non-negative", .value[0], .value[1], .value[2])]
 pub struct BadPixel {
-    /// Frame coordinates.
+    /// Frame coordinates: the column.
     pub x: u32,
+    /// Frame coordinates: the row.
     pub y: u32,
+    /// The pixel's linear R, G, B as rendered.
     pub value: [f32; 3],
 }
 
 /// Why a lease's pixels cannot be uploaded as segments.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SegmentError {
+    /// A pixel is not finite and non-negative (the first, row by row).
     #[error(transparent)]
     BadPixel(#[from] BadPixel),
     /// The coordinator broke the contract: the rect is not whole segments
@@ -44,20 +47,35 @@ pub enum SegmentError {
          from a multiple of {SEGMENT_ROWS} to a multiple of it or the bottom",
         .rect.w, .rect.h, .rect.x, .rect.y
     )]
-    NotSegments { rect: Rect, width: u32, height: u32 },
+    NotSegments {
+        /// The lease's rect.
+        rect: Rect,
+        /// The frame's width in pixels.
+        width: u32,
+        /// The frame's height in pixels.
+        height: u32,
+    },
     /// The coordinator sent a segment lease without a preview cell size.
     #[error("a segment lease with preview_scale 0")]
     NoPreviewScale,
     /// The render gave a different number of pixels than the rect holds.
     #[error("{got} pixels for a rect of {want}")]
-    PixelCount { got: usize, want: usize },
+    PixelCount {
+        /// Pixels the render gave.
+        got: usize,
+        /// Pixels in the rect.
+        want: usize,
+    },
 }
 
 /// A lease's upload on the segment path: its segments in order, and its
 /// preview sums.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EncodedRect {
+    /// The rect's rows as PNG segments of [`SEGMENT_ROWS`] rows (the last
+    /// may be shorter at the frame's bottom), top to bottom.
     pub segments: Vec<pb::EncodedSegment>,
+    /// Three floats a preview cell (see [`preview_sums`]).
     pub preview: Vec<f32>,
 }
 

@@ -13,10 +13,14 @@ use std::time::Instant;
 /// A job's preview as a PNG file, with what it shows.
 #[derive(Debug, Clone)]
 pub struct PreviewImage {
+    /// The preview's size in pixels: the frame shrunk by a whole factor to
+    /// at most [`Preview::MAX_EDGE`] a side.
     pub width: u32,
+    /// See `width`.
     pub height: u32,
     /// Tiles of the frame in the preview.
     pub tiles: u64,
+    /// The encoded PNG file (8-bit RGBA).
     pub png: Arc<Vec<u8>>,
 }
 

@@ -42,6 +42,7 @@ pub struct WorkerOptions<'a> {
 /// A worker [`Farm::register_worker`] registered.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Registration {
+    /// The worker's id, which its later calls name.
     pub id: WorkerId,
     /// Its session secret, when [`WorkerOptions::session`] asked for one.
     pub session: Option<[u8; 32]>,
@@ -139,6 +140,8 @@ impl Farm {
         Ok(())
     }
 
+    /// The next tile (or span) for `worker`, if any job has one it may
+    /// hand out now; `None` when there is none.
     pub fn lease(&self, worker: WorkerId) -> Result<Option<Lease>, FarmError> {
         Ok(self.state.lock().sched.lease(worker, Instant::now())?)
     }
@@ -163,6 +166,9 @@ impl Farm {
         }
     }
 
+    /// Renews `worker`'s `leases` for another lease lifetime; returns those
+    /// it no longer holds and should drop (expired, or dropped when their
+    /// job ended).
     pub fn heartbeat(
         &self,
         worker: WorkerId,

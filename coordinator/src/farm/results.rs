@@ -15,6 +15,7 @@ use trevi_core::Rect;
 /// What became of a valid tile result.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TileOutcome {
+    /// The first valid result for the tile: it is stored and in the output.
     Accepted,
     /// Late or duplicate: another result won, or the job is over.
     Ignored,
@@ -23,11 +24,16 @@ pub enum TileOutcome {
 /// A result for one leased tile, for [`Farm::put_tile`].
 #[derive(Debug, Clone, Copy)]
 pub struct LeaseResult<'a> {
+    /// The lease the tile was rendered under.
     pub lease: LeaseId,
+    /// The tile's job.
     pub job: JobId,
+    /// The tile's pixels in the frame (the lease's rectangle).
     pub rect: Rect,
     /// Rays the worker traced for it.
     pub rays: u64,
+    /// Linear RGB radiance, row by row, `rect.w × rect.h` of them; each must be
+    /// finite and non-negative.
     pub pixels: &'a [[f32; 3]],
     /// When given, `lease` must be this worker's lease on that tile: a
     /// result under someone else's lease, or a made-up one, is refused and

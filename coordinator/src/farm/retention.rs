@@ -53,6 +53,7 @@ pub const MAX_KEEP_ENDED_FOR: Duration = Duration::from_secs(3650 * 86400);
 /// Retention settings that make no sense.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum BadRetention {
+    /// `--keep-ended 0`.
     #[error("--keep-ended 0 would delete every output the moment its job ends; keep at least 1")]
     KeepNone,
     #[error(
@@ -60,12 +61,14 @@ pub enum BadRetention {
          before their submitters can fetch them",
         min = Retention::format_duration(Some(MIN_KEEP_ENDED_FOR))
     )]
+    /// A `--keep-ended-for` below [`MIN_KEEP_ENDED_FOR`] (as given).
     TooShort(String),
     #[error(
         "--keep-ended-for {0} is longer than the longest, {max}; say `never` to keep ended \
          jobs until the count forgets them",
         max = Retention::format_duration(Some(MAX_KEEP_ENDED_FOR))
     )]
+    /// A `--keep-ended-for` above [`MAX_KEEP_ENDED_FOR`] (as given).
     TooLong(String),
 }
 

@@ -83,8 +83,11 @@ pub struct Sequence {
 pub enum Runs {
     /// Frames `first..=last` of the camera, each in `passes` when set.
     Frames {
+        /// The first frame number.
         first: u32,
+        /// The last frame number (inclusive).
         last: u32,
+        /// Each frame's passes, for a sequence in passes.
         passes: Option<Passes>,
     },
     /// A still's passes (see `progressive.rs`).

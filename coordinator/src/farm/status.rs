@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::watch;
 
 impl Farm {
+    /// A job's or a sequence's status now.
     pub fn info(&self, job: JobId) -> Result<JobInfo, FarmError> {
         self.state
             .lock()
@@ -21,6 +22,8 @@ impl Farm {
             .ok_or(FarmError::UnknownJob(job))
     }
 
+    /// Every job the scheduler holds, by id, ended ones included (see
+    /// [`Scheduler::list`](crate::scheduler::Scheduler::list)).
     pub fn list(&self) -> Vec<JobInfo> {
         self.state.lock().sched.list(Instant::now())
     }

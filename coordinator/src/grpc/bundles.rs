@@ -26,12 +26,17 @@ use trevi_proto::pb;
 /// [`Limits::max_uploads`]: crate::limits::Limits::max_uploads
 /// [`Limits::upload_idle`]: crate::limits::Limits::upload_idle
 pub struct BundlesService {
+    /// The coordinator the service answers for.
     pub farm: Arc<Farm>,
     /// One permit per upload in progress.
     pub uploads: Arc<Semaphore>,
 }
 
 impl BundlesService {
+    /// The service over `farm`, with its
+    /// [`Limits::max_uploads`] upload permits.
+    ///
+    /// [`Limits::max_uploads`]: crate::limits::Limits::max_uploads
     pub fn new(farm: Arc<Farm>) -> Self {
         let n = farm.config().limits.max_uploads;
         BundlesService {

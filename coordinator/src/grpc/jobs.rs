@@ -13,6 +13,8 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status};
 use trevi_proto::pb;
 
+/// A job's status as the wire carries it (what `SubmitJob`, `GetJob`,
+/// `WatchJob`, `ListJobs` and the others answer).
 pub fn job_status(info: &JobInfo) -> pb::JobStatus {
     let state = match info.state {
         JobState::Queued => pb::JobState::Queued,
@@ -74,6 +76,7 @@ pub fn progressive_from(p: &pb::Progressive) -> Progressive {
 
 /// `trevi.v1.Jobs`.
 pub struct JobsService {
+    /// The coordinator the service answers for.
     pub farm: Arc<Farm>,
 }
 

@@ -38,6 +38,7 @@ fn add_state(
 
 /// `trevi.v1.Workers`.
 pub struct WorkersService {
+    /// The coordinator the service answers for.
     pub farm: Arc<Farm>,
     /// One permit per tile upload being received
     /// ([`Limits::max_tile_uploads`]).
@@ -47,6 +48,10 @@ pub struct WorkersService {
 }
 
 impl WorkersService {
+    /// The service over `farm`, with its
+    /// [`Limits::max_tile_uploads`] upload permits.
+    ///
+    /// [`Limits::max_tile_uploads`]: crate::limits::Limits::max_tile_uploads
     pub fn new(farm: Arc<Farm>) -> Self {
         let n = farm.config().limits.max_tile_uploads;
         WorkersService {

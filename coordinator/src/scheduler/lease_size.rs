@@ -122,6 +122,7 @@ impl LeaseSizer {
         self.multi_tile.insert(worker);
     }
 
+    /// Whether `worker` takes leases of several tiles ([`Self::allow_spans`]).
     pub fn takes_spans(&self, worker: WorkerId) -> bool {
         self.multi_tile.contains(&worker)
     }
@@ -131,6 +132,7 @@ impl LeaseSizer {
         self.segments.insert(worker);
     }
 
+    /// Whether `worker` uploads PNG segments ([`Self::allow_segments`]).
     pub fn takes_segments(&self, worker: WorkerId) -> bool {
         self.segments.contains(&worker)
     }

@@ -11,6 +11,7 @@ use std::time::Instant;
 use trevi_core::tile::Rect;
 
 impl Scheduler {
+    /// A snapshot of `job` at `now`; `None` when there is no such job.
     pub fn info(&self, job: JobId, now: Instant) -> Option<JobInfo> {
         let j = self.jobs.get(&job)?;
         let end = j.finished.unwrap_or(now);
@@ -64,6 +65,7 @@ impl Scheduler {
         self.leases.len()
     }
 
+    /// The running totals since the scheduler was made.
     pub fn counters(&self) -> Counters {
         self.counters
     }

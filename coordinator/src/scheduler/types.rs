@@ -9,16 +9,25 @@ use std::time::{Duration, Instant};
 use trevi_core::tile::Rect;
 use trevi_proto::pb;
 
+/// A job's number, unique for the coordinator's database: stills and
+/// sequences count from 1, the frames of sequences from [`FRAME_IDS`].
 pub type JobId = u64;
+/// A lease's number, one per tile leased (a span of `n` tiles takes `n`
+/// consecutive ids); unique while the coordinator runs.
 pub type LeaseId = u64;
 
 /// Where a job is in its life.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum JobState {
+    /// Submitted, no tile leased yet.
     Queued,
+    /// At least one tile leased or done, not finished.
     Running,
+    /// Every tile done and the output in place.
     Done,
+    /// Given up on (see the job's `error`).
     Failed,
+    /// Stopped by a user's cancel.
     Cancelled,
 }
 
@@ -31,6 +40,8 @@ impl JobState {
         )
     }
 
+    /// Every state, in life order (the metrics count jobs per state; a
+    /// stored state name is read back by finding it here).
     pub const ALL: [JobState; 5] = [
         JobState::Queued,
         JobState::Running,
@@ -63,11 +74,18 @@ impl From<JobState> for pb::JobState {
 /// What a job renders: one camera's frame of one bundle.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct JobSpec {
+    /// The scene bundle's content hash (hex), as the bundle store names it.
     pub bundle_hash: String,
+    /// The id of the scene's camera that is rendered.
     pub camera: String,
+    /// Higher runs first; jobs of equal priority run in submission order.
     pub priority: i32,
+    /// The frame's size in pixels, from the camera (both ≥ 1 once queued).
     pub width: u32,
+    /// See `width`.
     pub height: u32,
+    /// The edge of the square tiles, in pixels (the last column and row may
+    /// be smaller); 0 at submission means the coordinator's `--tile-size`.
     pub tile_size: u32,
     /// File name of the output; its extension selects the format.
     pub output_name: String,
@@ -91,8 +109,9 @@ pub struct SampleRange {
     /// Which pass (0 first): which of the job's two state files it reads
     /// and writes (`crate::farm::pass_states`).
     pub pass: u32,
-    /// The first sample index rendered, and one past the last.
+    /// The first sample index rendered.
     pub start: u32,
+    /// One past the last sample index rendered.
     pub end: u32,
     /// The job's own samples per pixel (`--samples`), rendered as
     /// `min-samples = max-samples` adaptive sampling; 0: the scene's.
@@ -107,11 +126,17 @@ pub const FRAME_IDS: JobId = 1 << 40;
 /// A snapshot of a job, for status and progress.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JobInfo {
+    /// The job's number.
     pub id: JobId,
+    /// What it renders (its `priority` as it is now).
     pub spec: JobSpec,
+    /// Where it is in its life.
     pub state: JobState,
+    /// The tiles of its frame.
     pub tiles_total: u64,
+    /// Tiles with an accepted result.
     pub tiles_done: u64,
+    /// Rays the workers traced for its accepted tiles (saturating).
     pub rays: u64,
     /// From submission to the end, or to now while unfinished: `queued`
     /// and then the render.
@@ -119,6 +144,7 @@ pub struct JobInfo {
     /// The part of `elapsed` spent waiting in the queue: until the first
     /// tile was leased (all of it for a job that never started).
     pub queued: Duration,
+    /// Why it failed; `None` unless `state` is [`JobState::Failed`].
     pub error: Option<String>,
     /// 1 for the first job to finish, and so on; 0 while unfinished.
     pub finish_order: u64,
@@ -139,7 +165,9 @@ impl JobInfo {
 /// A sequence's progress (see `crate::farm::sequences`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct FramesInfo {
+    /// The first frame number of the sequence.
     pub first: u32,
+    /// The last frame number (inclusive).
     pub last: u32,
     /// Frames finished.
     pub done: u32,
@@ -154,17 +182,19 @@ pub struct FramesInfo {
 pub struct PassesInfo {
     /// Passes finished: the output holds the last one's image.
     pub done: u32,
-    /// Samples per pixel in the output now, and the total asked for.
+    /// Samples per pixel in the output now.
     pub samples_done: u32,
+    /// Samples per pixel asked for: the job ends with this many unless a
+    /// stop condition ends it first.
     pub samples_total: u32,
     /// Samples per pixel in each pass.
     pub pass: u32,
     /// The frame's estimated relative error after the last pass, once it
     /// is known (every pixel has two samples).
     pub error: Option<f64>,
-    /// The stop conditions: no pass starts after `time_limit` of
-    /// rendering; the job stops once `error` is at most `noise_target`.
+    /// A stop condition: no pass starts after this much rendering.
     pub time_limit: Option<Duration>,
+    /// A stop condition: the job stops once `error` is at most this.
     pub noise_target: Option<f64>,
     /// Why it ended before its total.
     pub stopped_by: Option<StopReason>,
@@ -204,10 +234,15 @@ impl StopReason {
 /// [`lease_size`]: super::lease_size
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Lease {
+    /// The lease of the first tile (see above for a span's other tiles).
     pub id: LeaseId,
+    /// The job the tiles belong to.
     pub job: JobId,
+    /// The job's scene bundle (see [`JobSpec::bundle_hash`]).
     pub bundle_hash: String,
+    /// The job's camera (see [`JobSpec::camera`]).
     pub camera: String,
+    /// The pixels to render, in frame coordinates.
     pub rect: Rect,
     /// How many tiles `rect` covers (1 for one tile).
     pub tiles: u32,
@@ -241,8 +276,11 @@ pub struct Lease {
 /// [`Scheduler::accept_tile`]: super::Scheduler::accept_tile
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Accepted {
-    /// The tile is now done; `last` says it was the job's last tile.
-    New { last: bool },
+    /// The tile is now done.
+    New {
+        /// It was the job's last tile: the job is complete.
+        last: bool,
+    },
     /// Late or duplicate (the tile was already done, or the job is over).
     Ignored,
 }
@@ -250,19 +288,28 @@ pub enum Accepted {
 /// A job of an earlier run, as the coordinator's database kept it.
 #[derive(Debug, Clone)]
 pub struct Restored {
+    /// The job's number, kept across runs.
     pub id: JobId,
+    /// What it renders.
     pub spec: JobSpec,
+    /// Its state when the database last recorded it.
     pub state: JobState,
+    /// When it was submitted, moved onto this run's clock (from the wall
+    /// time kept in the database; now if that is in the future).
     pub submitted: Instant,
     /// For a finished job: how long it took.
     pub elapsed: Option<Duration>,
     /// For a finished job: how much of `elapsed` it rendered (the rest it
     /// waited in the queue).
     pub render: Option<Duration>,
+    /// For a failed job: why.
     pub error: Option<String>,
+    /// For a finished job: its place in the finishing order (see
+    /// [`JobInfo::finish_order`]); 0 otherwise.
     pub finish_order: u64,
     /// For a finished job: how many tiles it had done.
     pub tiles_done: u64,
+    /// Rays traced for its done tiles.
     pub rays: u64,
     /// For an unfinished job: the tiles already stored (not leased again).
     pub done_tiles: Vec<u32>,
@@ -271,16 +318,24 @@ pub struct Restored {
 /// Why the scheduler refused something.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SchedError {
+    /// No job has this id (never submitted, or forgotten).
     #[error("no job {0}")]
     UnknownJob(JobId),
+    /// No registered worker has this id (never registered, or dropped since).
     #[error("unknown worker {0}")]
     UnknownWorker(WorkerId),
+    /// A result's rectangle is not one of the job's tiles.
     #[error("{0:?} is not a tile of job {1}")]
     NotATile(Rect, JobId),
+    /// A result names a lease that is not the worker's current lease on
+    /// that tile (expired and leased again, or someone else's).
     #[error("lease {0} is not worker {1}'s lease on tile {2:?} of job {3}")]
     NotYourLease(LeaseId, WorkerId, Rect, JobId),
+    /// The worker does not hold this lease (it expired, was released, or
+    /// was never granted to it).
     #[error("lease {0} is not a lease worker {1} holds")]
     NotHeld(LeaseId, WorkerId),
+    /// The job is finished, failed or cancelled: nothing about it changes.
     #[error("job {0} is over")]
     JobOver(JobId),
 }
@@ -288,7 +343,9 @@ pub enum SchedError {
 /// Running totals since the coordinator started (for `/metrics`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Counters {
+    /// Jobs queued (each frame of a sequence is a job of its own).
     pub jobs_submitted: u64,
+    /// Tile leases handed out (a span of `n` tiles counts `n`).
     pub leases_granted: u64,
     /// First valid results (each tile is counted once).
     pub tiles_accepted: u64,
@@ -298,6 +355,7 @@ pub struct Counters {
     pub tiles_rejected: u64,
     /// Tiles put back in the queue (an expired lease or an invalid result).
     pub tiles_requeued: u64,
+    /// Leases whose worker went silent past the lease's time.
     pub lease_expiries: u64,
     /// Rays of the accepted tiles.
     pub rays: u64,

@@ -12,9 +12,11 @@ use std::time::Duration;
 /// A job as stored.
 #[derive(Debug, Clone)]
 pub struct StoredJob {
+    /// The job's number (the row's key).
     pub id: JobId,
     /// What to render; its `submitter` is stored as the row's submitter.
     pub spec: JobSpec,
+    /// Its state when last recorded (the name [`JobState::name`] gives).
     pub state: JobState,
     /// Wall-clock submission time, milliseconds since the Unix epoch.
     pub submitted_ms: u64,
@@ -23,9 +25,15 @@ pub struct StoredJob {
     /// Set for finished jobs that started: the part of `elapsed` after the
     /// first tile was leased.
     pub render: Option<Duration>,
+    /// For a failed job: why.
     pub error: Option<String>,
+    /// For a finished job: its place in the finishing order (1 first); 0
+    /// otherwise.
     pub finish_order: u64,
+    /// For a finished job: its tiles done (an unfinished job's are its
+    /// rows in the tile table).
     pub tiles_done: u64,
+    /// For a finished job: the rays traced for its tiles.
     pub rays: u64,
     /// How the job belongs to a sequence, or is one.
     pub seq: SeqLink,
@@ -72,6 +80,7 @@ pub struct StoredPasses {
     /// Samples per pixel asked for, and whether they are the job's own
     /// (`--samples`: extendable) or the scene's.
     pub total: u32,
+    /// See `total`.
     pub own: bool,
     /// Samples per pass.
     pub pass: u32,
@@ -83,6 +92,7 @@ pub struct StoredPasses {
     pub samples_done: u32,
     /// The estimated relative error after the last pass done.
     pub error: Option<f64>,
+    /// Why it ended before its total, if it did.
     pub stopped_by: Option<StopReason>,
     /// The passes are each frame's of a sequence, not a still's.
     pub frames: bool,
@@ -126,6 +136,8 @@ fn state_from(job: JobId, s: &str) -> Result<JobState, FarmError> {
 }
 
 impl Store {
+    /// Stores a newly submitted job's row (with its sequence link and its
+    /// passes' settings).
     pub fn insert_job(&self, j: &StoredJob) -> Result<(), FarmError> {
         let s = &j.spec;
         self.inner
