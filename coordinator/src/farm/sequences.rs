@@ -19,6 +19,11 @@
 //! from their stored tiles. A frame that fails fails its sequence (the
 //! other frames in progress are cancelled); cancelling a sequence cancels
 //! its frames in progress; its priority is its frames'.
+//!
+//! A progressive job (`progressive.rs`) is run by the same code, its runs
+//! being passes. Beside this file: `sequences/files.rs`, where a frame's
+//! file is found and whose preview stands for a sequence;
+//! `sequences/restore.rs`, picking sequences up after a restart.
 
 use super::progressive::Passes;
 use super::{Farm, State};
@@ -34,6 +39,9 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
 use trevi_core::scene::animation::{frame_output, MAX_FRAME};
+
+mod files;
+mod restore;
 
 pub use crate::limits::{DEFAULT_FRAMES_IN_PROGRESS, MAX_FRAMES_IN_PROGRESS};
 
@@ -658,236 +666,6 @@ impl Farm {
         }
         tracing::info!(job = seq, priority, "sequence priority changed");
         self.info(seq)
-    }
-
-    /// The output file of frame `frame` of a sequence, once that frame is
-    /// done; without a frame, its highest frame done. Looks at the disk
-    /// at most [`FRAME_SCAN`] times, whatever the sequence's length: the
-    /// highest frame done is kept in memory (see `Sequence::latest`).
-    /// Call off the async threads: it stats files.
-    pub fn frame_file(&self, seq: JobId, frame: Option<u32>) -> Result<PathBuf, FarmError> {
-        let (pattern, first, last, latest, done) = {
-            let st = self.state.lock();
-            let Some(s) = st.seqs.get(&seq) else {
-                return Err(self.not_a_sequence(&st, seq, frame));
-            };
-            if !s.frames() {
-                // A progressive still: the output of its last pass done.
-                let path = self.output_path(seq, &s.spec.output_name);
-                return match frame {
-                    Some(f) => Err(FarmError::NoOutput(
-                        seq,
-                        format!("it is a still rendered in passes: it has no frame {f}"),
-                    )),
-                    None if s.done == 0 => {
-                        Err(FarmError::NoOutput(seq, "no pass is done yet".into()))
-                    }
-                    None => Ok(path),
-                };
-            }
-            let latest = s.latest.map(|l| l.0);
-            (s.spec.output_name.clone(), s.first, s.last, latest, s.done)
-        };
-        let path = |f: u32| self.output_path(seq, &frame_output(&pattern, f));
-        match frame {
-            Some(f) if f < first || f > last => Err(FarmError::NoOutput(
-                seq,
-                format!("frame {f} is not in its frames {first}-{last}"),
-            )),
-            Some(f) if path(f).is_file() => Ok(path(f)),
-            Some(f) => Err(FarmError::NoOutput(seq, format!("frame {f} is not done"))),
-            None if done == 0 => Err(FarmError::NoOutput(seq, "no frame is done yet".into())),
-            None => {
-                // Frames start in order: none done is past `first + done`
-                // plus the frames in progress (at most the maximum).
-                let top = latest.unwrap_or_else(|| {
-                    let most = u64::from(first) + u64::from(done) + MAX_FRAMES_IN_PROGRESS as u64;
-                    most.min(u64::from(last)) as u32
-                });
-                (first..=top)
-                    .rev()
-                    .take(FRAME_SCAN)
-                    .map(path)
-                    .find(|p| p.is_file())
-                    .ok_or_else(|| {
-                        FarmError::NoOutput(seq, "its latest frame's file is missing".into())
-                    })
-            }
-        }
-    }
-
-    /// Why `job`, which is not a sequence, has no frame `frame` to
-    /// download: unknown, a still, or a frame of a sequence.
-    fn not_a_sequence(&self, st: &State, job: JobId, frame: Option<u32>) -> FarmError {
-        let Some(info) = st.info(job, Instant::now()) else {
-            return FarmError::UnknownJob(job);
-        };
-        let seq = st
-            .parent_of
-            .get(&job)
-            .copied()
-            .or_else(|| st.ended.frame_of(job).map(|(s, _)| s));
-        match (info.spec.frame, seq) {
-            (Some(f), Some(seq)) => FarmError::NoOutput(
-                job,
-                format!("it is frame {f} of sequence {seq}: fetch that sequence's frame {f}"),
-            ),
-            _ => FarmError::NoOutput(
-                job,
-                format!(
-                    "it is a still, not a sequence: it has no frame {}; fetch it without one",
-                    frame.unwrap_or_default()
-                ),
-            ),
-        }
-    }
-
-    /// Whether a result for `frame` fits `job` (a frame of a sequence must
-    /// say its frame; a still's result says none).
-    pub fn check_frame(&self, job: JobId, frame: Option<u32>) -> Result<(), FarmError> {
-        let st = self.state.lock();
-        let Some(info) = st.sched.info(job, Instant::now()) else {
-            return Ok(()); // Unknown jobs are refused further on.
-        };
-        if info.spec.frame != frame {
-            return Err(FarmError::BadTile(format!(
-                "the result is for frame {frame:?}, job {job} renders frame {:?}",
-                info.spec.frame
-            )));
-        }
-        Ok(())
-    }
-
-    /// The job whose preview stands for `job`: a sequence's earliest frame
-    /// in progress, or else its latest frame done; a progressive job's
-    /// latest pass done (the whole frame after each pass), or else its first
-    /// pass in progress; any other job itself.
-    pub(super) fn preview_job(&self, job: JobId) -> JobId {
-        let st = self.state.lock();
-        st.seqs
-            .get(&job)
-            .and_then(|s| {
-                if !s.frames() {
-                    if let Some(done) = s.latest.and_then(|l| l.1) {
-                        return Some(done);
-                    }
-                }
-                s.running
-                    .values()
-                    .next()
-                    .copied()
-                    .or(s.latest.and_then(|l| l.1))
-            })
-            .unwrap_or(job)
-    }
-
-    /// Picks up the sequences among `rows` (the database's jobs): each
-    /// sequence with its count of frames done, its frames in progress and
-    /// failures. Called before the jobs themselves are restored, so a frame
-    /// that completes while it is restored moves its sequence on correctly.
-    pub(super) fn restore_sequences(&self, rows: &[StoredJob]) {
-        let (now, wall) = (Instant::now(), wall_ms());
-        let mut st = self.state.lock();
-        for j in rows {
-            let Some((first, last)) = j.seq.frames else {
-                continue;
-            };
-            let ago = Duration::from_millis(wall.saturating_sub(j.submitted_ms));
-            let submitted = now.checked_sub(ago).unwrap_or(now);
-            let finished = j
-                .elapsed
-                .filter(|_| j.state.is_final())
-                .map(|e| submitted + e);
-            let seq = Sequence {
-                spec: j.spec.clone(),
-                first,
-                last,
-                done: j.seq.frames_done,
-                next: first,
-                running: BTreeMap::new(),
-                state: j.state,
-                submitted,
-                started: finished
-                    .zip(j.render)
-                    .map(|(end, r)| end.checked_sub(r).unwrap_or(submitted)),
-                finished,
-                error: j.error.clone(),
-                failed: None,
-                rays: j.rays,
-                latest: None,
-                passes: j.seq.passes.as_ref().map(Passes::from_stored),
-            };
-            st.sched.skip_ids_through(j.id);
-            if !seq.state.is_final() {
-                st.submitters.insert(j.id, j.spec.submitter.clone());
-            }
-            st.seqs.insert(j.id, seq);
-        }
-        let mut rays: HashMap<JobId, u64> = HashMap::new();
-        for j in rows {
-            let (Some(p), Some(f)) = (j.seq.parent, run_index(&j.spec)) else {
-                continue;
-            };
-            if j.state.is_final() {
-                st.ended.frame(j.id, p, f);
-            }
-            let Some(s) = st.seqs.get_mut(&p) else {
-                continue;
-            };
-            if j.state == JobState::Done && s.latest.is_none_or(|(l, _)| f >= l) {
-                s.latest = Some((f, Some(j.id)));
-            }
-            if s.state.is_final() {
-                continue;
-            }
-            if j.state == JobState::Done {
-                *rays.entry(p).or_default() += j.rays;
-            } else if j.state.is_final() {
-                s.failed.get_or_insert_with(|| {
-                    format!(
-                        "{} {f}: {}",
-                        if j.spec.frame.is_some() {
-                            "frame"
-                        } else {
-                            "pass"
-                        },
-                        j.error.as_deref().unwrap_or(j.state.name())
-                    )
-                });
-            } else {
-                s.running.insert(f, j.id);
-                st.parent_of.insert(j.id, p);
-            }
-        }
-        let ids: Vec<JobId> = st.seqs.keys().copied().collect();
-        for id in ids {
-            let s = st.seqs.get_mut(&id).expect("listed");
-            if !s.state.is_final() {
-                // Frames started: a sequence in passes counts passes.
-                let runs = s.done + s.running.len() as u32;
-                s.next = s.first + runs.div_ceil(s.runs_per_frame());
-                s.rays = rays.get(&id).copied().unwrap_or(0);
-                // The frames before `next` not in progress are done.
-                if s.latest.is_none() {
-                    s.latest = (s.first..s.next)
-                        .rev()
-                        .find(|f| !s.running.contains_key(f))
-                        .map(|f| (f, None));
-                }
-            } else if s.latest.is_none() && s.state == JobState::Done {
-                s.latest = Some((s.last, None));
-            }
-            let info = st.info(id, now).expect("listed");
-            st.watchers.insert(id, watch::channel(info).0);
-        }
-    }
-
-    /// Moves every unfinished sequence on after a restart.
-    pub(super) fn resume_sequences(&self) {
-        let ids: Vec<JobId> = self.state.lock().seqs.keys().copied().collect();
-        for id in ids {
-            self.advance(id);
-        }
     }
 }
 
