@@ -36,6 +36,7 @@ mod job_previews;
 mod leasing;
 mod outputs;
 pub mod pass_states;
+mod passes;
 pub mod progressive;
 mod registrations;
 mod restore;

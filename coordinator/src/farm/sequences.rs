@@ -25,7 +25,7 @@
 //! file is found and whose preview stands for a sequence;
 //! `sequences/restore.rs`, picking sequences up after a restart.
 
-use super::progressive::Passes;
+use super::passes::Passes;
 use super::{Farm, State};
 use crate::error::FarmError;
 #[cfg(doc)]
