@@ -33,7 +33,11 @@ fn kill_9_of_the_coordinator_at_several_points_loses_nothing() {
                 &url,
                 &format!("worker{i}"),
                 &["--tiles-in-flight", &TILES_IN_FLIGHT.to_string()],
-                &[],
+                // A lease takes at least a tenth of a second, so the
+                // lease sizer keeps leases to a tile or two and the job
+                // lasts over a second however idle the machine: the kills
+                // land mid-job.
+                &[("TREVI_TEST_LEASE_DELAY_MS", "100")],
             )
         })
         .collect();

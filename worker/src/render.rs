@@ -173,8 +173,11 @@ impl Session {
                     pool.install(|| {
                         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                             #[cfg(feature = "test-hooks")]
-                            if let Some(f) = fault {
-                                f.strike(rect);
+                            {
+                                if let Some(f) = fault {
+                                    f.strike(rect);
+                                }
+                                crate::test_hooks::lease_delay();
                             }
                             render_lease(
                                 &scene,

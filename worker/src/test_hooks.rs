@@ -7,7 +7,10 @@
 //!   (`x`, `y`) aborts the process or panics, standing in for a scene that
 //!   crashes the renderer;
 //! - `TREVI_TEST_PROC_STAT` ([`crate::pause::PROC_STAT_VAR`]): a file read in
-//!   place of `/proc/stat`, so a test decides the machine's load.
+//!   place of `/proc/stat`, so a test decides the machine's load;
+//! - `TREVI_TEST_LEASE_DELAY_MS=N` ([`LEASE_DELAY_MS`]): every lease's render
+//!   takes at least N ms more, so a job lasts long enough for a test to act
+//!   in its middle however fast the machine is.
 
 use trevi_core::Rect;
 
@@ -15,6 +18,19 @@ use trevi_core::Rect;
 pub const ABORT_ON_TILE: &str = "TREVI_TEST_ABORT_ON_TILE";
 /// The variable whose `x,y` makes the render of that tile panic.
 pub const PANIC_ON_TILE: &str = "TREVI_TEST_PANIC_ON_TILE";
+/// The variable whose milliseconds every lease's render waits first.
+pub const LEASE_DELAY_MS: &str = "TREVI_TEST_LEASE_DELAY_MS";
+
+/// Tests only: waits [`LEASE_DELAY_MS`] milliseconds (at most a minute)
+/// when it is set, on the render thread.
+pub(crate) fn lease_delay() {
+    let ms = std::env::var(LEASE_DELAY_MS)
+        .ok()
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    if let Some(ms) = ms {
+        std::thread::sleep(std::time::Duration::from_millis(ms.min(60_000)));
+    }
+}
 
 /// Tests only: a deliberate failure when rendering the tile whose top-left
 /// corner is at (`x`, `y`), standing in for a scene that crashes the
