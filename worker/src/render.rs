@@ -173,11 +173,8 @@ impl Session {
                     pool.install(|| {
                         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                             #[cfg(feature = "test-hooks")]
-                            {
-                                if let Some(f) = fault {
-                                    f.strike(rect);
-                                }
-                                crate::test_hooks::lease_delay();
+                            if let Some(f) = fault {
+                                f.strike(rect);
                             }
                             render_lease(
                                 &scene,
@@ -286,6 +283,9 @@ pub(crate) fn render_lease(
         }
     };
     let start = std::time::Instant::now();
+    // Counted as render time: the coordinator sizes leases by it.
+    #[cfg(feature = "test-hooks")]
+    crate::test_hooks::lease_delay();
     let (pixels, rays, state) = match pass {
         None => {
             let r = trevi_core::tile::render_tile_cancellable(scene, camera, rect, cancel)
