@@ -3,7 +3,7 @@
 //! (the kernel lets go when it exits, however it exits), and writes its PID
 //! into the file so that a second coordinator's refusal names the first.
 //! Two coordinators on one directory would hand out the same job ids and
-//! overwrite each other's outputs (issue 36).
+//! overwrite each other's outputs.
 
 use std::fs::File;
 use std::io::{Read, Seek, Write};

@@ -1,4 +1,4 @@
-//! The worker's old environment variable names (issue 36): read where the
+//! The worker's old environment variable names: read where the
 //! old name meant only this, with a warning; refused where it was ambiguous.
 //!
 //! - `TREVI_PRIORITY` (now `TREVI_CPU_PRIORITY`) and `TREVI_TOKEN_FILE`

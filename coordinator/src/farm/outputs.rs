@@ -4,8 +4,8 @@
 //! A job's output file is opened when its first tile is written, not when
 //! the job is queued: a queued job holds no file descriptor, so a farm with
 //! thousands of jobs waiting needs no more descriptors than it has jobs
-//! rendering (issue 36: each queued job held two, and 504 of 600 queued
-//! jobs failed under a limit of 1024 when a worker connected).
+//! rendering (when each queued job held two, 504 of 600 queued jobs failed
+//! under a limit of 1024 as a worker connected).
 
 use crate::preview::Preview;
 use crate::scheduler::JobSpec;

@@ -1,6 +1,6 @@
 //! Bounds on worker registration: at most [`Limits::max_workers`] workers
 //! registered at once, and [`Limits::max_workers_per_address`] from one
-//! client address (issue 36: 40,000 `Register` calls took 76 MB, made an
+//! client address (unbounded, 40,000 `Register` calls took 76 MB, made an
 //! 11 MB `/api/state` and 40,000 Prometheus series). A registration that
 //! is never followed by another call is forgotten after a tenth of the
 //! silence that forgets a worker (see [`crate::workers::Workers`]), so
