@@ -31,6 +31,9 @@ pub struct Client {
     pub preview: Option<PathBuf>,
     /// The jobs submitted through this connection, in order.
     pub submitted: Vec<u64>,
+    /// While a progressive still is watched: where its image goes, written
+    /// again after each pass (the output is whole after every pass).
+    pass_output: Option<(PathBuf, trevi_core::output::Format)>,
     jobs: JobsClient<AuthChannel>,
     bundles: BundlesClient<AuthChannel>,
 }

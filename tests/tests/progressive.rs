@@ -246,3 +246,51 @@ fn the_noise_target_stops_at_or_below_its_target() {
         "relative error {e} against the converged render"
     );
 }
+
+#[test]
+fn a_local_render_s_output_is_written_after_every_pass() {
+    let dir = Dir::new();
+    let reference = alone(
+        &dir,
+        &dir.write("fixed.xml", &fixed(24, SIZE)),
+        "reference.exr",
+        &[],
+    );
+    let scene = dir.write("grid.xml", &grid(SIZE));
+    let out = dir.path().join("out.exr");
+    // 24 passes of one sample: the file is there long before the end.
+    let mut child = submit_cmd(&[
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--samples",
+        "24",
+        "--pass",
+        "1",
+        "-q",
+    ])
+    .stderr(dir.log("submit"))
+    .spawn()
+    .unwrap();
+    let mut running = false;
+    wait_for(&dir, "the output after a pass", 240, || {
+        running = child.try_wait().unwrap().is_none();
+        out.is_file() || !running
+    });
+    assert!(
+        running,
+        "the render ended before its first pass's image was written"
+    );
+    let early = std::fs::read(&out).unwrap();
+    let status = wait_child(&dir, &mut child, 240);
+    assert!(status.success(), "{}", dir.logs());
+    let last = std::fs::read(&out).unwrap();
+    assert!(
+        last == reference,
+        "the last pass's image is the one-shot render"
+    );
+    assert!(
+        early != last,
+        "the first image written was an earlier pass's"
+    );
+}

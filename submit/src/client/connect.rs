@@ -33,6 +33,7 @@ impl Client {
             announce: true,
             preview: None,
             submitted: Vec::new(),
+            pass_output: None,
             jobs: JobsClient::with_interceptor(channel.clone(), bearer.clone())
                 .max_decoding_message_size(MAX_MESSAGE_SIZE),
             bundles: BundlesClient::with_interceptor(channel, bearer)

@@ -175,7 +175,11 @@ impl Client {
         out: &Path,
         progress: Progress,
     ) -> Result<()> {
-        let s = self.watch(id, progress).await?;
+        // A progressive still's image is downloaded after each pass too.
+        self.pass_output = Some((out.to_path_buf(), t.format));
+        let s = self.watch(id, progress).await;
+        self.pass_output = None;
+        let s = s?;
         match s.state() {
             JobState::Done => {}
             JobState::Cancelled => bail!("job {id} (camera {}) was cancelled", t.camera),

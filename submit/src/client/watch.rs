@@ -25,6 +25,7 @@ impl Client {
         let mut preview = PreviewFile::new(self.preview.clone());
         let mut backoff = Duration::from_millis(100);
         let mut lost_since: Option<std::time::Instant> = None;
+        let mut passes_kept = 0;
         loop {
             let why = match self.jobs.watch_job(pb::JobId { id, frame: None }).await {
                 Ok(r) => {
@@ -36,6 +37,7 @@ impl Client {
                                 backoff = Duration::from_millis(100);
                                 view.show(&s);
                                 preview.update(self, &s).await;
+                                passes_kept = self.keep_pass(id, &s, passes_kept).await;
                                 last = Some(s);
                             }
                             Ok(None) => break "the progress stream ended".to_string(),
@@ -77,5 +79,20 @@ impl Client {
         }
         view.done();
         Ok(last.expect("checked above"))
+    }
+
+    /// After each new pass of a progressive still that is still running,
+    /// its image so far (whole after every pass) to the output being
+    /// watched for, through a part file renamed into place; returns the
+    /// passes kept. A failed download is left for the final one to report.
+    async fn keep_pass(&mut self, id: u64, s: &pb::JobStatus, kept: u32) -> u32 {
+        let done = s.passes.as_ref().map_or(0, |p| p.done);
+        if done <= kept || s.frames.is_some() || s.state().is_final() {
+            return kept;
+        }
+        if let Some((out, format)) = self.pass_output.clone() {
+            let _ = self.download(id, None, &out, format).await;
+        }
+        done
     }
 }
