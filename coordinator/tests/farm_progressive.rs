@@ -113,10 +113,16 @@ fn one_shot(total: u32) -> Vec<u8> {
     let dir = tempfile::tempdir().unwrap();
     let f = farm(dir.path());
     let job = f.submit(spec("p.exr"), Default::default()).unwrap().id;
+    render_at_once(&f, total);
+    std::fs::read(f.output_file(job).unwrap()).unwrap()
+}
+
+/// Renders every lease of `f` by the one-shot renderer at `total`
+/// samples (a frame's lease at its frame).
+fn render_at_once(f: &Farm, total: u32) {
     let worker = f.register_worker(WorkerOptions::default()).unwrap().id;
-    let s = scene(total);
     while let Some(l) = f.lease(worker).unwrap() {
-        let pixels = trevi_core::tile::render_tile(&s, 0, l.rect).pixels;
+        let pixels = trevi_core::tile::render_tile(&scene_at(total, l.frame), 0, l.rect).pixels;
         f.put_tile(LeaseResult {
             lease: l.id,
             job: l.job,
@@ -127,7 +133,6 @@ fn one_shot(total: u32) -> Vec<u8> {
         })
         .unwrap();
     }
-    std::fs::read(f.output_file(job).unwrap()).unwrap()
 }
 
 fn progressive(samples: u32, pass: u32) -> Progressive {
@@ -345,19 +350,7 @@ fn one_shot_frames(total: u32, frames: u32) -> Vec<Vec<u8>> {
         .submit_sequence(spec("shot.exr"), 0, frames - 1, "me")
         .unwrap()
         .id;
-    let worker = f.register_worker(WorkerOptions::default()).unwrap().id;
-    while let Some(l) = f.lease(worker).unwrap() {
-        let pixels = trevi_core::tile::render_tile(&scene_at(total, l.frame), 0, l.rect).pixels;
-        f.put_tile(LeaseResult {
-            lease: l.id,
-            job: l.job,
-            rect: l.rect,
-            rays: 1,
-            pixels: &pixels,
-            worker: Some(worker),
-        })
-        .unwrap();
-    }
+    render_at_once(&f, total);
     (0..frames)
         .map(|n| std::fs::read(f.frame_file(seq, Some(n)).unwrap()).unwrap())
         .collect()
@@ -434,4 +427,56 @@ fn a_sequence_in_passes_resumes_after_a_restart_mid_frame() {
             );
         }
     }
+}
+
+/// Every bound of a progressive submission is checked before anything is
+/// queued: its samples, the frame's samples, its tiles' states, its states
+/// on disk, its noise target, an extension past the most samples.
+#[test]
+fn hostile_progressive_submissions_are_refused_before_anything_is_queued() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path());
+    let refused = |spec: JobSpec, p: Progressive, what: &str| {
+        let e = f.submit_progressive(spec, p, "me").unwrap_err().to_string();
+        assert!(e.contains(what), "{what}: {e}");
+    };
+    let max = trevi_core::passes::MAX_SAMPLES;
+    refused(spec("p.exr"), progressive(max + 1, 0), "a job may ask for");
+    // 16384² at 65 samples: one sample a pixel more than the default bound.
+    let huge_frame = JobSpec {
+        width: 1 << 14,
+        height: 1 << 14,
+        ..spec("p.exr")
+    };
+    refused(huge_frame, progressive(65, 1), "--max-image-samples");
+    let big_tiles = JobSpec {
+        tile_size: 1024,
+        ..spec("p.exr")
+    };
+    refused(big_tiles, progressive(4, 1), "--tile-size");
+    for t in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let p = Progressive {
+            noise_target: Some(t),
+            ..progressive(4, 1)
+        };
+        refused(spec("p.exr"), p, "noise target");
+    }
+    // States on disk: a frame under the samples bound but over the state
+    // bytes (16 GiB at 128 bytes a pixel is 2^27 pixels).
+    let wide = JobSpec {
+        width: 1 << 15,
+        height: 1 << 13,
+        ..spec("p.exr")
+    };
+    refused(wide, progressive(1, 1), "a job may keep");
+    assert!(f.list().is_empty(), "nothing queued");
+    // An extension past the most samples a job may have.
+    let job = f
+        .submit_progressive(spec("p.exr"), progressive(2, 2), "me")
+        .unwrap()
+        .id;
+    work(&f, |_| false);
+    let e = f.extend(job, max, Progressive::default()).unwrap_err();
+    assert!(e.to_string().contains("a job may have"), "{e}");
+    assert_eq!(f.info(job).unwrap().state, JobState::Done, "left as it was");
 }
