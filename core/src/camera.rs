@@ -144,6 +144,7 @@ mod tests {
                 adaptive: None,
                 integrator: IntegratorKind::Whitted,
                 max_bounces: DEFAULT_MAX_BOUNCES,
+                aovs: crate::aov::Aovs::NONE,
                 frames: None,
                 fps: 24.0,
             },

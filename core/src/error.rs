@@ -204,4 +204,22 @@ pub enum OutputError {
         /// What is there ("a directory", "a FIFO", …).
         what: &'static str,
     },
+    /// A tile's render passes are not the frame's (other passes, or a
+    /// value count that is not the tile's pixels × the passes' channels).
+    /// Nothing was written.
+    #[error("tile {x},{y}: render passes \"{got}\" with {values} values, but the frame writes \"{expected}\" ({channels} values a pixel)")]
+    AovMismatch {
+        /// The tile's first column.
+        x: u32,
+        /// The tile's first row.
+        y: u32,
+        /// The frame's passes.
+        expected: crate::aov::Aovs,
+        /// Values a pixel of the frame's passes has.
+        channels: usize,
+        /// The tile's passes.
+        got: crate::aov::Aovs,
+        /// How many values the tile had.
+        values: usize,
+    },
 }

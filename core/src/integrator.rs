@@ -18,6 +18,7 @@
 //! | `integrator/path.rs` | the path tracer (`integrator="path"`) |
 //! | `integrator/sum.rs` | the sample sums every estimate averages with |
 //! | `integrator/accumulate.rs` | a pixel's sums so far, to continue over more samples |
+//! | `integrator/aov.rs` | the render passes (albedo, normal, depth) of a camera sample |
 //!
 //! "Model only what a scene requires": every effect is skipped outright when
 //! its settings make it a no-op (no AO rays when the ambient term is zero or
@@ -29,6 +30,7 @@
 //! function of its coordinates.
 
 mod accumulate;
+mod aov;
 mod area;
 mod effects;
 mod path;
@@ -37,6 +39,7 @@ mod sum;
 mod whitted;
 
 pub use accumulate::PixelState;
+pub use aov::MAX_AOV_CHANNELS;
 pub use pixel::{samples_per_pixel, Cancelled, CANCEL_EVERY};
 pub use sum::SUM_BLOCK;
 pub use whitted::MIN_BRANCH_WEIGHT;
@@ -173,6 +176,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         }
     }
 
+    /// The radiance of camera sample `s` at offset (`sx`, `sy`) of pixel
+    /// (`x`, `y`), and with `aov` its render passes added to those sums
+    /// (from the same ray, after the beauty: see `integrator/aov.rs`).
+    #[allow(clippy::too_many_arguments)]
     fn camera_sample(
         &self,
         ctx: &mut PixelContext,
@@ -181,14 +188,19 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         s: u32,
         sx: f32,
         sy: f32,
+        aov: Option<&mut aov::AovSums>,
     ) -> Vec3 {
         ctx.sample = s;
         let lens = self.lens_sample(ctx, s);
         let ray = self.camera.ray(x, y, sx, sy, lens);
-        match self.desc.render.integrator {
+        let c = match self.desc.render.integrator {
             IntegratorKind::Whitted => self.radiance(ctx, ray.origin, ray.dir),
             IntegratorKind::Path => self.path_radiance(ctx, ray.origin, ray.dir),
+        };
+        if let Some(sums) = aov {
+            sums.add(self.aov_sample(ctx, ray.origin, ray.dir));
         }
+        c
     }
 }
 

@@ -25,6 +25,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod alloc_meter;
+pub mod aov;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;
@@ -44,6 +45,7 @@ pub mod texture;
 pub mod tile;
 pub mod world;
 
+pub use aov::{Aov, AovTile, Aovs};
 pub use bundle::{Bundle, BundleError, ParsedBundle};
 pub use error::{Location, OutputError, SceneError, SceneErrorKind};
 pub use output::FrameWriter;

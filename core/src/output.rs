@@ -17,7 +17,8 @@
 //! ZIP compression).
 //!
 //! Memory held = [`FrameWriter::rows_held`] × (3·width bytes for PNG, stored
-//! already converted to sRGB bytes, or 12·width bytes for EXR) + width/8 bytes
+//! already converted to sRGB bytes, or 4·width bytes a channel for EXR: 12
+//! for R G B, 40 with every render pass) + width/8 bytes
 //! of coverage bits per pending row, plus the encoder's state (PNG: one
 //! segment's filtered and compressed bytes while it is encoded, about
 //! 16 × (3·width + 1) bytes and less, and a 1 MiB write buffer; EXR: one
@@ -31,6 +32,18 @@
 //! Out of order it is the number of rows between the first incomplete row and
 //! the last row touched, up to the whole frame if the first row completes
 //! last; the writer accepts any order and still produces the same bytes.
+//!
+//! # Render passes
+//!
+//! A frame created with passes ([`FrameWriter::create_with_aovs`], see
+//! [`crate::aov`]) takes them with every tile
+//! ([`FrameWriter::write_tile_aovs`]). An EXR frame stores them as more
+//! channels of its one layer (`albedo.R`…, `N.X`…, `Z`); a PNG frame writes
+//! each to a file of its own beside it ([`aov_path`]) with a writer of its
+//! own, which holds the same rows as the frame's (3·width bytes a row for
+//! the albedo and normal PNGs, 4·width for the depth EXR). Those files are
+//! finished before the frame's own, so the PNG appears only once they all
+//! have.
 //!
 //! # Encoded segments
 //!
@@ -56,8 +69,11 @@
 //! Output bytes are a deterministic function of the pixels: any tile size,
 //! tile order or machine gives the same file.
 
+#[cfg(test)]
+mod aov_tests;
 mod deflate;
 mod exr;
+mod layout;
 mod pending;
 mod png;
 mod srgb;
@@ -65,7 +81,8 @@ mod srgb;
 mod tests;
 
 pub use self::deflate::{adler32, adler32_combine, FINAL_EMPTY_BLOCK, SYNC_FLUSH};
-pub use self::exr::read_exr_rgb;
+pub use self::exr::{read_exr_channels, read_exr_rgb};
+pub use self::layout::aov_path;
 pub use self::png::{
     check_segment, decode_png, encode_segment, encode_segment_srgb, max_segment_deflate_len,
     png_from_segments, read_png_rgb8, segment_count, segment_filtered_len, segment_rows,
@@ -75,8 +92,10 @@ pub use self::png::{
 pub use self::srgb::{linear_to_srgb8, Srgb8};
 
 use self::exr::{ExrSink, BLOCK_ROWS};
+use self::layout::{signed_unit8, Layout};
 use self::pending::PendingRows;
 use self::png::PngSink;
+use crate::aov::{Aov, AovTile, Aovs};
 use crate::error::OutputError;
 use crate::tile::Rect;
 use std::collections::BTreeMap;
@@ -229,11 +248,17 @@ enum Encoder {
         rows: PendingRows<u8>,
         sink: PngSink,
         held: BTreeMap<u32, PngSegment>,
+        /// The values are signed unit vectors, stored as
+        /// round(255·(v+1)/2) (a normal pass), not through the sRGB curve.
+        signed: bool,
     },
-    /// Rows as three planes of `width` floats: B, G, R (EXR channel order).
+    /// Rows as one plane of `width` floats per channel, in the file's
+    /// (sorted) channel order: B, G, R for a plain frame.
     Exr {
         rows: PendingRows<f32>,
         sink: ExrSink,
+        /// Per plane, where its values come from (see [`Layout`]).
+        sources: Vec<usize>,
     },
 }
 
@@ -257,6 +282,11 @@ pub struct FrameWriter {
     next_row: u32,
     /// Set when writing to the encoder failed; the writer is then unusable.
     failure: Option<String>,
+    /// The render passes every tile brings.
+    aovs: Aovs,
+    /// A PNG frame's passes, each written to its own file by its own writer
+    /// (see [`aov_path`]).
+    sidecars: Vec<(Aov, FrameWriter)>,
 }
 
 static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
@@ -269,9 +299,44 @@ impl FrameWriter {
     /// a regular file is [`OutputError::NotARegularFile`] (see
     /// [`check_target`]); in both cases nothing is created.
     pub fn create(path: &Path, width: u32, height: u32) -> Result<Self, OutputError> {
+        FrameWriter::create_with_aovs(path, width, height, Aovs::NONE)
+    }
+
+    /// [`FrameWriter::create`] for a frame with render passes `aovs`, which
+    /// every tile then brings ([`FrameWriter::write_tile_aovs`]): an EXR
+    /// file holds them as channels (`albedo.R`…, `N.X`…, `Z`) beside the
+    /// beauty's R G B, a PNG gets a file beside it for each (see
+    /// [`aov_path`]). Every file appears only when [`FrameWriter::finish`]
+    /// succeeds.
+    pub fn create_with_aovs(
+        path: &Path,
+        width: u32,
+        height: u32,
+        aovs: Aovs,
+    ) -> Result<Self, OutputError> {
+        let format = check_output(path)?;
+        let mut writer = FrameWriter::open(path, width, height, Layout::of(format, aovs))?;
+        writer.aovs = aovs;
+        for aov in aovs.iter() {
+            let Some(side) = aov_path(path, aov) else {
+                continue;
+            };
+            let layout = match aov {
+                Aov::Albedo => Layout::Png { signed: false },
+                Aov::Normal => Layout::Png { signed: true },
+                Aov::Depth => Layout::Exr(vec![("Z", 0)]),
+            };
+            let side = FrameWriter::open(&side, width, height, layout)?;
+            writer.sidecars.push((aov, side));
+        }
+        Ok(writer)
+    }
+
+    /// A writer of `layout` to `path` (no passes, no sidecars).
+    fn open(path: &Path, width: u32, height: u32, layout: Layout) -> Result<Self, OutputError> {
         let display = path.display().to_string();
         // Refused now rather than after the whole frame is rendered.
-        let format = check_output(path)?;
+        check_output(path)?;
         let io_err = |source| OutputError::Io {
             path: display.clone(),
             source,
@@ -312,17 +377,21 @@ impl FrameWriter {
             armed: true,
         };
         let sync = file.try_clone().map_err(io_err)?;
-        let samples_per_row = 3 * width as usize;
-        let encoder = match format {
-            Format::Png => Encoder::Png {
-                rows: PendingRows::new(width, samples_per_row),
+        let encoder = match layout {
+            Layout::Png { signed } => Encoder::Png {
+                rows: PendingRows::new(width, 3 * width as usize),
                 sink: PngSink::new(file, width, height, &display)?,
                 held: BTreeMap::new(),
+                signed,
             },
-            Format::Exr => Encoder::Exr {
-                rows: PendingRows::new(width, samples_per_row),
-                sink: ExrSink::new(file, width, height, &display)?,
-            },
+            Layout::Exr(channels) => {
+                let names: Vec<&str> = channels.iter().map(|c| c.0).collect();
+                Encoder::Exr {
+                    rows: PendingRows::new(width, channels.len() * width as usize),
+                    sink: ExrSink::new(file, width, height, &names, &display)?,
+                    sources: channels.iter().map(|c| c.1).collect(),
+                }
+            }
         };
         Ok(FrameWriter {
             path: path.to_path_buf(),
@@ -333,6 +402,8 @@ impl FrameWriter {
             temp,
             next_row: 0,
             failure: None,
+            aovs: Aovs::NONE,
+            sidecars: Vec::new(),
         })
     }
 
@@ -352,6 +423,11 @@ impl FrameWriter {
             Encoder::Png { rows, .. } => rows.len(),
             Encoder::Exr { rows, .. } => rows.len(),
         }
+    }
+
+    /// The render passes this frame writes.
+    pub fn aovs(&self) -> Aovs {
+        self.aovs
     }
 
     /// How many encoded segments wait for an earlier segment right now, and
@@ -382,7 +458,16 @@ impl FrameWriter {
             });
         }
         let (width, height, next_row) = (self.width, self.height, self.next_row);
-        let Encoder::Png { rows, held, sink } = &mut self.encoder else {
+        if !self.aovs.is_empty() {
+            return Err(OutputError::BadSegment {
+                index,
+                message: "the frame has render passes, which come with float tiles".to_string(),
+            });
+        }
+        let Encoder::Png {
+            rows, held, sink, ..
+        } = &mut self.encoder
+        else {
             return Err(OutputError::BadSegment {
                 index,
                 message: "the frame is an EXR file, which takes no PNG segments".to_string(),
@@ -431,6 +516,62 @@ impl FrameWriter {
     /// writer stays usable. Non-finite values are accepted: PNG maps NaN to 0
     /// and clamps, EXR stores them as they are.
     pub fn write_tile(&mut self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), OutputError> {
+        self.write_tile_aovs(rect, pixels, &AovTile::default())
+    }
+
+    /// [`FrameWriter::write_tile`] with the tile's render passes, which
+    /// must be the frame's ([`FrameWriter::aovs`]; none for a plain
+    /// frame), `aovs.channels()` values a pixel, or
+    /// [`OutputError::AovMismatch`] (nothing written).
+    pub fn write_tile_aovs(
+        &mut self,
+        rect: Rect,
+        pixels: &[[f32; 3]],
+        aov: &AovTile,
+    ) -> Result<(), OutputError> {
+        let n = self.aovs.channels();
+        if aov.aovs != self.aovs || aov.values.len() != pixels.len().saturating_mul(n) {
+            return Err(OutputError::AovMismatch {
+                x: rect.x,
+                y: rect.y,
+                expected: self.aovs,
+                channels: n,
+                got: aov.aovs,
+                values: aov.values.len(),
+            });
+        }
+        self.check_tile(rect, pixels)?;
+        // Every file's checks pass before any is written to: the sidecars
+        // have the frame's size and took the same tiles.
+        let sides: Vec<Vec<[f32; 3]>> = self
+            .sidecars
+            .iter()
+            .map(|(a, _)| {
+                (0..pixels.len())
+                    .map(|i| {
+                        let v = aov.get(i, *a);
+                        match v {
+                            [x, y, z] => [*x, *y, *z],
+                            [d] => [*d, 0.0, 0.0],
+                            _ => [0.0; 3],
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        for ((_, side), values) in self.sidecars.iter_mut().zip(&sides) {
+            side.check_tile(rect, values)?;
+        }
+        for ((_, side), values) in self.sidecars.iter_mut().zip(&sides) {
+            side.put_tile(rect, values, &[], 0).inspect_err(|e| {
+                self.failure = Some(e.to_string());
+            })?;
+        }
+        self.put_tile(rect, pixels, &aov.values, n)
+    }
+
+    /// The checks of [`FrameWriter::write_tile`], writing nothing.
+    fn check_tile(&self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), OutputError> {
         if let Some(message) = &self.failure {
             return Err(OutputError::Encode {
                 path: self.path.display().to_string(),
@@ -471,27 +612,50 @@ impl FrameWriter {
         if overlaps {
             return Err(bad_tile);
         }
+        Ok(())
+    }
 
+    /// Writes a tile [`FrameWriter::check_tile`] accepted: `pixels`, and
+    /// `n` pass values a pixel in `aov`.
+    fn put_tile(
+        &mut self,
+        rect: Rect,
+        pixels: &[[f32; 3]],
+        aov: &[f32],
+        n: usize,
+    ) -> Result<(), OutputError> {
+        let (x0, x1) = (rect.x, rect.x + rect.w);
         let width = self.width as usize;
         let lines = pixels.chunks_exact(rect.w as usize);
         match &mut self.encoder {
-            Encoder::Png { rows, .. } => {
+            Encoder::Png { rows, signed, .. } => {
                 let srgb = Srgb8::new();
+                let signed = *signed;
                 for (y, line) in (rect.y..).zip(lines) {
                     let row = rows.claim(y, x0, x1);
                     let dst = &mut row[3 * x0 as usize..3 * x1 as usize];
                     for (d, p) in dst.chunks_exact_mut(3).zip(line) {
-                        d.copy_from_slice(&p.map(|c| srgb.encode(c)));
+                        if signed {
+                            d.copy_from_slice(&p.map(signed_unit8));
+                        } else {
+                            d.copy_from_slice(&p.map(|c| srgb.encode(c)));
+                        }
                     }
                 }
             }
-            Encoder::Exr { rows, .. } => {
-                for (y, line) in (rect.y..).zip(lines) {
+            Encoder::Exr { rows, sources, .. } => {
+                let w = rect.w as usize;
+                for (j, (y, line)) in (rect.y..).zip(lines).enumerate() {
                     let row = rows.claim(y, x0, x1);
-                    for (i, p) in (x0 as usize..).zip(line) {
-                        row[i] = p[2];
-                        row[width + i] = p[1];
-                        row[2 * width + i] = p[0];
+                    for (k, &src) in sources.iter().enumerate() {
+                        let plane = &mut row[k * width..(k + 1) * width];
+                        for (i, (px, p)) in (x0 as usize..).zip(line.iter().enumerate()) {
+                            plane[i] = if src < 3 {
+                                p[src]
+                            } else {
+                                aov[(j * w + px) * n + src - 3]
+                            };
+                        }
                     }
                 }
             }
@@ -504,7 +668,9 @@ impl FrameWriter {
     /// Hands every complete row at the top of the pending rows to the encoder.
     fn flush_complete_rows(&mut self) -> Result<(), OutputError> {
         match &mut self.encoder {
-            Encoder::Png { rows, sink, held } => loop {
+            Encoder::Png {
+                rows, sink, held, ..
+            } => loop {
                 // `next_row` is always the start of a segment here.
                 let index = self.next_row / SEGMENT_ROWS;
                 if let Some(segment) = held.remove(&index) {
@@ -518,7 +684,7 @@ impl FrameWriter {
                     break;
                 }
             },
-            Encoder::Exr { rows, sink } => {
+            Encoder::Exr { rows, sink, .. } => {
                 while let Some(block) = rows.take_block(self.next_row, BLOCK_ROWS, self.height) {
                     sink.write_block(self.next_row, &block)?;
                     self.next_row += block.len() as u32;
@@ -541,8 +707,14 @@ impl FrameWriter {
             mut temp,
             next_row,
             failure,
+            sidecars,
             ..
         } = self;
+        // The files beside a PNG first: the frame's own file appears only
+        // once they all have.
+        for (_, side) in sidecars {
+            side.finish()?;
+        }
         let display = path.display().to_string();
         if let Some(message) = failure {
             return Err(OutputError::Encode {

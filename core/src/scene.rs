@@ -292,6 +292,9 @@ pub struct RenderSettings {
     pub frames: Option<animation::Frames>,
     /// `fps=`: frame `n` is the scene at `n / fps` seconds.
     pub fps: f64,
+    /// `aovs=` (a Trevi extension): the render passes written beside the
+    /// beauty (none by default; see [`crate::aov`]).
+    pub aovs: crate::aov::Aovs,
 }
 
 /// `<render integrator>`: which light transport a camera renders with.

@@ -4,7 +4,8 @@
 //! band by band (top to bottom, left to right inside a band) so that an output
 //! writer can let rows go as soon as a band is complete.
 
-use crate::integrator::{Integrator, PixelState, RayObserver, RenderOptions};
+use crate::aov::{AovTile, Aovs};
+use crate::integrator::{Integrator, PixelState, RayObserver, RenderOptions, MAX_AOV_CHANNELS};
 use crate::world::Scene;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -156,6 +157,44 @@ fn render_rows<O: RayObserver>(
         Ok(r)
     })?;
     Ok(TileResult { pixels, rays })
+}
+
+/// [`render_tile_cancellable`] with the render passes `aovs` (see
+/// [`crate::aov`]): the tile's beauty, the very pixels of [`render_tile`],
+/// and its passes. With no passes the passes are empty and nothing more is
+/// traced.
+pub fn render_tile_aovs(
+    scene: &Scene,
+    camera: usize,
+    rect: Rect,
+    aovs: Aovs,
+    cancel: &AtomicBool,
+) -> Result<(TileResult, AovTile), Cancelled> {
+    if aovs.is_empty() {
+        let beauty = render_tile_cancellable(scene, camera, rect, cancel)?;
+        return Ok((
+            beauty,
+            AovTile {
+                aovs,
+                values: Vec::new(),
+            },
+        ));
+    }
+    let integrator =
+        Integrator::observed(scene, camera, RenderOptions::default(), &()).cancelled_by(cancel);
+    let mut items = vec![([0.0f32; 3], [0.0f32; MAX_AOV_CHANNELS]); rect.pixel_count()];
+    let rays = for_each_pixel(rect, &mut items, cancel, |x, y, item| {
+        let (v, a, r) = integrator.pixel_aovs(x, y, aovs)?;
+        *item = (v, a);
+        Ok(r)
+    })?;
+    let n = aovs.channels();
+    let pixels = items.iter().map(|(v, _)| *v).collect();
+    let values = items
+        .iter()
+        .flat_map(|(_, a)| a[..n].iter().copied())
+        .collect();
+    Ok((TileResult { pixels, rays }, AovTile { aovs, values }))
 }
 
 /// Continues every pixel of `rect` of camera `camera`'s frame from its

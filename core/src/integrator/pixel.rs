@@ -16,7 +16,9 @@
 //! arithmetic as before the flag existed (the checks change no value).
 
 use super::accumulate::PixelState;
+use super::aov::{AovSums, MAX_AOV_CHANNELS};
 use super::{Integrator, PixelContext, RayObserver, STREAM_PIXEL};
+use crate::aov::Aovs;
 use crate::sampling::{pixel_seed, PixelSampler};
 use crate::scene::RenderSettings;
 use crate::world::Hit;
@@ -88,6 +90,36 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         end: u32,
         state: &mut PixelState,
     ) -> Result<u64, Cancelled> {
+        self.samples_with(x, y, end, state, None)
+    }
+
+    /// [`Integrator::pixel`] with the render passes `aovs` (see
+    /// [`crate::aov`]): the beauty (the bytes of [`Integrator::pixel`]),
+    /// the passes' means in the first `aovs.channels()` values, and the
+    /// rays traced (the passes' own rays included).
+    #[allow(clippy::type_complexity)]
+    pub fn pixel_aovs(
+        &self,
+        x: u32,
+        y: u32,
+        aovs: Aovs,
+    ) -> Result<([f32; 3], [f32; MAX_AOV_CHANNELS], u64), Cancelled> {
+        let mut state = PixelState::default();
+        let mut sums = AovSums::default();
+        let rays = self.samples_with(x, y, u32::MAX, &mut state, Some(&mut sums))?;
+        Ok((state.finish(), sums.finish(aovs), rays))
+    }
+
+    /// [`Integrator::pixel_samples`], adding every sample's passes to `aov`
+    /// when given.
+    fn samples_with(
+        &self,
+        x: u32,
+        y: u32,
+        end: u32,
+        state: &mut PixelState,
+        mut aov: Option<&mut AovSums>,
+    ) -> Result<u64, Cancelled> {
         let r = &self.desc.render;
         let mut ctx = PixelContext {
             sampler: PixelSampler {
@@ -122,7 +154,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                             ((s / n) as f32 + 0.5) / n as f32,
                         )
                     };
-                    run.add_grid(self.camera_sample(&mut ctx, x, y, s, sx, sy));
+                    run.add_grid(self.camera_sample(&mut ctx, x, y, s, sx, sy, aov.as_deref_mut()));
                 }
             }
             Some(a) => {
@@ -136,7 +168,15 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                         return Err(Cancelled);
                     }
                     let [sx, sy] = ctx.sampler.get2(STREAM_PIXEL, n);
-                    run.add_adaptive(self.camera_sample(&mut ctx, x, y, n, sx, sy));
+                    run.add_adaptive(self.camera_sample(
+                        &mut ctx,
+                        x,
+                        y,
+                        n,
+                        sx,
+                        sy,
+                        aov.as_deref_mut(),
+                    ));
                 }
             }
         }

@@ -1,4 +1,6 @@
-//! OpenEXR output: one layer, channels B G R as 32-bit float, scanline blocks
+//! OpenEXR output: one layer, channels B G R as 32-bit float (and a frame's
+//! render passes as more channels of the same layer, `albedo.R`…, `N.X`…,
+//! `Z`, the names compositing tools read as layers), scanline blocks
 //! of 16 rows with ZIP compression, written in increasing-Y order with the
 //! `exr` crate's chunk writer.
 //!
@@ -45,13 +47,15 @@ pub(super) struct ExrSink {
     path: String,
 }
 
-fn header(width: u32, height: u32) -> Header {
+/// The header of a `width`×`height` frame of channels `names`, sorted by
+/// name as EXR requires (the caller sorts; the block data follows this
+/// order).
+fn header(width: u32, height: u32, names: &[&str]) -> Header {
     let size = Vec2(width as usize, height as usize);
-    // Channels sorted by name, as EXR requires; the block data follows this order.
     let channels = ChannelList::new(
-        ["B", "G", "R"]
-            .into_iter()
-            .map(|name| ChannelDescription::named(name, SampleType::F32))
+        names
+            .iter()
+            .map(|name| ChannelDescription::named(*name, SampleType::F32))
             .collect(),
     );
     let blocks = BlockDescription::ScanLines;
@@ -90,9 +94,10 @@ impl ExrSink {
         file: File,
         width: u32,
         height: u32,
+        channels: &[&str],
         path: &str,
     ) -> Result<Self, OutputError> {
-        let headers: Headers = std::iter::once(header(width, height)).collect();
+        let headers: Headers = std::iter::once(header(width, height, channels)).collect();
         let (tx, rx) = sync_channel::<Msg>(0);
         let (ready_tx, ready_rx) = sync_channel::<()>(1);
         let thread_path = path.to_string();
@@ -134,10 +139,11 @@ impl ExrSink {
 
     /// Compresses and writes the block of rows `y0 .. y0 + rows.len()`; `y0` is
     /// a multiple of [`BLOCK_ROWS`] and there are `BLOCK_ROWS` rows except in
-    /// the last block. Each row holds the B, G and R planes, `width` values each.
+    /// the last block. Each row holds the channels' planes in the header's
+    /// order, `width` values each.
     pub(super) fn write_block(&mut self, y0: u32, rows: &[Vec<f32>]) -> Result<(), OutputError> {
         debug_assert_eq!(y0 % BLOCK_ROWS, 0);
-        let mut data = Vec::with_capacity(rows.len() * self.width as usize * 12);
+        let mut data = Vec::with_capacity(rows.iter().map(|r| r.len() * 4).sum());
         for row in rows {
             for v in row {
                 data.extend_from_slice(&v.to_ne_bytes());
@@ -239,5 +245,45 @@ pub fn read_exr_rgb(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>), OutputErro
         u32::try_from(width).map_err(too_big)?,
         u32::try_from(height).map_err(too_big)?,
         pixels,
+    ))
+}
+
+/// Every channel of the first layer of an EXR file, by name, as 32-bit
+/// floats row by row: `(width, height, channels)`, the channels in the
+/// file's (sorted) order, read with the `exr` crate's reader.
+///
+/// For tests and tools only, like [`read_exr_rgb`]: it holds the whole
+/// image.
+#[allow(clippy::type_complexity)]
+pub fn read_exr_channels(path: &Path) -> Result<(u32, u32, Vec<(String, Vec<f32>)>), OutputError> {
+    let p = path.display().to_string();
+    use ::exr::prelude::{ReadChannels, ReadLayers};
+    let image = ::exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| exr_error(&p, e))?;
+    let size = image.layer_data.size;
+    let too_big = |_| OutputError::Encode {
+        path: p.clone(),
+        message: "image too large".into(),
+    };
+    let channels = image
+        .layer_data
+        .channel_data
+        .list
+        .into_iter()
+        .map(|c| {
+            let values = c.sample_data.values_as_f32().collect();
+            (c.name.to_string(), values)
+        })
+        .collect();
+    Ok((
+        u32::try_from(size.width()).map_err(too_big)?,
+        u32::try_from(size.height()).map_err(too_big)?,
+        channels,
     ))
 }

@@ -27,6 +27,7 @@ const DESCRIBED: &[(&str, &str, &str)] = &[
     ("render", "output", "<camera id>.png"),
     ("render", "noise-threshold", "none (adaptive sampling off)"),
     ("render", "frames", "none (a still)"),
+    ("render", "aovs", "none (no render passes)"),
     ("surface", "ambient", "= diffuse"),
     ("surface", "diffuse-texture", "none"),
     ("surface", "triangles", "none (the model's default surface)"),

@@ -6,6 +6,7 @@ use super::table::{attr, extension, Attribute, REQUIRED};
 use super::values::{parse_uint, El};
 use super::xml::{excerpt, is_xml_ws, Attr, Elem};
 use super::{Resolver, Result};
+use crate::aov::Aovs;
 use crate::error::SceneErrorKind;
 use crate::scene::animation::{Frames, DEFAULT_FPS, MAX_FRAME};
 use crate::scene::source::normalize_rel_path;
@@ -125,6 +126,12 @@ pub(super) const RENDER: &[Attribute] = &[
         "24",
         "frames per second",
     ),
+    extension(
+        "aovs",
+        "names among albedo, normal, depth",
+        "none (no render passes)",
+        "render passes written beside the beauty",
+    ),
 ];
 
 impl<'a> Resolver<'a> {
@@ -213,11 +220,21 @@ impl<'a> Resolver<'a> {
             }
         };
         let output = self.bundle_path(&output);
+        let aovs = aovs(&el)?;
         // Compared with every earlier camera's by the names they write,
-        // not only as patterns (see outputs.rs).
-        if let Some((name, other, first)) = self.outputs.add(Output::new(&output, frames), e.pos) {
+        // not only as patterns (see outputs.rs); the files a PNG's render
+        // passes go to as well.
+        let sidecars = aovs
+            .iter()
+            .filter_map(|a| crate::output::aov_path(std::path::Path::new(&output), a))
+            .map(|p| p.to_string_lossy().into_owned());
+        for written in std::iter::once(output.clone()).chain(sidecars) {
+            let Some((name, other, first)) = self.outputs.add(Output::new(&written, frames), e.pos)
+            else {
+                continue;
+            };
             // The same output, or one of the names both write.
-            let msg = if other == output {
+            let msg = if other == written && written == output {
                 format!(
                     "output \"{}\" is already written by the <render> at {} (expected a distinct output per camera)",
                     excerpt(&output),
@@ -225,7 +242,7 @@ impl<'a> Resolver<'a> {
                 )
             } else {
                 format!(
-                    "output \"{}\" writes \"{}\", which the <render> at {} (output \"{}\") writes too (expected outputs that name distinct files for every frame)",
+                    "output \"{}\" writes \"{}\", which the <render> at {} (output \"{}\") writes too (expected outputs that name distinct files for every frame, render passes beside a PNG included)",
                     excerpt(&output),
                     excerpt(&name),
                     self.src.line_col(first),
@@ -304,6 +321,7 @@ impl<'a> Resolver<'a> {
             max_bounces,
             frames,
             fps,
+            aovs,
         })
     }
 
@@ -389,6 +407,24 @@ fn check_pattern(el: &El, a: &Attr, rel: &str, sequence: bool) -> Result<()> {
         )),
         _ => Ok(()),
     }
+}
+
+/// `aovs=`: render passes by name, separated by whitespace or commas, in
+/// any order; an unknown name is refused at the attribute.
+fn aovs(el: &El) -> Result<Aovs> {
+    let Some(a) = el.get("aovs") else {
+        return Ok(Aovs::NONE);
+    };
+    Aovs::parse(&a.value).map_err(|e| {
+        el.attr_err(
+            a,
+            format!(
+                "unknown render pass \"{}\" (expected names among albedo, normal, depth)",
+                excerpt(&e.name)
+            ),
+        )
+        .with_kind(SceneErrorKind::BadValue)
+    })
 }
 
 fn has_image_extension(path: &str) -> bool {

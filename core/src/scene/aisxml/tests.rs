@@ -206,6 +206,7 @@ fn full_scene_resolves_with_defaults() {
             adaptive: None,
             integrator: IntegratorKind::Whitted,
             max_bounces: DEFAULT_MAX_BOUNCES,
+            aovs: crate::aov::Aovs::NONE,
             frames: None,
             fps: 24.0,
         }
@@ -1560,4 +1561,66 @@ fn errors_say_their_kind() {
     );
     assert_eq!(kind(&doc(r#"<mesh id="m" file="m.obj"/>"#)), K::MissingFile);
     assert_eq!(kind("<scene version=\"1\"></scene>"), K::Missing);
+}
+
+/// `aovs=`: names in any order, separated by spaces or commas; none by
+/// default; an unknown name is refused at the attribute, with the name.
+#[test]
+fn render_passes_are_named_in_any_order_and_unknown_ones_are_refused() {
+    let cam = |aovs: &str| {
+        format!(
+            "<scene version=\"1\">\n<camera id=\"c\" position=\"0 0 5\" lookat=\"0 0 0\" fov=\"50\">\n  <render width=\"4\" height=\"3\" {aovs}/></camera>\n</scene>\n"
+        )
+    };
+    let aovs = |text: &str| parse(text).unwrap().cameras[0].render.aovs;
+    assert_eq!(aovs(&cam("")), crate::aov::Aovs::NONE);
+    assert_eq!(
+        aovs(&cam(r#"aovs="depth,normal  albedo""#)),
+        crate::aov::Aovs::ALL
+    );
+    let d = aovs(&cam(r#"aovs=" depth ""#));
+    assert_eq!(d.iter().collect::<Vec<_>>(), [crate::aov::Aov::Depth]);
+    assert_eq!(aovs(&cam(r#"aovs="""#)), crate::aov::Aovs::NONE);
+    check(
+        &cam(r#"aovs="albedo beauty""#),
+        3,
+        32,
+        &[
+            "aovs",
+            "unknown render pass \"beauty\"",
+            "albedo, normal, depth",
+        ],
+    );
+    check(&cam(r#"aovs="Depth""#), 3, 32, &["\"Depth\""]);
+    // A PNG's passes go to files beside it: another camera may not write
+    // one of them.
+    let two = |first: &str, second: &str| {
+        format!(
+            "<scene version=\"1\">\n<camera id=\"a\" position=\"0 0 5\" lookat=\"0 0 0\" fov=\"50\"><render width=\"4\" height=\"3\" {first}/></camera>\n<camera id=\"b\" position=\"0 0 5\" lookat=\"0 0 0\" fov=\"50\"><render width=\"4\" height=\"3\" {second}/></camera>\n</scene>\n"
+        )
+    };
+    check(
+        &two(
+            r#"output="x.png" aovs="albedo depth""#,
+            r#"output="x.depth.exr""#,
+        ),
+        3,
+        86,
+        &["\"x.depth.exr\" is already written by the <render> at 2:57"],
+    );
+    check(
+        &two(
+            r#"output="x.normal.png""#,
+            r#"output="x.png" aovs="normal""#,
+        ),
+        3,
+        86,
+        &["\"x.png\" writes \"x.normal.png\""],
+    );
+    // An EXR holds its passes: nothing beside it.
+    parse(&two(
+        r#"output="x.exr" aovs="albedo normal depth""#,
+        r#"output="x.albedo.png""#,
+    ))
+    .unwrap();
 }

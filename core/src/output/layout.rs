@@ -1,0 +1,64 @@
+//! How a frame's files are laid out: which values each file's samples
+//! hold ([`Layout`]), and where a PNG frame's render passes go
+//! ([`aov_path`]).
+
+use super::Format;
+use crate::aov::{Aov, Aovs};
+use std::path::{Path, PathBuf};
+
+/// What a file's samples are made of. A tile's values are numbered: 0, 1, 2
+/// its R, G, B; 3 onwards its render passes' values in layout order (see
+/// [`crate::aov`]).
+pub(super) enum Layout {
+    /// PNG: values 0..3, through the sRGB curve or, `signed`, mapped from
+    /// [-1, 1] linearly.
+    Png { signed: bool },
+    /// EXR: the named channels (sorted by name, as EXR requires), each
+    /// with the value it stores.
+    Exr(Vec<(&'static str, usize)>),
+}
+
+impl Layout {
+    /// The layout of a frame in `format` with passes `aovs`: the beauty
+    /// alone in a PNG (the passes go to files beside it), every pass as
+    /// channels of the same file in an EXR.
+    pub(super) fn of(format: Format, aovs: Aovs) -> Layout {
+        match format {
+            Format::Png => Layout::Png { signed: false },
+            Format::Exr => {
+                let mut channels = vec![("R", 0), ("G", 1), ("B", 2)];
+                for aov in aovs.iter() {
+                    let at = 3 + aovs.offset(aov).unwrap_or(0);
+                    channels.extend((at..).zip(aov.exr_channels()).map(|(i, n)| (*n, i)));
+                }
+                channels.sort_by(|a, b| a.0.as_bytes().cmp(b.0.as_bytes()));
+                Layout::Exr(channels)
+            }
+        }
+    }
+}
+
+/// Where pass `aov` of a frame written to `output` goes when it is not in
+/// the same file: beside a PNG, `NAME.albedo.png` (sRGB, like the beauty),
+/// `NAME.normal.png` ((n+1)/2 per component, linear) and `NAME.depth.exr`
+/// (one float channel `Z`: depth in a PNG would lose all but 8 bits);
+/// `None` for an EXR output, which holds its passes as channels.
+pub fn aov_path(output: &Path, aov: Aov) -> Option<PathBuf> {
+    if Format::from_path(output)? != Format::Png {
+        return None;
+    }
+    let stem = output.file_stem()?.to_string_lossy();
+    let name = match aov {
+        Aov::Albedo => format!("{stem}.albedo.png"),
+        Aov::Normal => format!("{stem}.normal.png"),
+        Aov::Depth => format!("{stem}.depth.exr"),
+    };
+    Some(output.with_file_name(name))
+}
+
+/// A signed unit value (a normal's component) as an 8-bit sample:
+/// round(255·(v+1)/2), clamped; NaN is 128 (the value of 0).
+pub(super) fn signed_unit8(v: f32) -> u8 {
+    let v = if v.is_nan() { 0.0 } else { v.clamp(-1.0, 1.0) };
+    ((v + 1.0) * 0.5 * 255.0 + 0.5) as u8
+}
