@@ -178,9 +178,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
 
     /// The radiance of camera sample `s` at offset (`sx`, `sy`) of pixel
     /// (`x`, `y`), and with `aov` its render passes added to those sums
-    /// (from the same ray, after the beauty: see `integrator/aov.rs`).
+    /// (from the same ray, after the beauty: see `integrator/aov.rs`),
+    /// only when `AOV`.
     #[allow(clippy::too_many_arguments)]
-    fn camera_sample(
+    fn camera_sample<const AOV: bool>(
         &self,
         ctx: &mut PixelContext,
         x: u32,
@@ -197,8 +198,10 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
             IntegratorKind::Whitted => self.radiance(ctx, ray.origin, ray.dir),
             IntegratorKind::Path => self.path_radiance(ctx, ray.origin, ray.dir),
         };
-        if let Some(sums) = aov {
-            sums.add(self.aov_sample(ctx, ray.origin, ray.dir));
+        if AOV {
+            if let Some(sums) = aov {
+                sums.add(self.aov_sample(ctx, ray.origin, ray.dir));
+            }
         }
         c
     }

@@ -90,7 +90,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
         end: u32,
         state: &mut PixelState,
     ) -> Result<u64, Cancelled> {
-        self.samples_with(x, y, end, state, None)
+        self.samples_with::<false>(x, y, end, state, None)
     }
 
     /// [`Integrator::pixel`] with the render passes `aovs` (see
@@ -106,13 +106,14 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
     ) -> Result<([f32; 3], [f32; MAX_AOV_CHANNELS], u64), Cancelled> {
         let mut state = PixelState::default();
         let mut sums = AovSums::default();
-        let rays = self.samples_with(x, y, u32::MAX, &mut state, Some(&mut sums))?;
+        let rays = self.samples_with::<true>(x, y, u32::MAX, &mut state, Some(&mut sums))?;
         Ok((state.finish(), sums.finish(aovs), rays))
     }
 
     /// [`Integrator::pixel_samples`], adding every sample's passes to `aov`
-    /// when given.
-    fn samples_with(
+    /// when `AOV` (a constant, so that a render without passes compiles to
+    /// the loop it always was).
+    fn samples_with<const AOV: bool>(
         &self,
         x: u32,
         y: u32,
@@ -154,7 +155,15 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                             ((s / n) as f32 + 0.5) / n as f32,
                         )
                     };
-                    run.add_grid(self.camera_sample(&mut ctx, x, y, s, sx, sy, aov.as_deref_mut()));
+                    run.add_grid(self.camera_sample::<AOV>(
+                        &mut ctx,
+                        x,
+                        y,
+                        s,
+                        sx,
+                        sy,
+                        aov.as_deref_mut(),
+                    ));
                 }
             }
             Some(a) => {
@@ -168,7 +177,7 @@ impl<'a, O: RayObserver> Integrator<'a, O> {
                         return Err(Cancelled);
                     }
                     let [sx, sy] = ctx.sampler.get2(STREAM_PIXEL, n);
-                    run.add_adaptive(self.camera_sample(
+                    run.add_adaptive(self.camera_sample::<AOV>(
                         &mut ctx,
                         x,
                         y,
