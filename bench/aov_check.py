@@ -21,7 +21,8 @@ def main():
     if len(sys.argv) not in (2, 4):
         sys.exit(__doc__)
     path = sys.argv[1]
-    with OpenEXR.File(path) as f:
+    # One entry per channel as the file names it (not grouped into RGB).
+    with OpenEXR.File(path, separate_channels=True) as f:
         for p, part in enumerate(f.parts):
             channels = part.channels
             names = sorted(channels)
@@ -31,12 +32,13 @@ def main():
             print(f"{path}: part {p}, {w}x{h}, {len(names)} channels, "
                   f"compression {part.header.get('compression')}")
             for name in names:
+                stored = channels[name].pixels.dtype
                 px = np.asarray(channels[name].pixels, dtype=np.float64)
                 finite = px[np.isfinite(px)]
                 inf = int(np.isposinf(px).sum())
                 stats = (f"min {finite.min():.6g} mean {finite.mean():.6g} max {finite.max():.6g}"
                          if finite.size else "no finite value")
-                print(f"  {name:9} {px.dtype} {stats} +inf {inf:6}  "
+                print(f"  {name:9} {stored} {stats} +inf {inf:6}  "
                       f"at ({x},{y}) {px[y, x]:.6g}")
 
 
