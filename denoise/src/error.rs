@@ -25,7 +25,10 @@ pub enum DenoiseError {
         /// What is wrong with it.
         what: &'static str,
     },
-    /// Reading the noisy frame or writing the denoised one failed.
+    /// Reading the noisy frame failed.
     #[error("{0}")]
     Io(String),
+    /// Writing the denoised frame failed.
+    #[error(transparent)]
+    Output(#[from] trevi_core::OutputError),
 }

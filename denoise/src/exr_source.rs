@@ -6,8 +6,9 @@
 //! `N.X N.Y N.Z` (the names compositing tools and the farm's writer use); in
 //! a file of several parts the first part's channels also answer to their
 //! own names, so a beauty part of any name gives `R G B`.
-//! Only the beauty is required. A band read decodes only the scanline blocks
-//! that hold its rows: memory is the band's pixels plus one block.
+//! Only the beauty is required. Scanline and tiled files both read; a band
+//! read decodes only the blocks that hold its rows: memory is the band's
+//! pixels plus one block.
 
 use crate::{DenoiseError, Inputs, Source};
 use exr::block::reader::ChunksReader;
@@ -151,8 +152,11 @@ impl Source for ExrSource {
             let part = block.index.layer;
             let channels = &headers[part].channels;
             for line in block.lines(channels) {
-                let y = line.location.position.y();
-                if !(y0..y1).contains(&y) || line.location.sample_count != w {
+                // A line of a scanline block spans the frame; one of a tile,
+                // the tile's columns.
+                let (x, y) = (line.location.position.x(), line.location.position.y());
+                let count = line.location.sample_count;
+                if !(y0..y1).contains(&y) || x + count > w {
                     continue;
                 }
                 let slot = (part, line.location.channel);
@@ -166,9 +170,10 @@ impl Source for ExrSource {
                         continue;
                     };
                     if let Some(c) = slots.iter().position(|&s| s == slot) {
-                        line.read_samples_into_slice(&mut line_buf)
+                        line.read_samples_into_slice(&mut line_buf[..count])
                             .map_err(|e| io(&path, e))?;
-                        let row = &mut out[(y - y0) * w..(y - y0 + 1) * w];
+                        let start = (y - y0) * w + x;
+                        let row = &mut out[start..start + count];
                         for (px, v) in row.iter_mut().zip(&line_buf) {
                             px[c] = *v;
                         }

@@ -27,11 +27,13 @@
 mod error;
 pub mod exposure;
 pub mod exr_source;
+pub mod file;
 pub mod filter;
 pub mod plan;
 
 pub use error::DenoiseError;
 pub use exr_source::ExrSource;
+pub use file::{denoise_file, Denoised};
 pub use filter::{Denoiser, BUILT_IN, HOW_TO_GET};
 pub use plan::{Band, BandPlan, ALIGNMENT, DEFAULT_BAND_ROWS, DEFAULT_OVERLAP};
 

@@ -29,6 +29,10 @@ fn channels(layer: usize, names: [&str; 3], prefix: &str) -> Vec<AnyChannel<Flat
 }
 
 fn one_part(path: &std::path::Path, with_normal: bool) {
+    one_part_as(path, with_normal, Encoding::FAST_LOSSLESS)
+}
+
+fn one_part_as(path: &std::path::Path, with_normal: bool, encoding: Encoding) {
     let mut all = channels(0, ["R", "G", "B"], "");
     all.extend(channels(1, ["R", "G", "B"], "albedo."));
     if with_normal {
@@ -37,7 +41,7 @@ fn one_part(path: &std::path::Path, with_normal: bool) {
     let layer = Layer::new(
         (W, H),
         LayerAttributes::default(),
-        Encoding::FAST_LOSSLESS,
+        encoding,
         AnyChannels::sort(all.into()),
     );
     Image::from_layer(layer).write().to_file(path).unwrap();
@@ -111,6 +115,22 @@ fn bands_of_one_part_with_prefixed_channels_read_back_exactly() {
     let mut src = ExrSource::open(&path).unwrap();
     assert!(!src.has_normal());
     check_band(&mut src, 10..40, false);
+}
+
+#[test]
+fn bands_of_a_tiled_file_read_back_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("frame.exr");
+    let tiled = Encoding {
+        compression: Compression::ZIP1,
+        blocks: Blocks::Tiles(Vec2(16, 8)),
+        line_order: LineOrder::Increasing,
+    };
+    one_part_as(&path, true, tiled);
+    let mut src = ExrSource::open(&path).unwrap();
+    for rows in [0..8, 3..20, 31..70] {
+        check_band(&mut src, rows, true);
+    }
 }
 
 #[test]
