@@ -62,6 +62,7 @@ pub use upkeep::Upkeep;
 
 use crate::bundles::BundleStore;
 use crate::error::FarmError;
+use crate::events::Events;
 use crate::limits::Limits;
 use crate::metrics::Metrics;
 use crate::scheduler::{JobId, JobInfo, Outcome, Scheduler, WorkerId};
@@ -166,6 +167,8 @@ pub struct Farm {
     summaries: Summaries,
     store: Option<Store>,
     metrics: Arc<Metrics>,
+    /// Job events, to webhooks and the monitor (see [`crate::events`]).
+    events: Events,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -207,9 +210,16 @@ impl Farm {
             summaries: Summaries::new(&cfg.limits),
             store,
             metrics: Arc::default(),
+            events: Events::default(),
             cfg,
         };
         farm.restore()?;
+        // The unfinished jobs found there have events again.
+        farm.state
+            .lock()
+            .submitters
+            .keys()
+            .for_each(|&j| farm.events.restored(j));
         farm.skip_used_ids()?;
         farm.prune();
         Ok(farm)
@@ -218,6 +228,11 @@ impl Farm {
     /// The settings the farm was opened with.
     pub fn config(&self) -> &FarmConfig {
         &self.cfg
+    }
+
+    /// The job events: where the farm emits them, and their subscribers.
+    pub fn events(&self) -> &Events {
+        &self.events
     }
 
     /// The uploaded scene bundles on disk.

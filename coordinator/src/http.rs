@@ -11,6 +11,8 @@
 //!   ([`crate::preview`]).
 //! - `POST /api/jobs/{id}/cancel`, `POST /api/jobs/{id}/priority` (body
 //!   `{"priority": N}`).
+//! - `GET /events`: the job events ([`crate::events`]) as server-sent
+//!   events, which the page listens to before falling back to polling.
 //! - `GET /metrics` (Prometheus text, [`crate::metrics`]) and `GET /healthz`.
 //!
 //! State-changing requests (the `POST`s) must come from the monitor's own
@@ -42,15 +44,19 @@ use crate::FarmError;
 use axum::extract::{FromRequestParts, Path, State};
 use axum::http::request::Parts;
 use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
+use std::convert::Infallible;
 use std::future::Future;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{watch, Semaphore};
 use tokio::task::JoinSet;
+use tokio_stream::wrappers::BroadcastStream;
+use tokio_stream::{Stream, StreamExt};
 
 const MONITOR_HTML: &str = include_str!("../assets/monitor.html");
 
@@ -171,6 +177,7 @@ pub fn router(farm: Arc<Farm>, tokens: Tokens) -> Router {
         .route("/", get(monitor))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
+        .route("/events", get(events))
         .route("/api/state", get(api_state))
         .route("/api/jobs/{id}/preview.png", get(api_preview))
         .route("/api/jobs/{id}/cancel", post(api_cancel))
@@ -297,8 +304,39 @@ async fn metrics(State(app): State<App>) -> impl IntoResponse {
             header::CONTENT_TYPE,
             "text/plain; version=0.0.4; charset=utf-8",
         )],
-        crate::metrics::render(&app.farm.snapshot(), app.farm.metrics()),
+        crate::metrics::render(&app.farm.snapshot(), app.farm.metrics())
+            + &app.farm.events().stats().render(),
     )
+}
+
+/// `GET /events`: the job events as server-sent events (`event:` the kind,
+/// `id:` the sequence number, `data:` the JSON a webhook gets). At most
+/// [`MAX_SSE_SUBSCRIBERS`](crate::events::MAX_SSE_SUBSCRIBERS) at once; a
+/// subscriber that falls [`SSE_BUFFER`](crate::events::SSE_BUFFER) events
+/// behind is disconnected (the page falls back to polling and reconnects).
+async fn events(
+    State(app): State<App>,
+    headers: HeaderMap,
+) -> Result<Sse<impl Stream<Item = Result<SseEvent, Infallible>>>, ApiError> {
+    app.need_submitter(&headers, "watch the job events")?;
+    let rx = app.farm.events().subscribe().ok_or_else(|| {
+        ApiError(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!(
+                "{} event subscribers already; try again later",
+                crate::events::MAX_SSE_SUBSCRIBERS
+            ),
+        )
+    })?;
+    // A lagging subscriber's stream ends: it is dropped, never waited for.
+    let stream = BroadcastStream::new(rx).map_while(|ev| {
+        let ev = ev.ok()?;
+        Some(Ok(SseEvent::default()
+            .event(ev.event.name())
+            .id(ev.seq.to_string())
+            .data(ev.json())))
+    });
+    Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
 }
 
 #[derive(Serialize)]

@@ -14,6 +14,8 @@
 //! - [`http`]: the web monitor (`--http`), its JSON API, `/metrics`
 //!   ([`metrics`]) and `/healthz`; [`preview`] keeps each running frame's
 //!   small live preview, [`workers`] what is known of each worker.
+//! - [`events`]: job events (submitted, started, done, ...) POSTed to
+//!   webhooks, signed, and streamed to the monitor.
 //! - [`summaries`]: the cameras of each stored bundle's scene, parsed once.
 //! - [`listen`]: accepting connections through errors (out of file
 //!   descriptors) and raising the open-files limit at start-up.
@@ -34,6 +36,7 @@ pub mod auth;
 pub mod bundles;
 pub mod dir_lock;
 pub mod error;
+pub mod events;
 pub mod farm;
 pub mod grpc;
 pub mod http;

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 use trevi_coordinator::auth::{token_from, Tokens};
+use trevi_coordinator::events::EventsConfig;
 use trevi_coordinator::farm::Retention;
 use trevi_coordinator::grpc::ServeOptions;
 use trevi_coordinator::limits::{MAX_FRAMES_IN_PROGRESS, MIN_MESSAGE_BYTES};
@@ -189,6 +190,16 @@ struct Args {
     #[arg(long, env = "TREVI_HTTP_MAX_CONNECTIONS", value_parser = at_least::<usize>(1),
           default_value_t = defaults().limits.http_max_connections)]
     http_max_connections: usize,
+    /// POST every job's events (submitted, started, frame done, done, ...)
+    /// as JSON to this http:// or https:// URL; repeat for more (at most 4).
+    /// See docs/farm.md, "Events".
+    #[arg(long = "events-url", env = "TREVI_EVENTS_URL", value_delimiter = ',')]
+    events_url: Vec<String>,
+    /// Sign each event POST with HMAC-SHA256 under the secret in this file
+    /// (header `X-Trevi-Signature: sha256=<hex>`); without it events are
+    /// sent unsigned.
+    #[arg(long, env = "TREVI_EVENTS_SECRET_FILE")]
+    events_secret_file: Option<PathBuf>,
     /// Serve gRPC over TLS with this PEM certificate chain (needs --tls-key).
     #[arg(long, env = "TREVI_TLS_CERT")]
     tls_cert: Option<PathBuf>,
@@ -286,6 +297,20 @@ async fn main() -> Result<()> {
         Arc::new(Farm::new(cfg).with_context(|| {
             format!("cannot use the data directory {}", args.data_dir.display())
         })?);
+    let secret = match &args.events_secret_file {
+        Some(path) => Some(EventsConfig::read_secret(path).context("--events-secret-file")?),
+        None => None,
+    };
+    if secret.is_none() {
+        tracing::warn!("no --events-secret-file: job events are sent unsigned");
+    }
+    let events = EventsConfig {
+        urls: args.events_url.clone(),
+        secret,
+    };
+    farm.events()
+        .start(events)
+        .context("cannot start the job events")?;
     let listener = tokio::net::TcpListener::bind(&args.listen)
         .await
         .with_context(|| format!("cannot listen on {}", args.listen))?;
@@ -411,6 +436,31 @@ mod tests {
             assert!(
                 msg.contains(flag) && msg.contains(says),
                 "{flag} {value}: {msg}"
+            );
+        }
+        // Event URLs: bounded, http(s) only; the check names the flag.
+        let dir = tempfile::tempdir().unwrap();
+        for (urls, says) in [
+            ("ftp://example.com/x", "only http:// and https://"),
+            (
+                "http://a/,http://b/,http://c/,http://d/,http://e/",
+                "5 URLs",
+            ),
+        ] {
+            let args = parse(&["--events-url", urls]).unwrap();
+            let farm = Farm::new(FarmConfig::new(dir.path())).unwrap();
+            let cfg = EventsConfig {
+                urls: args.events_url,
+                secret: None,
+            };
+            let e = tokio::runtime::Runtime::new()
+                .unwrap()
+                .block_on(async { farm.events().start(cfg) })
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("--events-url") && e.contains(says),
+                "{urls}: {e}"
             );
         }
         parse(&["--keep-ended", "1", "--keep-ended-for", "never"])

@@ -82,6 +82,11 @@ pub struct Args {
     pub samples: Option<u32>,
     #[command(flatten)]
     pub passes: PassFlags,
+    /// On a farm: POST each job's events (submitted, started, frame done,
+    /// done, failed, cancelled) as signed JSON to this http:// or https://
+    /// URL; repeat for more (at most 4). See docs/farm.md, "Events".
+    #[arg(long = "notify", value_name = "URL", requires = "coordinator")]
+    pub notify: Vec<String>,
 }
 
 /// How to reach a farm's coordinator: the flags every farm command shares.

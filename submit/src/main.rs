@@ -136,6 +136,7 @@ fn run(args: Args) -> Result<()> {
         priority: args.priority,
         tile_size: args.tile_size,
         progressive,
+        notify: args.notify.clone(),
     };
     let mut targets = Vec::new();
     for &cam in &cameras {

@@ -97,6 +97,7 @@ impl Farm {
             Err(e) => tracing::error!(job, error = %e, "job failed"),
         }
         st.unrecorded.remove(&job);
+        self.events.ended(job, &result);
         st.sched.finish(job, result, now);
         st.outputs.remove(&job);
         st.submitters.remove(&job);
@@ -106,6 +107,9 @@ impl Farm {
                 s.passes = Some(p);
             }
             st.frame_ended(seq, job, &ending, seq_done.is_some());
+            if seq_done.is_some() {
+                self.events.frame_done(seq, ending.spec.frame)
+            }
         }
         st.publish(job);
         drop(st);
@@ -186,6 +190,7 @@ impl Farm {
         drop(st);
         if let Some(out) = out {
             // Dropping an unfinished writer removes its temporary file.
+            self.events.cancelled(job);
             lock(&out).close();
             let dir = self.cfg.data_dir.join("jobs").join(job.to_string());
             let _ = std::fs::remove_dir(dir);

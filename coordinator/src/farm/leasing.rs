@@ -143,7 +143,14 @@ impl Farm {
     /// The next tile (or span) for `worker`, if any job has one it may
     /// hand out now; `None` when there is none.
     pub fn lease(&self, worker: WorkerId) -> Result<Option<Lease>, FarmError> {
-        Ok(self.state.lock().sched.lease(worker, Instant::now())?)
+        let mut st = self.state.lock();
+        let lease = st.sched.lease(worker, Instant::now())?;
+        // The job's first lease starts it (a frame's: its sequence).
+        if let Some(l) = &lease {
+            self.events
+                .leased(st.parent_of.get(&l.job).copied().unwrap_or(l.job));
+        }
+        Ok(lease)
     }
 
     /// Like [`Farm::lease`], waiting up to `wait` for a tile to become available.

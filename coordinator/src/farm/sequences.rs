@@ -403,6 +403,7 @@ impl Farm {
         st.seqs.insert(id, seq);
         st.watchers.insert(id, watch::channel(info.clone()).0);
         st.submitters.insert(id, who.to_string());
+        self.events.submitted(id);
         drop(st);
         tracing::info!(job = id, first, last, camera = %info.spec.camera, "sequence queued");
         self.advance(id);
@@ -538,6 +539,7 @@ impl Farm {
             s.failed = None;
             let who = s.spec.submitter.clone();
             st.submitters.insert(seq, who);
+            self.events.restored(seq);
             st.publish(seq);
         }
         tracing::info!(job = seq, "progressive job extended");
@@ -575,6 +577,7 @@ impl Farm {
             return;
         }
         s.finished = Some(now);
+        self.events.ended(seq, &result);
         match result {
             Ok(()) => s.state = JobState::Done,
             Err(e) => {
@@ -627,6 +630,7 @@ impl Farm {
             s.finished = Some(now);
             let running = s.running.values().copied().collect();
             st.submitters.remove(&seq);
+            self.events.cancelled(seq);
             running
         };
         for job in running {

@@ -204,6 +204,9 @@ impl Farm {
         tracing::info!(job = id, camera = %info.spec.camera, width = info.spec.width,
             height = info.spec.height, priority = info.spec.priority, frame = ?info.spec.frame,
             "job queued");
+        if parent.is_none() {
+            self.events.submitted(id)
+        }
         Ok(info)
     }
 

@@ -3,6 +3,7 @@
 //! status as the wire carries it.
 
 use super::{blocking, stream_file};
+use crate::events::Events;
 use crate::farm::{Farm, Progressive, SubmitOptions};
 use crate::scheduler::{JobInfo, JobState};
 use crate::FarmError;
@@ -92,11 +93,13 @@ impl pb::jobs_server::Jobs for JobsService {
             .map(|a| a.ip().to_string())
             .unwrap_or_default();
         let r = req.into_inner();
+        // Checked before any work.
+        let notify = crate::events::check_urls(&r.notify, "--notify")?;
         let farm = self.farm.clone();
         let info = blocking(move || {
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
-            match (r.frames, r.progressive) {
+            Events::with_notify(notify, || match (r.frames, r.progressive) {
                 (Some(f), Some(p)) => farm.submit_progressive_sequence(
                     spec,
                     f.first,
@@ -113,7 +116,7 @@ impl pb::jobs_server::Jobs for JobsService {
                         ..SubmitOptions::default()
                     },
                 ),
-            }
+            })
         })
         .await?;
         Ok(Response::new(job_status(&info)))

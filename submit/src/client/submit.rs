@@ -34,6 +34,8 @@ pub struct JobSpec {
     /// Set for a progressive still (`--samples`, `--pass`, `--time-limit`,
     /// `--noise-target`; see `passes.rs`).
     pub progressive: Option<pb::Progressive>,
+    /// URLs that receive each job's events (`--notify`).
+    pub notify: Vec<String>,
 }
 
 /// One camera to render and where its output goes.
@@ -94,6 +96,7 @@ impl Target {
                 last: f.last,
             }),
             progressive: job.progressive,
+            notify: job.notify.clone(),
         }
     }
 }

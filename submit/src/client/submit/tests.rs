@@ -38,9 +38,11 @@ fn the_request_carries_the_job_s_settings() {
         priority: 3,
         tile_size: 32,
         progressive,
+        notify: vec!["https://hooks.example.com/trevi".into()],
     };
     let r = still.request("h", &job);
     assert_eq!(r.progressive, progressive);
+    assert_eq!(r.notify, job.notify);
     assert_eq!((r.bundle_hash.as_str(), r.camera.as_str()), ("h", "a"));
     assert_eq!((r.priority, r.tile_size, r.frames), (3, 32, None));
     assert_eq!(r.output_format, "png");
