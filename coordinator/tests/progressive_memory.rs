@@ -17,7 +17,7 @@
 //! pixel a pass in a release build) and 8192² writes 8 GiB of state files,
 //! so the default stays at 2048² for `cargo test --workspace`;
 //! `TREVI_MEMORY_EDGE=8192` runs it at that size (bench/progressive.py
-//! //! measures the processes of a real farm at 4096² and 8192²).
+//! measures the processes of a real farm at 4096² and 8192²).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use trevi_coordinator::farm::progressive::Progressive;
