@@ -18,7 +18,7 @@ cd "$(dirname "$0")"
 secs=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr state)
+[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr state duration)
 rss_mb=${RSS_MB:-2048}
 timeout=${TIMEOUT:-10}
 
@@ -69,6 +69,11 @@ mkdir -p corpus/state
 import struct, sys
 h = b"TVPS" + struct.pack("<HHIIIIII", 1, 0, 0, 0, 1, 1, 0, 0)
 sys.stdout.buffer.write(h + bytes(64))' > corpus/state/empty-pixel
+# The duration grammar starts from each unit.
+mkdir -p corpus/duration
+[ -n "$(ls -A corpus/duration)" ] || for d in 90s 10m 2h 7d; do
+    printf '%s' "$d" > "corpus/duration/$d"
+done
 
 export RUSTC_BOOTSTRAP=1
 for t in "${targets[@]}"; do

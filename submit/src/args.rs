@@ -87,6 +87,8 @@ pub struct Args {
     /// URL; repeat for more (at most 4). See docs/farm.md, "Events".
     #[arg(long = "notify", value_name = "URL", requires = "coordinator")]
     pub notify: Vec<String>,
+    #[command(flatten)]
+    pub local: crate::kept::LocalDir,
 }
 
 /// How to reach a farm's coordinator: the flags every farm command shares.
@@ -184,8 +186,9 @@ pub enum Command {
     },
     /// Add samples per pixel to a finished progressive job (one rendered with
     /// --samples): it runs again from where it stopped, its output replaced
-    /// after every new pass. Needs --coordinator: the job of a local render
-    /// ends with its process.
+    /// after every new pass. With --coordinator, a farm's job; without, a
+    /// local render's (kept in --local-dir), rendered on this machine with
+    /// every core and written to -o.
     Extend {
         /// The job's id (printed by --detach, listed by `list`).
         id: u64,
@@ -195,18 +198,25 @@ pub enum Command {
         samples: u32,
         #[command(flatten)]
         passes: PassFlags,
-        /// Follow the job until its new passes end, showing progress, then
-        /// download its image (as `wait`).
+        /// On a farm: follow the job until its new passes end, showing
+        /// progress, then download its image (as `wait`). A local extend
+        /// always does.
         #[arg(long)]
         wait: bool,
-        /// With --wait: where to write the image (as for `fetch`).
-        #[arg(short = 'o', long = "output", requires = "wait")]
+        /// Where to write the image (as for `fetch`; on a farm with --wait).
+        #[arg(short = 'o', long = "output")]
         output: Option<PathBuf>,
         /// No progress output.
         #[arg(short, long, env = "TREVI_QUIET")]
         quiet: bool,
+        /// The farm's coordinator, like http://host:50051, or https:// for
+        /// TLS (default: a local render's job, in --local-dir).
+        #[arg(long, env = "TREVI_COORDINATOR")]
+        coordinator: Option<String>,
         #[command(flatten)]
-        farm: Farm,
+        auth: Auth,
+        #[command(flatten)]
+        local: crate::kept::LocalDir,
     },
 }
 
@@ -234,6 +244,19 @@ impl Args {
         };
         passes::check(samples, flags)
             .map_err(|m| Args::command().error(ErrorKind::ValueValidation, m))?;
+        if let Some(Command::Extend {
+            coordinator: Some(_),
+            output: Some(_),
+            wait: false,
+            ..
+        }) = &self.command
+        {
+            return Err(Args::command().error(
+                ErrorKind::MissingRequiredArgument,
+                "-o is where --wait downloads the image from a farm: add --wait (an extend \
+                 without --coordinator renders here and always writes -o)",
+            ));
+        }
         if self.command.is_none()
             && self.frames.is_some()
             && (self.passes.time_limit.is_some() || self.passes.noise_target.is_some())
@@ -256,14 +279,18 @@ pub const SEQUENCE_STOPS: &str = "a sequence renders each frame in passes with -
      frame (drop them, or render a still)";
 
 impl Command {
-    pub fn farm(&self) -> &Farm {
+    /// The coordinator the command talks to and its credentials; `None` for
+    /// `extend` without --coordinator (a local render's job).
+    pub fn farm(&self) -> Option<(&str, &Auth)> {
         match self {
             Command::Status { farm, .. }
             | Command::List { farm, .. }
             | Command::Cancel { farm, .. }
             | Command::Fetch { farm, .. }
-            | Command::Wait { farm, .. }
-            | Command::Extend { farm, .. } => farm,
+            | Command::Wait { farm, .. } => Some((farm.coordinator.as_str(), &farm.auth)),
+            Command::Extend {
+                coordinator, auth, ..
+            } => coordinator.as_deref().map(|c| (c, auth)),
         }
     }
 }

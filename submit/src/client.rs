@@ -19,7 +19,7 @@ mod submit;
 mod upload;
 mod watch;
 
-pub use submit::{JobSpec, Target};
+pub use submit::{JobSpec, Output, Target};
 pub use upload::Encoded;
 
 /// A connection to a coordinator.

@@ -1,7 +1,8 @@
 //! The farm commands: `status`, `list`, `cancel`, `fetch`, `wait` (also
 //! `attach`: follow a job to its end and download its output, as the
 //! submission would have) and `extend` (more samples for a progressive
-//! job; with `--wait`, followed as `wait` does).
+//! job; with `--wait`, followed as `wait` does; without `--coordinator`, a
+//! local render's job, see `kept.rs`).
 
 use anyhow::{bail, Result};
 use std::io::IsTerminal;
@@ -16,9 +17,26 @@ use crate::passes;
 use crate::progress::Progress;
 
 pub async fn run(cmd: Command) -> Result<()> {
-    let farm = cmd.farm();
-    let url = farm.coordinator.clone();
-    let mut client = farm.auth.connect(&url).await?;
+    if let Command::Extend {
+        id,
+        samples,
+        passes,
+        output,
+        quiet,
+        local,
+        coordinator: None,
+        ..
+    } = &cmd
+    {
+        // `extend` of a local render's job: rendered here.
+        let request = passes::extend_request(*id, *samples, passes);
+        return crate::kept::extend(request, output.as_deref(), *quiet, local).await;
+    }
+    let Some((url, auth)) = cmd.farm() else {
+        bail!("this command needs --coordinator URL");
+    };
+    let url = url.to_string();
+    let mut client = auth.connect(&url).await?;
     match cmd {
         Command::Status { id, preview, .. } => {
             println!("{}", client::describe(&client.status(id).await?));

@@ -1,5 +1,6 @@
 //! Rendering on this machine: an embedded coordinator on 127.0.0.1 (an
-//! ephemeral port, data in a temporary directory) and an in-process worker
+//! ephemeral port, data in a temporary directory, or for a render kept for
+//! `extend` in the local directory, see `kept.rs`) and an in-process worker
 //! with every core, driven by the same client as a farm (`client.rs`), so
 //! the output is byte-identical to the farm's, stills and sequences alike.
 //! The scene the submitter parsed is handed to both: the coordinator keeps
@@ -8,8 +9,8 @@
 //! sequence's frames need a scene of their own to move from frame to
 //! frame: the worker builds that one from the bundle.
 
+use crate::kept::DataDir;
 use anyhow::{Context, Result};
-use std::path::Path;
 use std::sync::Arc;
 use tokio::sync::{oneshot, watch};
 use tokio::task::JoinHandle;
@@ -58,21 +59,11 @@ impl Prepared {
 /// A coordinator and a worker running inside this process.
 pub struct Embedded {
     pub url: String,
+    farm: Arc<Farm>,
     stop_server: oneshot::Sender<()>,
     stop_worker: watch::Sender<bool>,
     server: JoinHandle<()>,
     worker: JoinHandle<()>,
-}
-
-/// The embedded coordinator's data directory: a `trevi-submit-*` directory
-/// in the system's temporary directory, removed when dropped. Made before
-/// the async runtime and dropped after it, so no task of the embedded farm
-/// still writes into it while it is removed.
-pub fn data_dir() -> Result<tempfile::TempDir> {
-    tempfile::Builder::new()
-        .prefix("trevi-submit-")
-        .tempdir()
-        .context("cannot create a temporary directory")
 }
 
 /// A signal that ends a local render early: SIGINT (Ctrl-C) or SIGTERM.
@@ -124,27 +115,49 @@ impl Signals {
 
 impl Embedded {
     /// `threads` render threads (0: every core); `tile` the default tile
-    /// edge; `data` its data directory (see [`data_dir`]); `scene` the
-    /// scene about to be submitted (see [`Prepared`]).
+    /// edge; `data` its data directory; `scene` the scene about to be
+    /// submitted (see [`Prepared`]; none for `extend`, whose worker reads
+    /// the bundle the coordinator kept).
+    ///
+    /// A temporary directory dies with this process: nothing to resume, no
+    /// database. A kept one has its database, whose jobs come back; one
+    /// left unfinished (by a process that was killed) is cancelled, so that
+    /// this process's worker does not render it.
     pub async fn start(
         threads: usize,
         tile: u32,
-        data: &Path,
-        scene: Prepared,
+        data: &DataDir,
+        scene: Option<Prepared>,
     ) -> Result<Embedded> {
-        let mut cfg = FarmConfig::new(data);
+        let mut cfg = FarmConfig::new(data.path());
         cfg.default_tile = tile;
-        // The data directory dies with this process: nothing to resume.
-        cfg.durable = false;
-        let farm = Arc::new(Farm::new(cfg).context("cannot start the embedded coordinator")?);
-        farm.summaries()
-            .prime(&scene.hash, &scene.name, scene.desc());
+        cfg.durable = data.is_kept();
+        let farm = Arc::new(Farm::new(cfg).with_context(|| {
+            format!(
+                "cannot start the embedded coordinator in {}",
+                data.path().display()
+            )
+        })?);
+        let left = cancel_unfinished(&farm);
+        if !left.is_empty() {
+            eprintln!(
+                "trevi-submit: cancelled job(s) {left:?} of {}, left unfinished by a trevi-submit \
+                 that did not end normally",
+                data.path().display()
+            );
+        }
+        if let Some(scene) = &scene {
+            farm.summaries()
+                .prime(&scene.hash, &scene.name, scene.desc());
+        }
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .context("cannot listen on 127.0.0.1")?;
         let url = format!("http://{}", listener.local_addr()?);
         let (stop_server, stopped) = oneshot::channel::<()>();
+        let served = farm.clone();
         let server = tokio::spawn(async move {
+            let farm = served;
             let shutdown = async {
                 let _ = stopped.await;
             };
@@ -159,11 +172,13 @@ impl Embedded {
         // The user asked for this render on this machine: it gets the
         // machine's normal share, not a spare machine's leftovers.
         wcfg.priority = trevi_worker::Priority::Normal;
-        if let Ready::Built(built) = scene.scene {
-            wcfg.preloaded = vec![Preloaded {
-                hash: scene.hash,
-                scene: built,
-            }];
+        if let Some(Prepared {
+            hash,
+            scene: Ready::Built(built),
+            ..
+        }) = scene
+        {
+            wcfg.preloaded = vec![Preloaded { hash, scene: built }];
         }
         let worker = tokio::spawn(async move {
             if let Err(e) = trevi_worker::run(wcfg, stop).await {
@@ -172,11 +187,23 @@ impl Embedded {
         });
         Ok(Embedded {
             url,
+            farm,
             stop_server,
             stop_worker,
             server,
             worker,
         })
+    }
+
+    /// Whether the coordinator has job (or sequence) `id`.
+    pub fn knows(&self, id: u64) -> bool {
+        self.farm.info(id).is_ok()
+    }
+
+    /// Cancels every job that has not ended (a render interrupted: in a
+    /// kept directory it must not come back unfinished); returns their ids.
+    pub fn cancel_unfinished(&self) -> Vec<u64> {
+        cancel_unfinished(&self.farm)
     }
 
     /// Stops both at once: the jobs are over, and a graceful stop would wait
@@ -189,4 +216,18 @@ impl Embedded {
         let _ = self.worker.await;
         let _ = self.server.await;
     }
+}
+
+/// Cancels `farm`'s jobs that have not ended (stills, sequences and
+/// progressive jobs: their frames and passes go with them); their ids.
+fn cancel_unfinished(farm: &Farm) -> Vec<u64> {
+    let (jobs, _) = farm.list_from(0, usize::MAX);
+    let mut cancelled = Vec::new();
+    for j in jobs.into_iter().filter(|j| !j.state.is_final()) {
+        match farm.cancel(j.id) {
+            Ok(_) => cancelled.push(j.id),
+            Err(e) => eprintln!("trevi-submit: cannot cancel job {}: {e}", j.id),
+        }
+    }
+    cancelled
 }

@@ -7,7 +7,8 @@
 //! embedded in this process with every core, through the same client code.
 //! `trevi-submit status|list|cancel|fetch|wait|extend` manage a farm's
 //! jobs (commands.rs). `--samples`, `--pass`, `--time-limit` and
-//! `--noise-target` make a still progressive (passes.rs).
+//! `--noise-target` make a still progressive (passes.rs); a local render
+//! with `--samples` keeps its job for `extend` (kept.rs).
 //!
 //! The output's format follows its name (`-o FILE`, else the camera's
 //! `output`): `.png` or `.exr`, anything else is refused before rendering.
@@ -22,6 +23,7 @@ mod args;
 mod cli;
 mod client;
 mod commands;
+mod kept;
 mod local;
 mod passes;
 mod progress;
@@ -46,7 +48,7 @@ fn main() {
         }
     }
     let url = match &args.command {
-        Some(c) => Some(c.farm().coordinator.clone()),
+        Some(c) => c.farm().map(|(url, _)| url.to_string()),
         None => args.coordinator.clone(),
     };
     if let Err(e) = run(args) {
@@ -72,15 +74,11 @@ fn run(args: Args) -> Result<()> {
         let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
         return runtime.block_on(commands::run(cmd));
     }
-    // A local render: the embedded coordinator's data directory, declared
-    // before the runtime so that it is removed after the runtime (and every
-    // task that could write into it) has shut down.
-    let local = args.coordinator.is_none();
-    let data = if local {
-        Some(local::data_dir()?)
-    } else {
-        None
-    };
+    // A local render: the embedded coordinator's data directory (made once
+    // the targets are known), declared before the runtime so that it is
+    // removed after the runtime (and every task that could write into it)
+    // has shut down.
+    let data: Option<kept::DataDir>;
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     // Caught from here on, so that a local render interrupted at any point
     // still returns through the code that removes what it wrote, and a
@@ -162,6 +160,17 @@ fn run(args: Args) -> Result<()> {
         );
     }
     targets.sort_by_key(|t| t.frames().is_some());
+    // A local still with its own samples can be extended later: its job is
+    // kept in the local directory. Any other local render leaves nothing.
+    let keep = args.coordinator.is_none()
+        && args.samples.is_some()
+        && targets.iter().any(|t| t.frames().is_none());
+    let local_dir = if keep { Some(args.local.path()?) } else { None };
+    data = match (&args.coordinator, &local_dir) {
+        (Some(_), _) => None,
+        (None, Some(dir)) => Some(kept::DataDir::kept(dir)?),
+        (None, None) => Some(kept::DataDir::temporary()?),
+    };
     runtime.block_on(async {
         if let Some(url) = &args.coordinator {
             drop(desc);
@@ -183,14 +192,17 @@ fn run(args: Args) -> Result<()> {
         let stills = targets.iter().any(|t| t.frames().is_none());
         let scene = local::Prepared::new(bundle.hash.clone(), bundle_scene, desc, stills).await?;
         let threads = args.threads.unwrap_or(0);
-        let farm = local::Embedded::start(threads, args.tile_size, data.path(), scene).await?;
+        let farm = local::Embedded::start(threads, args.tile_size, data, Some(scene)).await?;
+        let mut submitted = Vec::new();
         let render = async {
             let mut client = client::Client::connect(&farm.url, None).await?;
             client.announce = false;
             client.preview = args.preview.clone();
-            client
+            let r = client
                 .render(&bundle, &targets, &job, false, progress)
-                .await
+                .await;
+            submitted = client.submitted.clone();
+            r
         };
         // A signal drops the render, and with it the half-written output
         // (see client::PartFile), and the embedded worker's render (its
@@ -203,10 +215,29 @@ fn run(args: Args) -> Result<()> {
                 if let Ok(mut client) = client::Client::connect(&farm.url, None).await {
                     client.keep_finished_frames(&targets, progress).await;
                 }
+                // Nothing is left to come back unfinished in a kept directory.
+                farm.cancel_unfinished();
                 Err(anyhow::Error::new(sig))
             }
         };
         farm.stop().await;
+        if let (Ok(()), Some(dir)) = (&result, &local_dir) {
+            if !args.quiet {
+                let stills: Vec<(u64, PathBuf)> = submitted
+                    .iter()
+                    .zip(&targets)
+                    .filter_map(|(id, t)| match &t.output {
+                        client::Output::Still(out) => Some((
+                            *id,
+                            std::path::absolute(out).unwrap_or_else(|_| out.clone()),
+                        )),
+                        client::Output::Sequence(_) => None,
+                    })
+                    .collect();
+                let default = kept::LocalDir::default().path().ok();
+                eprint!("{}", kept::extend_hint(&stills, dir, default.as_deref()));
+            }
+        }
         result
     })
 }

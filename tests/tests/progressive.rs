@@ -5,7 +5,9 @@
 //! `trevi-submit` alone, with no passes); `extend` of a finished 16-sample
 //! job by 48 equals a fresh 64-sample render; `--time-limit` stops between
 //! passes, and `--noise-target` stops at or below its target measured
-//! against a converged reference.
+//! against a converged reference. A local render with `--samples` keeps its
+//! job in the local directory: `extend` without `--coordinator` adds to it
+//! (16 + 48 samples equal 64 at once), and refuses a job it does not hold.
 
 mod common;
 
@@ -234,6 +236,8 @@ fn the_noise_target_stops_at_or_below_its_target() {
             "4",
             "--noise-target",
             &target.to_string(),
+            "--local-dir",
+            dir.path().join("local").to_str().unwrap(),
         ],
     );
     assert!(o.status.success(), "{}", dir.logs());
@@ -268,6 +272,8 @@ fn a_local_render_s_output_is_written_after_every_pass() {
         "--pass",
         "1",
         "-q",
+        "--local-dir",
+        dir.path().join("local").to_str().unwrap(),
     ])
     .stderr(dir.log("submit"))
     .spawn()
@@ -293,4 +299,133 @@ fn a_local_render_s_output_is_written_after_every_pass() {
         early != last,
         "the first image written was an earlier pass's"
     );
+}
+
+/// The id in "job N is kept in DIR" of a local render's last words.
+fn kept_id(said: &str) -> u64 {
+    let (_, rest) = said
+        .split_once("job ")
+        .filter(|(_, r)| r.contains(" is kept in "))
+        .unwrap_or_else(|| panic!("no kept job in {said}"));
+    rest.split_whitespace().next().unwrap().parse().unwrap()
+}
+
+#[test]
+fn a_local_16_sample_render_extended_locally_by_48_is_a_fresh_64_sample_render() {
+    let dir = Dir::new();
+    // The default local directory, under a data home of the test's own.
+    let home = dir.path().join("data");
+    let kept = home.join("trevi/local");
+    let env = [
+        ("XDG_DATA_HOME", home.to_str().unwrap()),
+        ("HOME", dir.path().to_str().unwrap()),
+    ];
+    let fixed64 = dir.write("fixed.xml", &fixed(64, SIZE));
+    let reference = dir.path().join("reference.exr");
+    let o = submit_env(
+        &dir,
+        &[fixed64.to_str().unwrap(), "-o", reference.to_str().unwrap()],
+        &env,
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    let reference = std::fs::read(reference).unwrap();
+    // A render without --samples leaves nothing behind.
+    assert!(!home.exists(), "a one-shot render made {}", home.display());
+    let scene = dir.write("grid.xml", &grid(SIZE));
+    let out = dir.path().join("out.exr");
+    let o = submit_env(
+        &dir,
+        &[
+            scene.to_str().unwrap(),
+            "--samples",
+            "16",
+            "-o",
+            out.to_str().unwrap(),
+        ],
+        &env,
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    let said = String::from_utf8_lossy(&o.stderr);
+    let id = kept_id(&said).to_string();
+    assert!(
+        said.contains(&format!(
+            "trevi-submit extend {id} --samples N -o {}",
+            out.display()
+        )),
+        "{said}"
+    );
+    assert!(kept.is_dir(), "{said}");
+    assert_ne!(std::fs::read(&out).unwrap(), reference);
+    // Another process, later: the job comes back from the local directory.
+    let o = submit_env(
+        &dir,
+        &[
+            "extend",
+            &id,
+            "--samples",
+            "48",
+            "-o",
+            out.to_str().unwrap(),
+        ],
+        &env,
+    );
+    assert!(o.status.success(), "{}", dir.logs());
+    assert!(
+        std::fs::read(&out).unwrap() == reference,
+        "16 + 48 local samples differ from 64 at once"
+    );
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(kept_id(&said).to_string(), id, "{said}");
+
+    // Hostile: a job the directory does not hold, a directory that holds
+    // none (not made), and a --local-dir that is a file: each refused,
+    // exit status 1, the output untouched.
+    let before = std::fs::read(&out).unwrap();
+    let empty = dir.path().join("empty");
+    let file = dir.write("file", "x");
+    let cases: [(&[&str], String); 3] = [
+        (
+            &[
+                "extend",
+                "999",
+                "--samples",
+                "4",
+                "-o",
+                out.to_str().unwrap(),
+            ],
+            format!("no local job 999 in {}", kept.display()),
+        ),
+        (
+            &[
+                "extend",
+                &id,
+                "--samples",
+                "4",
+                "--local-dir",
+                empty.to_str().unwrap(),
+            ],
+            format!("no local job {id}: no local render kept a job in"),
+        ),
+        (
+            &[
+                scene.to_str().unwrap(),
+                "--samples",
+                "4",
+                "-o",
+                out.to_str().unwrap(),
+                "--local-dir",
+                file.to_str().unwrap(),
+            ],
+            "not a directory".to_string(),
+        ),
+    ];
+    for (args, want) in cases {
+        let o = submit_env(&dir, args, &env);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(&want), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    assert!(!empty.exists());
+    assert!(std::fs::read(&out).unwrap() == before);
 }

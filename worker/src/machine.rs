@@ -16,6 +16,16 @@ use trevi_proto::pb;
 /// Every change is logged, with its reason.
 pub(crate) fn watch_the_machine(
     cfg: &PauseConfig,
+    shutdown: watch::Receiver<bool>,
+) -> watch::Receiver<Option<Pause>> {
+    watch_with(cfg, Box::new(pause::input::ProcInterrupts), shutdown)
+}
+
+/// [`watch_the_machine`] with the keyboard and mouse activity read from
+/// `input` (tests give a source of their own).
+pub(crate) fn watch_with(
+    cfg: &PauseConfig,
+    mut input: Box<dyn pause::input::InputSource>,
     mut shutdown: watch::Receiver<bool>,
 ) -> watch::Receiver<Option<Pause>> {
     let (tx, rx) = watch::channel(None);
@@ -34,8 +44,12 @@ pub(crate) fn watch_the_machine(
     if cfg.yield_when_busy && pause::sample_now().is_none() {
         tracing::warn!("--yield-when-busy: cannot read /proc/stat and /proc/self/stat; the load is not watched");
     }
+    let watch_input = cfg.watches_input();
+    if watch_input && input.activity().is_none() {
+        tracing::warn!("--idle-after: cannot read the keyboard and mouse activity (/proc/interrupts); input is not watched");
+    }
     let mut watcher = pause::Watcher::new(cfg.clone(), cores);
-    let (every, quiet, hours) = (cfg.sample, cfg.quiet_for, cfg.active_hours);
+    let (every, quiet, hours, idle) = (cfg.sample, cfg.quiet_for, cfg.active_hours, cfg.idle_after);
     tokio::spawn(async move {
         let mut tick = tokio::time::interval(every);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -45,7 +59,8 @@ pub(crate) fn watch_the_machine(
                 _ = shutdown.changed() => return,
             }
             let now = std::time::Instant::now();
-            let p = watcher.step(now, pause::sample_now(), pause::local_minute());
+            let activity = if watch_input { input.activity() } else { None };
+            let p = watcher.step(now, pause::sample_now(), activity, pause::local_minute());
             let was = *tx.borrow();
             if was.map(|w| w.reason()) == p.map(|p| p.reason()) {
                 continue;
@@ -62,6 +77,10 @@ pub(crate) fn watch_the_machine(
                 (Some(Pause::OutsideHours), None) => tracing::info!(
                     "resumed: within the active hours {}",
                     hours.map(|h| h.to_string()).unwrap_or_default()
+                ),
+                (Some(Pause::InUse { .. }), None) => tracing::info!(
+                    "resumed: no keyboard or mouse input for {} s",
+                    idle.map_or(0.0, |d| d.as_secs_f64())
                 ),
                 (None, None) => {}
             }

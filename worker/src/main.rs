@@ -84,6 +84,13 @@ struct Args {
     #[arg(long, env = "TREVI_SAMPLE_MS", default_value_t = nonzero_ms(trevi_worker::pause::SAMPLE),
           value_parser = at_least_one::<NonZeroU64>)]
     sample_ms: NonZeroU64,
+    /// With --yield-when-busy: also count keyboard and mouse input (Linux:
+    /// the PS/2 and I2C-HID interrupts of /proc/interrupts, not USB): the
+    /// machine is in use, and the worker paused ("in use"), until no input
+    /// came for this long (1s to 7d, like 5m). Default: input not watched.
+    #[arg(long = "idle-after", env = "TREVI_IDLE_AFTER", requires = "yield_when_busy",
+          value_parser = idle_after)]
+    idle_after: Option<std::time::Duration>,
     /// Work only within these hours of local time, like 19:00-07:00 (a
     /// range that ends before it starts runs over midnight); outside them
     /// the worker is paused ("outside hours").
@@ -170,6 +177,7 @@ async fn main() -> Result<()> {
         quiet_for: std::time::Duration::from_millis(args.quiet_for_ms),
         sample: std::time::Duration::from_millis(args.sample_ms.get()),
         active_hours: args.active_hours,
+        idle_after: args.idle_after,
     };
     // Hooks for the end-to-end tests: a tile that crashes the renderer.
     #[cfg(feature = "test-hooks")]
@@ -209,4 +217,13 @@ async fn main() -> Result<()> {
         .context("the worker failed")?;
     tracing::info!("worker stopped");
     Ok(())
+}
+
+/// `--idle-after`: a duration (`trevi_proto::duration`) from 1 s to 7 days.
+fn idle_after(s: &str) -> Result<std::time::Duration, String> {
+    let d = trevi_proto::duration::parse(s).map_err(|e| e.to_string())?;
+    if d.is_zero() || d > std::time::Duration::from_secs(7 * 86400) {
+        return Err(format!("\"{s}\" is not an idle time from 1s to 7d"));
+    }
+    Ok(d)
 }

@@ -1,6 +1,7 @@
 //! When a worker on a spare machine steps aside: the machine's owner is
-//! using it (`--yield-when-busy`), or it is outside the hours the worker may
-//! work (`--active-hours`).
+//! using it (`--yield-when-busy`: its CPU load, and with `--idle-after` its
+//! keyboard and mouse, see [`input`]), or it is outside the hours the worker
+//! may work (`--active-hours`).
 //!
 //! Everything here is pure: the load sampler reads `/proc/stat` and
 //! `/proc/self/stat` *text* handed to it, and the watchers are fed the time,
@@ -24,6 +25,8 @@
 
 use std::fmt;
 use std::time::{Duration, Instant};
+
+pub mod input;
 
 /// `--busy-threshold`'s default, in cores of load not ours: half a core
 /// busy for [`BUSY_FOR`] is somebody working (a browser, a compile), while a
@@ -51,6 +54,11 @@ pub enum Pause {
     },
     /// Outside `--active-hours`.
     OutsideHours,
+    /// Keyboard or mouse input came within `--idle-after`.
+    InUse {
+        /// How long ago the last input came (when the pause was decided).
+        ago: Duration,
+    },
 }
 
 impl Pause {
@@ -59,6 +67,7 @@ impl Pause {
         match self {
             Pause::Busy { .. } => "busy",
             Pause::OutsideHours => "outside hours",
+            Pause::InUse { .. } => "in use",
         }
     }
 }
@@ -72,6 +81,11 @@ impl fmt::Display for Pause {
                 load
             ),
             Pause::OutsideHours => write!(f, "outside hours"),
+            Pause::InUse { ago } => write!(
+                f,
+                "in use: keyboard or mouse input {:.0} s ago",
+                ago.as_secs_f64()
+            ),
         }
     }
 }
@@ -93,6 +107,10 @@ pub struct PauseConfig {
     pub sample: Duration,
     /// Work only within these hours (`--active-hours`).
     pub active_hours: Option<ActiveHours>,
+    /// With `yield_when_busy`: the machine is in use until no keyboard or
+    /// mouse input came for this long (`--idle-after`; `None`: input is not
+    /// watched).
+    pub idle_after: Option<Duration>,
 }
 
 impl Default for PauseConfig {
@@ -104,6 +122,7 @@ impl Default for PauseConfig {
             quiet_for: QUIET_FOR,
             sample: SAMPLE,
             active_hours: None,
+            idle_after: None,
         }
     }
 }
@@ -112,6 +131,11 @@ impl PauseConfig {
     /// Whether anything is watched at all.
     pub fn watches(&self) -> bool {
         self.yield_when_busy || self.active_hours.is_some()
+    }
+
+    /// Whether keyboard and mouse input is watched.
+    pub fn watches_input(&self) -> bool {
+        self.yield_when_busy && self.idle_after.is_some()
     }
 }
 
@@ -345,6 +369,7 @@ pub fn local_minute() -> u32 {
 pub struct Watcher {
     cfg: PauseConfig,
     busy: BusyWatch,
+    input: Option<input::InputWatch>,
     last: Option<CpuSample>,
     cores: usize,
 }
@@ -355,16 +380,30 @@ impl Watcher {
     pub fn new(cfg: PauseConfig, cores: usize) -> Self {
         Watcher {
             busy: BusyWatch::new(cfg.busy_threshold, cfg.busy_for, cfg.quiet_for),
+            input: cfg
+                .idle_after
+                .filter(|_| cfg.yield_when_busy)
+                .map(input::InputWatch::new),
             cfg,
             last: None,
             cores,
         }
     }
 
-    /// The pause (if any) given a CPU sample (`None`: none could be read)
-    /// and the local minute of the day, at `now`.
-    pub fn step(&mut self, now: Instant, sample: Option<CpuSample>, minute: u32) -> Option<Pause> {
+    /// The pause (if any) given a CPU sample (`None`: none could be read),
+    /// the input activity counter (`None`: not read) and the local minute
+    /// of the day, at `now`.
+    pub fn step(
+        &mut self,
+        now: Instant,
+        sample: Option<CpuSample>,
+        input: Option<u64>,
+        minute: u32,
+    ) -> Option<Pause> {
         let mut pause = None;
+        if let Some(ago) = self.input.as_mut().and_then(|w| w.feed(now, input)) {
+            pause = Some(Pause::InUse { ago });
+        }
         if self.cfg.yield_when_busy {
             if let Some(s) = sample {
                 if let Some(load) = self.last.and_then(|l| s.foreign_load(&l, self.cores)) {

@@ -171,7 +171,7 @@ impl Client {
     }
 
     /// Follows still `id` to its end and downloads its image to `out`.
-    async fn finish_still(
+    pub async fn finish_still(
         &mut self,
         id: u64,
         t: &Target,

@@ -114,24 +114,24 @@ fn the_watcher_combines_load_and_hours() {
     let mut w = Watcher::new(cfg, 2);
     let night = 22 * 60;
     let sample = |user, idle| CpuSample::parse(&stat(user, idle), &me(0, 0));
-    assert_eq!(w.step(t0, sample(0, 0), night), None);
+    assert_eq!(w.step(t0, sample(0, 0), None, night), None);
     // A core and a half busy (others) for two one-second samples.
     let t = |n| t0 + Duration::from_secs(n);
-    assert_eq!(w.step(t(1), sample(150, 50), night), None);
+    assert_eq!(w.step(t(1), sample(150, 50), None, night), None);
     assert_eq!(
-        w.step(t(2), sample(300, 100), night),
+        w.step(t(2), sample(300, 100), None, night),
         Some(Pause::Busy { load: 1.5 })
     );
     // No reading at all: the last decision stands.
     assert!(matches!(
-        w.step(t(3), None, night),
+        w.step(t(3), None, None, night),
         Some(Pause::Busy { .. })
     ));
     assert_eq!(
-        w.step(t(3), sample(300, 300), 12 * 60),
+        w.step(t(3), sample(300, 300), None, 12 * 60),
         Some(Pause::OutsideHours)
     );
-    assert_eq!(w.step(t(4), sample(300, 500), night), None);
+    assert_eq!(w.step(t(4), sample(300, 500), None, night), None);
 }
 
 /// A normal build reads the machine's own counters: the tests' variable
@@ -158,4 +158,139 @@ fn the_test_hook_reads_the_named_file() {
     std::env::remove_var(PROC_STAT_VAR);
     let _ = std::fs::remove_file(&path);
     assert_eq!(read.unwrap(), stat(7, 9));
+}
+
+/// `/proc/interrupts` of a two-core laptop: a PS/2 keyboard and touchpad
+/// (i8042), an I2C touchpad, and lines that are not input.
+const INTERRUPTS: &str = "           CPU0       CPU1       
+  0:         40          0   IO-APIC   2-edge      timer
+  1:       1000        234   IO-APIC   1-edge      i8042
+  8:          0          1   IO-APIC   8-edge      rtc0
+ 12:         50          7   IO-APIC  12-edge      i8042
+ 16:         10         20   IO-APIC  16-fasteoi   i801_smbus, i2c_hid_acpi
+ 24:     999999     888888   PCI-MSI 327680-edge      xhci_hcd
+NMI:          3          4   Non-maskable interrupts
+ERR:          0
+";
+
+#[test]
+fn input_interrupts_count_the_ps2_and_i2c_hid_lines_only() {
+    use super::input::input_interrupts;
+    // i8042: 1000 + 234 + 50 + 7; i2c_hid: 10 + 20; not the USB controller.
+    assert_eq!(input_interrupts(INTERRUPTS), Some(1291 + 30));
+    // No input line: nothing counts, but the text is read.
+    let none = "  CPU0\n  0:  5  IO-APIC 2-edge timer\n";
+    assert_eq!(input_interrupts(none), Some(0));
+    assert_eq!(input_interrupts(""), None);
+    assert_eq!(input_interrupts("garbage\n 1: 5 i8042\n"), None);
+}
+
+#[test]
+fn input_makes_the_machine_in_use_until_idle_after_passes() {
+    use super::input::InputWatch;
+    let t0 = Instant::now();
+    let t = |n| t0 + Duration::from_secs(n);
+    let mut w = InputWatch::new(Duration::from_secs(10));
+    // The first reading is a baseline; no change is no input.
+    assert_eq!(w.feed(t0, Some(5)), None);
+    assert_eq!(w.feed(t(1), Some(5)), None);
+    // A key: in use from now, for ten seconds after the last input.
+    assert_eq!(w.feed(t(2), Some(6)), Some(Duration::ZERO));
+    assert_eq!(w.feed(t(5), None), Some(Duration::from_secs(3)));
+    assert_eq!(w.feed(t(8), Some(9)), Some(Duration::ZERO));
+    assert_eq!(w.feed(t(17), Some(9)), Some(Duration::from_secs(9)));
+    assert_eq!(w.feed(t(18), Some(9)), None);
+    assert_eq!(w.feed(t(19), Some(9)), None);
+}
+
+#[test]
+fn the_watcher_pauses_for_input_only_with_idle_after() {
+    let t0 = Instant::now();
+    let t = |n| t0 + Duration::from_secs(n);
+    let cfg = PauseConfig {
+        yield_when_busy: true,
+        idle_after: Some(Duration::from_secs(60)),
+        ..PauseConfig::default()
+    };
+    let quiet = |n| CpuSample::parse(&stat(0, n), &me(0, 0));
+    let mut w = Watcher::new(cfg.clone(), 2);
+    assert_eq!(w.step(t0, quiet(0), Some(1), 0), None);
+    assert_eq!(
+        w.step(t(1), quiet(100), Some(2), 0),
+        Some(Pause::InUse {
+            ago: Duration::ZERO
+        })
+    );
+    assert_eq!(
+        Pause::InUse {
+            ago: Duration::ZERO
+        }
+        .reason(),
+        "in use"
+    );
+    assert!(matches!(
+        w.step(t(30), quiet(200), Some(2), 0),
+        Some(Pause::InUse { .. })
+    ));
+    assert_eq!(w.step(t(61), quiet(300), Some(2), 0), None);
+    // Without --idle-after, or without --yield-when-busy, input is not
+    // watched.
+    for cfg in [
+        PauseConfig {
+            idle_after: None,
+            ..cfg.clone()
+        },
+        PauseConfig {
+            yield_when_busy: false,
+            ..cfg
+        },
+    ] {
+        assert!(!cfg.watches_input());
+        let mut w = Watcher::new(cfg, 2);
+        assert_eq!(w.step(t0, quiet(0), Some(1), 0), None);
+        assert_eq!(w.step(t(1), quiet(100), Some(2), 0), None);
+    }
+}
+
+/// Input activity a test makes up: a counter it bumps.
+struct FakeInput(std::sync::Arc<std::sync::atomic::AtomicU64>);
+
+impl super::input::InputSource for FakeInput {
+    fn activity(&mut self) -> Option<u64> {
+        Some(self.0.load(std::sync::atomic::Ordering::SeqCst))
+    }
+}
+
+#[tokio::test]
+async fn the_machine_watcher_pauses_on_input_and_resumes_when_idle() {
+    use std::sync::atomic::Ordering::SeqCst;
+    let counter = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let cfg = PauseConfig {
+        yield_when_busy: true,
+        // No CPU load makes this machine busy; only input pauses it.
+        busy_threshold: f64::MAX,
+        idle_after: Some(Duration::from_millis(300)),
+        sample: Duration::from_millis(10),
+        ..PauseConfig::default()
+    };
+    let (_stop, shutdown) = tokio::sync::watch::channel(false);
+    let mut rx = crate::machine::watch_with(&cfg, Box::new(FakeInput(counter.clone())), shutdown);
+    // Keys are pressed until the watcher says the machine is in use.
+    let bump = counter.clone();
+    let typing = tokio::spawn(async move {
+        loop {
+            bump.fetch_add(1, SeqCst);
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    });
+    let paused = tokio::time::timeout(
+        Duration::from_secs(60),
+        rx.wait_for(|p| matches!(p, Some(Pause::InUse { .. }))),
+    )
+    .await;
+    typing.abort();
+    assert!(paused.expect("paused within a minute").is_ok());
+    // No more input: idle again once --idle-after has passed.
+    let resumed = tokio::time::timeout(Duration::from_secs(60), rx.wait_for(|p| p.is_none())).await;
+    assert!(resumed.expect("resumed within a minute").is_ok());
 }
