@@ -262,6 +262,7 @@ fn ingest(args: &[String]) {
                 output_format: String::new(),
                 frames: None,
                 progressive: None,
+                after: Vec::new(),
             })
             .await
             .unwrap()
@@ -902,6 +903,7 @@ fn scale(args: &[String]) {
                             output_format: String::new(),
                             frames: None,
                             progressive: None,
+                            after: Vec::new(),
                         })
                         .await
                         .unwrap()

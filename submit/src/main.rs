@@ -5,9 +5,10 @@
 //! sequence for a camera with frames. With `--coordinator URL` the frames
 //! are rendered on a farm; without it, by a coordinator and a worker
 //! embedded in this process with every core, through the same client code.
-//! `trevi-submit status|list|cancel|fetch|wait|extend` manage a farm's
-//! jobs (commands.rs). `--samples`, `--pass`, `--time-limit` and
-//! `--noise-target` make a still progressive (passes.rs).
+//! `trevi-submit status|list|cancel|pause|resume|retry|fetch|wait|extend`
+//! manage a farm's jobs (commands.rs; `--after` orders them, control.rs).
+//! `--samples`, `--pass`, `--time-limit` and `--noise-target` make a still
+//! progressive (passes.rs).
 //!
 //! The output's format follows its name (`-o FILE`, else the camera's
 //! `output`): `.png` or `.exr`, anything else is refused before rendering.
@@ -22,6 +23,7 @@ mod args;
 mod cli;
 mod client;
 mod commands;
+mod control;
 mod local;
 mod passes;
 mod progress;
@@ -136,6 +138,7 @@ fn run(args: Args) -> Result<()> {
         priority: args.priority,
         tile_size: args.tile_size,
         progressive,
+        after: args.after.clone(),
     };
     let mut targets = Vec::new();
     for &cam in &cameras {

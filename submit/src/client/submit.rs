@@ -34,6 +34,8 @@ pub struct JobSpec {
     /// Set for a progressive still (`--samples`, `--pass`, `--time-limit`,
     /// `--noise-target`; see `passes.rs`).
     pub progressive: Option<pb::Progressive>,
+    /// Farm jobs this one waits for (`--after`).
+    pub after: Vec<u64>,
 }
 
 /// One camera to render and where its output goes.
@@ -94,6 +96,7 @@ impl Target {
                 last: f.last,
             }),
             progressive: job.progressive,
+            after: job.after.clone(),
         }
     }
 }
