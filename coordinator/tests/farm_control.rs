@@ -54,8 +54,14 @@ fn submit(f: &Farm, name: &str) -> u64 {
     f.submit(spec(name), SubmitOptions::default()).unwrap().id
 }
 
+/// Submits a job waiting for `after`, at a higher priority than the jobs
+/// of [`submit`]: were it not held, its tiles would go out first.
 fn submit_after(f: &Farm, name: &str, after: &[u64]) -> Result<JobInfo, FarmError> {
-    f.submit_after(after, || f.submit(spec(name), SubmitOptions::default()))
+    let first = JobSpec {
+        priority: 5,
+        ..spec(name)
+    };
+    f.submit_after(after, || f.submit(first, SubmitOptions::default()))
 }
 
 fn put(f: &Farm, l: &Lease) -> TileOutcome {
