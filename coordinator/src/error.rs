@@ -47,6 +47,11 @@ pub enum FarmError {
     /// changed (`FAILED_PRECONDITION`).
     #[error("job {0} is over")]
     JobOver(u64),
+    /// The job is not in a state the request applies to (resuming a job
+    /// that is not paused, pausing a frame of a sequence)
+    /// (`FAILED_PRECONDITION`).
+    #[error("{0}")]
+    Conflict(String),
     /// Reading or writing the coordinator's own files or database failed.
     #[error("{what}: {source}")]
     Io {
@@ -209,7 +214,9 @@ impl FarmError {
             FarmError::BadBundle(_) | FarmError::BadScene(_) | FarmError::BadTile(_) => {
                 Code::InvalidArgument
             }
-            FarmError::NoOutput(..) | FarmError::JobOver(_) => Code::FailedPrecondition,
+            FarmError::NoOutput(..) | FarmError::JobOver(_) | FarmError::Conflict(_) => {
+                Code::FailedPrecondition
+            }
             FarmError::NotYourLease(_) => Code::PermissionDenied,
             FarmError::Limit(_) => Code::ResourceExhausted,
             FarmError::Invalid(_) => Code::InvalidArgument,

@@ -18,6 +18,8 @@
 //!   uploaded as encoded PNG segments; `stitch.rs`: where a taken tile is
 //!   stored and stitched into its job's output (`outputs.rs`: that output).
 //! - `ending.rs`: where a job ends (done, failed or cancelled);
+//!   `control.rs`: jobs paused, resumed, and waiting for others;
+//!   `retry.rs`: a failed still queued again with its finished tiles;
 //!   `sequences.rs`: animations rendered as one job per frame;
 //!   `retention.rs`: how long ended jobs are kept; `restore.rs`: picking
 //!   up after a restart.
@@ -31,6 +33,7 @@
 //! output → state, never the reverse.
 
 mod checks;
+mod control;
 mod ending;
 mod job_previews;
 mod leasing;
@@ -42,6 +45,7 @@ mod registrations;
 mod restore;
 mod results;
 mod retention;
+mod retry;
 pub mod segments;
 pub mod sequences;
 mod status;
@@ -50,6 +54,7 @@ mod submit;
 mod upkeep;
 
 pub use checks::{output_name_as, validate_pixels};
+pub use control::{Hold, MAX_AFTER};
 pub use job_previews::PreviewImage;
 pub use leasing::{Registration, WorkerOptions};
 use outputs::Output;
@@ -135,6 +140,14 @@ struct State {
     ended: retention::Ended,
     /// Where each worker registered from (see `registrations`).
     registrations: registrations::Registrations,
+    /// Jobs paused or waiting for others, by id (see `control`).
+    holds: HashMap<JobId, Hold>,
+    /// Jobs ended whose waiters are still to be looked at, and whether
+    /// someone is looking (see `control`).
+    ended_deps: Vec<JobId>,
+    draining: bool,
+    /// A restart is restoring jobs: holds are looked at once it is done.
+    restoring: bool,
 }
 
 impl State {
@@ -149,10 +162,12 @@ impl State {
 
     /// A job's or a sequence's status.
     fn info(&self, job: JobId, now: Instant) -> Option<JobInfo> {
-        match self.seqs.get(&job) {
-            Some(seq) => Some(seq.info(job, &self.sched, now)),
-            None => self.sched.info(job, now),
-        }
+        let mut info = match self.seqs.get(&job) {
+            Some(seq) => seq.info(job, &self.sched, now),
+            None => self.sched.info(job, now)?,
+        };
+        self.show_hold(job, &mut info);
+        Some(info)
     }
 }
 
@@ -204,6 +219,10 @@ impl Farm {
                 segment_workers: HashSet::new(),
                 ended: retention::Ended::default(),
                 registrations: registrations::Registrations::default(),
+                holds: HashMap::new(),
+                ended_deps: Vec::new(),
+                draining: false,
+                restoring: false,
             }),
             work: Notify::new(),
             bundles,

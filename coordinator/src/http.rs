@@ -10,7 +10,7 @@
 //! - `GET /api/jobs/{id}/preview.png`: the job's live preview
 //!   ([`crate::preview`]).
 //! - `POST /api/jobs/{id}/cancel`, `POST /api/jobs/{id}/priority` (body
-//!   `{"priority": N}`).
+//!   `{"priority": N}`), `POST /api/jobs/{id}/pause` and `.../resume`.
 //! - `GET /events`: the job events ([`crate::events`]) as server-sent
 //!   events, which the page listens to before falling back to polling.
 //! - `GET /metrics` (Prometheus text, [`crate::metrics`]) and `GET /healthz`.
@@ -182,6 +182,8 @@ pub fn router(farm: Arc<Farm>, tokens: Tokens) -> Router {
         .route("/api/jobs/{id}/preview.png", get(api_preview))
         .route("/api/jobs/{id}/cancel", post(api_cancel))
         .route("/api/jobs/{id}/priority", post(api_priority))
+        .route("/api/jobs/{id}/pause", post(api_pause))
+        .route("/api/jobs/{id}/resume", post(api_resume))
         .with_state(App {
             farm,
             tokens: Arc::new(tokens),
@@ -367,6 +369,10 @@ struct JobView {
     /// A progressive job's passes (see farm/progressive.rs); `null` for
     /// any other.
     passes: Option<PassesView>,
+    /// Paused (`trevi-submit pause`), and the jobs it still waits for
+    /// (`--after`); see farm/control.rs.
+    paused: bool,
+    waiting_for: Vec<u64>,
 }
 
 #[derive(Serialize)]
@@ -438,6 +444,8 @@ impl From<&JobInfo> for JobView {
                 error: p.error,
                 stopped_by: p.stopped_by.map(|r| r.label()),
             }),
+            paused: j.paused,
+            waiting_for: j.waiting_for.clone(),
         }
     }
 }
@@ -616,6 +624,37 @@ async fn api_priority(
     app.need_submitter(&headers, "changing a job's priority")?;
     let farm = app.farm.clone();
     let info = tokio::task::spawn_blocking(move || farm.set_priority(id, body.priority))
+        .await
+        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+    Ok(Json(JobView::from(&info)))
+}
+
+/// `POST /api/jobs/{id}/pause`: as `trevi-submit pause ID` (the tiles out
+/// finish); docs/farm.md, "Running a farm".
+async fn api_pause(
+    State(app): State<App>,
+    _: SameSite,
+    headers: HeaderMap,
+    Path(id): Path<u64>,
+) -> Result<Json<JobView>, ApiError> {
+    app.need_submitter(&headers, "pausing a job")?;
+    let farm = app.farm.clone();
+    let info = tokio::task::spawn_blocking(move || farm.pause(id, false))
+        .await
+        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+    Ok(Json(JobView::from(&info)))
+}
+
+/// `POST /api/jobs/{id}/resume`: as `trevi-submit resume ID`.
+async fn api_resume(
+    State(app): State<App>,
+    _: SameSite,
+    headers: HeaderMap,
+    Path(id): Path<u64>,
+) -> Result<Json<JobView>, ApiError> {
+    app.need_submitter(&headers, "resuming a job")?;
+    let farm = app.farm.clone();
+    let info = tokio::task::spawn_blocking(move || farm.resume(id))
         .await
         .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
     Ok(Json(JobView::from(&info)))

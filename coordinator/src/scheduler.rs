@@ -33,6 +33,8 @@
 //! - `scheduler/jobs.rs`: where a job is submitted, restored, reprioritised
 //!   and ended;
 //! - `scheduler/lease.rs`: where a lease is granted, and what it covers;
+//! - `scheduler/parking.rs`: where a job is taken out of the queue (paused,
+//!   or waiting for other jobs) and put back;
 //! - `scheduler/expiry.rs`: where an expired lease is re-queued, and the
 //!   failure rules;
 //! - `scheduler/results.rs`: where a tile result is accepted
@@ -54,6 +56,7 @@ mod lease;
 pub mod lease_size;
 mod lease_table;
 pub mod memory;
+mod parking;
 mod report;
 mod results;
 mod types;

@@ -51,15 +51,18 @@
 //! Beside this file, in `store/`: `schema.rs` (opening the database, its
 //! tables and the columns later versions added), `integrity.rs` (the files
 //! refused before SQLite opens them), `jobs.rs` (the jobs' rows),
-//! `tiles.rs` (the tile files and their rows) and `spans.rs` (spans of
-//! encoded segments, and replaying what is stored).
+//! `tiles.rs` (the tile files and their rows), `spans.rs` (spans of
+//! encoded segments, and replaying what is stored) and `holds.rs` (jobs
+//! paused or waiting for others).
 
+mod holds;
 mod integrity;
 mod jobs;
 mod schema;
 mod spans;
 mod tiles;
 
+pub use holds::StoredHold;
 pub use integrity::check_files;
 pub use jobs::{SeqLink, StoredJob, StoredPasses};
 pub use spans::Replayed;

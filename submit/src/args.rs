@@ -89,6 +89,12 @@ pub struct Args {
     pub notify: Vec<String>,
     #[command(flatten)]
     pub local: crate::kept::LocalDir,
+    /// Start only once these farm jobs are done (ids, comma-separated, at
+    /// most 64): the job waits on the farm (state `waiting`), and fails
+    /// naming the cause if one of them fails or is cancelled. Needs
+    /// --coordinator.
+    #[arg(long, env = "TREVI_AFTER", value_delimiter = ',')]
+    pub after: Vec<u64>,
 }
 
 /// How to reach a farm's coordinator: the flags every farm command shares.
@@ -184,6 +190,35 @@ pub enum Command {
         #[command(flatten)]
         farm: Farm,
     },
+    /// Pause a job: no more of its tiles are rendered until `resume`; the
+    /// tiles being rendered finish, or with --now go back to the queue at
+    /// once. Its finished tiles are kept (across a coordinator restart
+    /// too).
+    Pause {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// Stop the tiles being rendered now (their workers drop them at
+        /// their next heartbeat) instead of letting them finish.
+        #[arg(long)]
+        now: bool,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Resume a paused job where it stopped.
+    Resume {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Start a failed still again, keeping the tiles it had finished (they
+    /// are not rendered again).
+    Retry {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        #[command(flatten)]
+        farm: Farm,
+    },
     /// Add samples per pixel to a finished progressive job (one rendered with
     /// --samples): it runs again from where it stopped, its output replaced
     /// after every new pass. With --coordinator, a farm's job; without, a
@@ -242,6 +277,8 @@ impl Args {
             Some(_) => return Ok(()),
             None => (self.samples, &self.passes),
         };
+        crate::control::check_after(&self.after, self.coordinator.is_some())
+            .map_err(|m| Args::command().error(ErrorKind::ValueValidation, m))?;
         passes::check(samples, flags)
             .map_err(|m| Args::command().error(ErrorKind::ValueValidation, m))?;
         if let Some(Command::Extend {
@@ -287,7 +324,10 @@ impl Command {
             | Command::List { farm, .. }
             | Command::Cancel { farm, .. }
             | Command::Fetch { farm, .. }
-            | Command::Wait { farm, .. } => Some((farm.coordinator.as_str(), &farm.auth)),
+            | Command::Wait { farm, .. }
+            | Command::Pause { farm, .. }
+            | Command::Resume { farm, .. }
+            | Command::Retry { farm, .. } => Some((farm.coordinator.as_str(), &farm.auth)),
             Command::Extend {
                 coordinator, auth, ..
             } => coordinator.as_deref().map(|c| (c, auth)),

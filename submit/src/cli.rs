@@ -8,8 +8,8 @@ use std::path::Path;
 use trevi_proto::pb;
 
 /// The subcommands, for suggestions (`wait` also answers to `attach`).
-pub const SUBCOMMANDS: [&str; 7] = [
-    "status", "list", "cancel", "fetch", "wait", "extend", "attach",
+pub const SUBCOMMANDS: [&str; 10] = [
+    "status", "list", "cancel", "fetch", "wait", "extend", "pause", "resume", "retry", "attach",
 ];
 
 /// A scene argument that is no file and does not look like a scene (no
@@ -39,7 +39,7 @@ pub fn mistyped_subcommand(arg: &Path) -> Option<String> {
         ),
         None => format!(
             "\"{text}\" is neither a scene file nor a subcommand ({}); see --help",
-            SUBCOMMANDS[..6].join(", ")
+            SUBCOMMANDS[..9].join(", ")
         ),
     })
 }
@@ -94,7 +94,7 @@ pub fn list_row(s: &pb::JobStatus) -> String {
     let mut line = format!(
         "{:>6}  {:<9}  {:<16}  {:<12}  {:>11}  {:>13}  {:>8}  {:>9}  {:>9}  {:<15}  {:<12}  {}",
         s.id,
-        s.state().label(),
+        crate::control::state_word(s),
         or_dash(&s.scene),
         s.camera,
         format!("{}x{}", s.width, s.height),
@@ -115,6 +115,7 @@ pub fn list_row(s: &pb::JobStatus) -> String {
     if let Some(p) = &s.passes {
         line.push_str(&format!("  spp {}", crate::passes::spp(p)));
     }
+    line.push_str(&crate::control::waiting_note(s));
     if !s.error.is_empty() {
         line.push_str(&format!("  error: {}", s.error));
     }

@@ -1,6 +1,6 @@
 //! The client of a coordinator: upload a bundle, submit jobs (stills and
 //! sequences alike), watch them, download their outputs; and `status`,
-//! `list`, `cancel`, `fetch`, `extend`.
+//! `list`, `cancel`, `pause`, `resume`, `fetch`, `extend`.
 //!
 //! It drives a farm's coordinator and the one embedded in `trevi-submit`
 //! for a local render (see `local.rs`) alike, so both produce the same
@@ -44,7 +44,7 @@ pub fn describe(s: &pb::JobStatus) -> String {
         "{:>6}  {:<9}  {} camera {}  {}x{}  {}/{} tiles  priority {}  queued {:.1} s, \
          rendered {:.1} s  by {}",
         s.id,
-        s.state().label(),
+        crate::control::state_word(s),
         s.scene,
         s.camera,
         s.width,
@@ -75,6 +75,7 @@ pub fn describe(s: &pb::JobStatus) -> String {
     if let Some(p) = &s.passes {
         line.push_str(&format!("  {}", crate::passes::describe(p)));
     }
+    line.push_str(&crate::control::waiting_note(s));
     if !s.error.is_empty() {
         line.push_str(&format!("  error: {}", s.error));
     }

@@ -1,8 +1,8 @@
-//! The farm commands: `status`, `list`, `cancel`, `fetch`, `wait` (also
-//! `attach`: follow a job to its end and download its output, as the
-//! submission would have) and `extend` (more samples for a progressive
-//! job; with `--wait`, followed as `wait` does; without `--coordinator`, a
-//! local render's job, see `kept.rs`).
+//! The farm commands: `status`, `list`, `cancel`, `pause`, `resume`,
+//! `retry`, `fetch`, `wait` (also `attach`: follow a job to its end and
+//! download its output, as the submission would have) and `extend` (more
+//! samples for a progressive job; with `--wait`, followed as `wait` does;
+//! without `--coordinator`, a local render's job, see `kept.rs`).
 
 use anyhow::{bail, Result};
 use std::io::IsTerminal;
@@ -70,6 +70,15 @@ pub async fn run(cmd: Command) -> Result<()> {
                 );
             }
             println!("{}", client::describe(&client.cancel(id).await?));
+        }
+        Command::Pause { id, now, .. } => {
+            println!("{}", client::describe(&client.pause(id, now).await?));
+        }
+        Command::Resume { id, .. } => {
+            println!("{}", client::describe(&client.resume(id).await?));
+        }
+        Command::Retry { id, .. } => {
+            println!("{}", client::describe(&client.retry(id).await?));
         }
         Command::Fetch {
             id, output, quiet, ..

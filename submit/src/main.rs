@@ -5,10 +5,11 @@
 //! sequence for a camera with frames. With `--coordinator URL` the frames
 //! are rendered on a farm; without it, by a coordinator and a worker
 //! embedded in this process with every core, through the same client code.
-//! `trevi-submit status|list|cancel|fetch|wait|extend` manage a farm's
-//! jobs (commands.rs). `--samples`, `--pass`, `--time-limit` and
-//! `--noise-target` make a still progressive (passes.rs); a local render
-//! with `--samples` keeps its job for `extend` (kept.rs).
+//! `trevi-submit status|list|cancel|pause|resume|retry|fetch|wait|extend`
+//! manage a farm's jobs (commands.rs; `--after` orders them, control.rs).
+//! `--samples`, `--pass`, `--time-limit` and `--noise-target` make a still
+//! progressive (passes.rs); a local render with `--samples` keeps its job
+//! for `extend` (kept.rs).
 //!
 //! The output's format follows its name (`-o FILE`, else the camera's
 //! `output`): `.png` or `.exr`, anything else is refused before rendering.
@@ -23,6 +24,7 @@ mod args;
 mod cli;
 mod client;
 mod commands;
+mod control;
 mod kept;
 mod local;
 mod passes;
@@ -135,6 +137,7 @@ fn run(args: Args) -> Result<()> {
         tile_size: args.tile_size,
         progressive,
         notify: args.notify.clone(),
+        after: args.after.clone(),
     };
     let mut targets = Vec::new();
     for &cam in &cameras {

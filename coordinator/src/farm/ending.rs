@@ -116,6 +116,7 @@ impl Farm {
         if let Some(seq) = parent {
             self.advance(seq);
         }
+        self.release_waiters(job);
         self.prune();
     }
 
@@ -195,6 +196,7 @@ impl Farm {
             let dir = self.cfg.data_dir.join("jobs").join(job.to_string());
             let _ = std::fs::remove_dir(dir);
             tracing::info!(job, "job cancelled");
+            self.release_waiters(job);
             // What it became, even if the retention forgets it at once.
             let info = self.info(job);
             self.prune();

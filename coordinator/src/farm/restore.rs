@@ -44,6 +44,7 @@ impl Farm {
             return Ok(());
         };
         let (now, wall) = (Instant::now(), wall_ms());
+        self.load_holds()?;
         let rows = store.jobs()?;
         // A frame that completes while it is restored queues the next
         // frames: their ids must not be those of rows not restored yet.
@@ -84,6 +85,10 @@ impl Farm {
                 },
                 now,
             );
+            if !j.state.is_final() {
+                // Paused or waiting (itself, or the sequence it is a part of).
+                st.park_if_held(id, j.seq.parent);
+            }
             let info = st.sched.info(id, now).expect("just restored");
             st.watchers.insert(id, watch::channel(info.clone()).0);
             if !j.state.is_final() && j.seq.parent.is_none() {
@@ -130,12 +135,17 @@ impl Farm {
             }
         }
         self.resume_sequences();
+        self.recheck_holds();
         Ok(())
     }
 
     /// A fresh output for a resumed job with its stored tiles written into it
     /// in band order.
-    fn rebuild_output(&self, store: &Store, info: &JobInfo) -> Result<Output, FarmError> {
+    pub(super) fn rebuild_output(
+        &self,
+        store: &Store,
+        info: &JobInfo,
+    ) -> Result<Output, FarmError> {
         let job = info.id;
         let path = self.output_path(job, &info.spec.output_name);
         self.remove_stale_temp_files(info);

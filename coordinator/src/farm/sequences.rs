@@ -193,6 +193,8 @@ impl Sequence {
                 true => p.info(self.done % self.runs_per_frame()),
                 false => p.info(self.done),
             }),
+            paused: false,
+            waiting_for: Vec::new(),
         }
     }
 }
@@ -399,8 +401,16 @@ impl Farm {
             latest: None,
             passes,
         };
-        let info = seq.info(id, &st.sched, now);
+        if let Some(hold) = st.take_incoming_hold(id) {
+            if let Some(store) = &self.store {
+                if let Err(e) = store.set_hold(id, &hold) {
+                    st.holds.remove(&id);
+                    return Err(e);
+                }
+            }
+        }
         st.seqs.insert(id, seq);
+        let info = st.info(id, now).expect("just inserted");
         st.watchers.insert(id, watch::channel(info.clone()).0);
         st.submitters.insert(id, who.to_string());
         self.events.submitted(id);
@@ -606,6 +616,8 @@ impl Farm {
         }
         st.submitters.remove(&seq);
         st.publish(seq);
+        drop(st);
+        self.release_waiters(seq);
     }
 
     /// Cancels a sequence and its frames in progress (their partial outputs
@@ -637,6 +649,7 @@ impl Farm {
             let _ = self.cancel(job);
         }
         tracing::info!(job = seq, "sequence cancelled");
+        self.release_waiters(seq);
         let info = self.info(seq);
         self.state.lock().publish(seq);
         info

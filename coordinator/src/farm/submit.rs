@@ -191,6 +191,20 @@ impl Farm {
                 return Err(e);
             }
         }
+        // Held (waiting for other jobs, or a frame of a held sequence):
+        // parked before the lock that gave it its id is released.
+        if parent.is_none() {
+            if let Some(hold) = st.take_incoming_hold(id) {
+                if let Some(Err(e)) = self.store.as_ref().map(|s| s.set_hold(id, &hold)) {
+                    st.holds.remove(&id);
+                    st.sched
+                        .finish(id, Err(JobFailure::Output(e.to_string())), now);
+                    return Err(e);
+                }
+            }
+        }
+        st.park_if_held(id, parent);
+        let info = st.info(id, now).unwrap_or(info);
         st.outputs.insert(id, Arc::new(Mutex::new(out)));
         st.watchers.insert(id, watch::channel(info.clone()).0);
         match parent {

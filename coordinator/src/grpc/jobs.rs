@@ -1,6 +1,6 @@
-//! `trevi.v1.Jobs`: submitting, watching, listing and cancelling jobs,
-//! their previews and their finished outputs; and [`job_status`], a job's
-//! status as the wire carries it.
+//! `trevi.v1.Jobs`: submitting, watching, listing, pausing, resuming,
+//! retrying and cancelling jobs, their previews and their finished outputs; and
+//! [`job_status`], a job's status as the wire carries it.
 
 use super::{blocking, stream_file};
 use crate::events::Events;
@@ -62,6 +62,8 @@ pub fn job_status(info: &JobInfo) -> pb::JobStatus {
             noise_target: p.noise_target.unwrap_or(0.0),
             stopped_by: p.stopped_by.map_or("", |r| r.label()).to_string(),
         }),
+        paused: info.paused,
+        waiting_for: info.waiting_for.clone(),
     }
 }
 
@@ -97,25 +99,29 @@ impl pb::jobs_server::Jobs for JobsService {
         let notify = crate::events::check_urls(&r.notify, "--notify")?;
         let farm = self.farm.clone();
         let info = blocking(move || {
+            // Checked before the scene is read (the list is bounded).
+            farm.check_after(&r.after)?;
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
-            Events::with_notify(notify, || match (r.frames, r.progressive) {
-                (Some(f), Some(p)) => farm.submit_progressive_sequence(
-                    spec,
-                    f.first,
-                    f.last,
-                    progressive_from(&p),
-                    &who,
-                ),
-                (None, Some(p)) => farm.submit_progressive(spec, progressive_from(&p), &who),
-                (Some(f), None) => farm.submit_sequence(spec, f.first, f.last, &who),
-                (None, None) => farm.submit(
-                    spec,
-                    SubmitOptions {
-                        who: &who,
-                        ..SubmitOptions::default()
-                    },
-                ),
+            Events::with_notify(notify, || {
+                farm.submit_after(&r.after, || match (r.frames, r.progressive) {
+                    (Some(f), Some(p)) => farm.submit_progressive_sequence(
+                        spec,
+                        f.first,
+                        f.last,
+                        progressive_from(&p),
+                        &who,
+                    ),
+                    (None, Some(p)) => farm.submit_progressive(spec, progressive_from(&p), &who),
+                    (Some(f), None) => farm.submit_sequence(spec, f.first, f.last, &who),
+                    (None, None) => farm.submit(
+                        spec,
+                        SubmitOptions {
+                            who: &who,
+                            ..SubmitOptions::default()
+                        },
+                    ),
+                })
             })
         })
         .await?;
@@ -251,6 +257,30 @@ impl pb::jobs_server::Jobs for JobsService {
         let farm = self.farm.clone();
         let p = r.passes.as_ref().map(progressive_from).unwrap_or_default();
         let info = blocking(move || farm.extend(r.id, r.samples, p)).await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    async fn pause_job(
+        &self,
+        req: Request<pb::PauseJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        let r = req.into_inner();
+        let farm = self.farm.clone();
+        let info = blocking(move || farm.pause(r.id, r.now)).await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    async fn resume_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {
+        let id = req.into_inner().id;
+        let farm = self.farm.clone();
+        let info = blocking(move || farm.resume(id)).await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    async fn retry_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {
+        let id = req.into_inner().id;
+        let farm = self.farm.clone();
+        let info = blocking(move || farm.retry(id)).await?;
         Ok(Response::new(job_status(&info)))
     }
 }

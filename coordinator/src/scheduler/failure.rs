@@ -30,6 +30,10 @@ pub enum JobFailure {
     /// job), naming which and why.
     #[error("{0}")]
     Part(String),
+    /// A job it waited for (`--after`) failed or was cancelled, naming it
+    /// and why.
+    #[error("{0}")]
+    After(String),
 }
 
 impl JobFailure {

@@ -30,6 +30,9 @@ pub(super) struct Job {
     /// Leases that ran out or were refused while their tile is not done
     /// yet: a late result under one of them still counts.
     pub(super) past_leases: HashMap<LeaseId, (u32, WorkerId)>,
+    /// Out of the queue (paused, or waiting for other jobs; see
+    /// `parking.rs`): none of its tiles are leased.
+    pub(super) parked: bool,
 }
 
 impl Job {

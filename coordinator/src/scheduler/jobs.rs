@@ -128,6 +128,7 @@ impl Scheduler {
             failures: HashMap::new(),
             worker_failures: HashMap::new(),
             past_leases: HashMap::new(),
+            parked: false,
             spec,
         }
     }
@@ -141,7 +142,9 @@ impl Scheduler {
         }
         self.queue.remove(&(Reverse(j.spec.priority), job));
         j.spec.priority = priority;
-        self.queue.insert((Reverse(priority), job));
+        if !j.parked {
+            self.queue.insert((Reverse(priority), job));
+        }
         Ok(())
     }
 

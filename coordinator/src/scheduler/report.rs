@@ -32,6 +32,8 @@ impl Scheduler {
             finish_order: j.finish_order,
             frames: None,
             passes: None,
+            paused: false,
+            waiting_for: Vec::new(),
         })
     }
 

@@ -152,6 +152,12 @@ pub struct JobInfo {
     pub frames: Option<FramesInfo>,
     /// For a progressive job: its passes' progress.
     pub passes: Option<PassesInfo>,
+    /// Paused by a user (`trevi-submit pause`): none of its tiles are
+    /// leased until it is resumed. Always false once it has ended.
+    pub paused: bool,
+    /// The jobs it waits for (`--after`) that have not ended yet: none of
+    /// its tiles are leased until they are done. Empty once it has ended.
+    pub waiting_for: Vec<JobId>,
 }
 
 impl JobInfo {

@@ -264,11 +264,33 @@ impl Store {
             ],
         )
         .map_err(db_err)?;
-        tx.execute("DELETE FROM tile_refs WHERE job = ?1", params![j.id as i64])
-            .map_err(db_err)?;
+        // A failed still keeps its tiles for a retry (`crate::farm::retry`)
+        // until it is forgotten; every other end drops them.
+        let keep = j.state == JobState::Failed && j.seq == SeqLink::default();
+        if !keep {
+            tx.execute("DELETE FROM tile_refs WHERE job = ?1", params![j.id as i64])
+                .map_err(db_err)?;
+        }
         tx.commit().map_err(db_err)?;
         inner.files.remove(&j.id);
-        let _ = std::fs::remove_file(inner.dir.join(format!("{}.f32", j.id)));
+        if !keep {
+            let _ = std::fs::remove_file(inner.dir.join(format!("{}.f32", j.id)));
+        }
+        Ok(())
+    }
+
+    /// Makes failed job `id` unfinished again (a retry): queued, its end
+    /// forgotten; its stored tiles stay.
+    pub fn reopen_job(&self, id: JobId) -> Result<(), FarmError> {
+        self.inner
+            .lock()
+            .conn
+            .execute(
+                "UPDATE jobs SET state = ?2, elapsed_ms = NULL, error = NULL, finish_order = 0,
+                     tiles_done = 0, rays = 0, render_ms = NULL WHERE id = ?1",
+                params![id as i64, JobState::Queued.name()],
+            )
+            .map_err(db_err)?;
         Ok(())
     }
 
@@ -409,10 +431,24 @@ impl Store {
             let mut del = tx
                 .prepare("DELETE FROM jobs WHERE id = ?1")
                 .map_err(db_err)?;
+            let mut unhold = tx
+                .prepare("DELETE FROM holds WHERE job = ?1")
+                .map_err(db_err)?;
+            // A failed still's tiles, kept for a retry.
+            let mut untile = tx
+                .prepare("DELETE FROM tile_refs WHERE job = ?1")
+                .map_err(db_err)?;
             for &id in ids {
                 del.execute(params![id as i64]).map_err(db_err)?;
+                unhold.execute(params![id as i64]).map_err(db_err)?;
+                untile.execute(params![id as i64]).map_err(db_err)?;
             }
         }
-        tx.commit().map_err(db_err)
+        tx.commit().map_err(db_err)?;
+        for &id in ids {
+            guard.files.remove(&id);
+            let _ = std::fs::remove_file(guard.dir.join(format!("{id}.f32")));
+        }
+        Ok(())
     }
 }

@@ -59,6 +59,11 @@ impl Store {
                  len INTEGER NOT NULL,
                  crc INTEGER NOT NULL,
                  PRIMARY KEY (job, tile)
+             );
+             CREATE TABLE IF NOT EXISTS holds (
+                 job INTEGER PRIMARY KEY,
+                 paused INTEGER NOT NULL,
+                 after TEXT NOT NULL
              );",
         )
         .map_err(db_err)?;

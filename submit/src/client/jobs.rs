@@ -1,5 +1,6 @@
 //! A farm's jobs as they stand: one job's status, the list of them (every
-//! page, by id), cancelling one, and extending a progressive one.
+//! page, by id), cancelling, pausing, resuming or retrying one, and extending a
+//! progressive one.
 
 use anyhow::{Context, Result};
 use trevi_proto::pb;
@@ -53,6 +54,38 @@ impl Client {
         Ok(self
             .jobs
             .cancel_job(pb::JobId { id, frame: None })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// Pauses job `id` (with `now`, its tiles out go back to the queue at
+    /// once); returns its status after.
+    pub async fn pause(&mut self, id: u64, now: bool) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .pause_job(pb::PauseJobRequest { id, now })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// Resumes paused job `id`; returns its status after.
+    pub async fn resume(&mut self, id: u64) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .resume_job(pb::JobId { id, frame: None })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// Queues failed job `id` again with its finished tiles; returns its
+    /// status after.
+    pub async fn retry(&mut self, id: u64) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .retry_job(pb::JobId { id, frame: None })
             .await
             .map_err(status_error)?
             .into_inner())

@@ -36,6 +36,8 @@ pub struct JobSpec {
     pub progressive: Option<pb::Progressive>,
     /// URLs that receive each job's events (`--notify`).
     pub notify: Vec<String>,
+    /// Farm jobs this one waits for (`--after`).
+    pub after: Vec<u64>,
 }
 
 /// One camera to render and where its output goes.
@@ -97,6 +99,7 @@ impl Target {
             }),
             progressive: job.progressive,
             notify: job.notify.clone(),
+            after: job.after.clone(),
         }
     }
 }

@@ -39,6 +39,7 @@ fn the_request_carries_the_job_s_settings() {
         tile_size: 32,
         progressive,
         notify: vec!["https://hooks.example.com/trevi".into()],
+        after: vec![4, 9],
     };
     let r = still.request("h", &job);
     assert_eq!(r.progressive, progressive);
@@ -46,6 +47,7 @@ fn the_request_carries_the_job_s_settings() {
     assert_eq!((r.bundle_hash.as_str(), r.camera.as_str()), ("h", "a"));
     assert_eq!((r.priority, r.tile_size, r.frames), (3, 32, None));
     assert_eq!(r.output_format, "png");
+    assert_eq!(r.after, [4, 9]);
     let plain = still.request("h", &JobSpec::default());
     assert_eq!(plain.progressive, None);
 }
