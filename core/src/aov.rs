@@ -16,6 +16,7 @@
 //! pixels row by row: [`AovTile`].
 
 use std::fmt;
+use std::path::{Path, PathBuf};
 
 /// One render pass.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -192,6 +193,29 @@ impl AovTile {
             None => &[],
         }
     }
+}
+
+/// Where pass `aov` of a frame written to `output` goes when it is not in
+/// the same file: beside a PNG, `NAME.albedo.png` (sRGB, like the beauty),
+/// `NAME.normal.png` ((n+1)/2 per component, linear) and `NAME.depth.exr`
+/// (one float channel `Z`: depth in a PNG would lose all but 8 bits);
+/// `None` for an EXR output, which holds its passes as channels.
+pub fn aov_path(output: &Path, aov: Aov) -> Option<PathBuf> {
+    // The PNG test of `output::Format::from_path`, by extension in any case;
+    // written here so the scene's checks need nothing of the writers.
+    let png = output
+        .extension()
+        .is_some_and(|e| e.to_string_lossy().eq_ignore_ascii_case("png"));
+    if !png {
+        return None;
+    }
+    let stem = output.file_stem()?.to_string_lossy();
+    let name = match aov {
+        Aov::Albedo => format!("{stem}.albedo.png"),
+        Aov::Normal => format!("{stem}.normal.png"),
+        Aov::Depth => format!("{stem}.depth.exr"),
+    };
+    Some(output.with_file_name(name))
 }
 
 #[cfg(test)]

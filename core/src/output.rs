@@ -82,7 +82,6 @@ mod tests;
 
 pub use self::deflate::{adler32, adler32_combine, FINAL_EMPTY_BLOCK, SYNC_FLUSH};
 pub use self::exr::{read_exr_channels, read_exr_rgb};
-pub use self::layout::aov_path;
 pub use self::png::{
     check_segment, decode_png, encode_segment, encode_segment_srgb, max_segment_deflate_len,
     png_from_segments, read_png_rgb8, segment_count, segment_filtered_len, segment_rows,
@@ -90,6 +89,7 @@ pub use self::png::{
     SEGMENT_ROWS,
 };
 pub use self::srgb::{linear_to_srgb8, Srgb8};
+pub use crate::aov::aov_path;
 
 use self::exr::{ExrSink, BLOCK_ROWS};
 use self::layout::{signed_unit8, Layout};

@@ -5,7 +5,7 @@
 //! start the embedded coordinator on it again (it restores its jobs from
 //! its database) and add samples to the job. Every other local render keeps
 //! its coordinator's files in a temporary directory, removed at its end
-//! ([`DataDir`]).
+//! (`data_dir.rs`).
 //!
 //! One process at a time uses a kept directory: the coordinator's lock
 //! (`coordinator.lock`, see `trevi_coordinator::dir_lock`); a second one is
@@ -14,10 +14,9 @@
 //! output; the coordinator's retention forgets it (and removes its files)
 //! 7 days after it ended, and deleting the directory removes every one.
 
+use crate::data_dir::DataDir;
 use anyhow::{bail, Context, Result};
-use std::fs::File;
 use std::path::{Path, PathBuf};
-use trevi_coordinator::dir_lock::{lock_data_dir, DirLockError};
 
 /// The directory's place under the user's data directory.
 const UNDER_DATA_HOME: &str = "trevi/local";
@@ -65,72 +64,6 @@ pub fn default_dir(
             "neither XDG_DATA_HOME nor HOME is set: give --local-dir DIR for the local \
              render's job (a render with --samples keeps it for `trevi-submit extend`)"
         ),
-    }
-}
-
-/// The embedded coordinator's data directory.
-pub enum DataDir {
-    /// A `trevi-submit-*` directory in the system's temporary directory,
-    /// removed when dropped. Made before the async runtime and dropped after
-    /// it, so no task of the embedded farm still writes into it while it is
-    /// removed.
-    Temporary(tempfile::TempDir),
-    /// A kept directory ([`LocalDir`]), locked for this process while held.
-    Kept {
-        /// The directory.
-        path: PathBuf,
-        /// The coordinator's lock on it.
-        _lock: File,
-    },
-}
-
-impl DataDir {
-    /// A new temporary directory.
-    pub fn temporary() -> Result<DataDir> {
-        let dir = tempfile::Builder::new()
-            .prefix("trevi-submit-")
-            .tempdir()
-            .context("cannot create a temporary directory")?;
-        Ok(DataDir::Temporary(dir))
-    }
-
-    /// The kept directory `dir`, made if missing and locked; refused when
-    /// it is not a directory or another process uses it.
-    pub fn kept(dir: &Path) -> Result<DataDir> {
-        if dir.exists() && !dir.is_dir() {
-            bail!(
-                "--local-dir {}: not a directory (a local render with --samples keeps its job \
-                 there for `trevi-submit extend`)",
-                dir.display()
-            );
-        }
-        let lock = lock_data_dir(dir).map_err(|e| match e {
-            DirLockError::InUse { pid, .. } => anyhow::anyhow!(
-                "another trevi-submit{} is rendering with the local directory {}: wait for it \
-                 to end, or give this one another --local-dir (and give `extend` the same \
-                 --local-dir later)",
-                pid.map(|p| format!(" (PID {p})")).unwrap_or_default(),
-                dir.display()
-            ),
-            e => anyhow::Error::new(e),
-        })?;
-        Ok(DataDir::Kept {
-            path: dir.to_path_buf(),
-            _lock: lock,
-        })
-    }
-
-    /// The directory's path.
-    pub fn path(&self) -> &Path {
-        match self {
-            DataDir::Temporary(t) => t.path(),
-            DataDir::Kept { path, .. } => path,
-        }
-    }
-
-    /// Whether it outlives this process.
-    pub fn is_kept(&self) -> bool {
-        matches!(self, DataDir::Kept { .. })
     }
 }
 
@@ -187,7 +120,9 @@ pub async fn extend(
     }
     let data = DataDir::kept(&dir)?;
     let mut signals = crate::local::Signals::catch()?;
-    let farm = crate::local::Embedded::start(0, crate::args::default_tile(), &data, None).await?;
+    // The job keeps its own tile size; new jobs would take the farm's default.
+    let tile = trevi_coordinator::FarmConfig::default().default_tile;
+    let farm = crate::local::Embedded::start(0, tile, &data, None).await?;
     let progress = crate::progress::Progress::choose(quiet);
     let work = async {
         let mut client = crate::client::Client::connect(&farm.url, None).await?;

@@ -9,7 +9,7 @@
 //! sequence's frames need a scene of their own to move from frame to
 //! frame: the worker builds that one from the bundle.
 
-use crate::kept::DataDir;
+use crate::data_dir::DataDir;
 use anyhow::{Context, Result};
 use std::sync::Arc;
 use tokio::sync::{oneshot, watch};

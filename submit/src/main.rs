@@ -25,6 +25,7 @@ mod cli;
 mod client;
 mod commands;
 mod control;
+mod data_dir;
 mod kept;
 mod local;
 mod passes;
@@ -80,7 +81,7 @@ fn run(args: Args) -> Result<()> {
     // the targets are known), declared before the runtime so that it is
     // removed after the runtime (and every task that could write into it)
     // has shut down.
-    let data: Option<kept::DataDir>;
+    let data: Option<data_dir::DataDir>;
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     // Caught from here on, so that a local render interrupted at any point
     // still returns through the code that removes what it wrote, and a
@@ -171,8 +172,8 @@ fn run(args: Args) -> Result<()> {
     let local_dir = if keep { Some(args.local.path()?) } else { None };
     data = match (&args.coordinator, &local_dir) {
         (Some(_), _) => None,
-        (None, Some(dir)) => Some(kept::DataDir::kept(dir)?),
-        (None, None) => Some(kept::DataDir::temporary()?),
+        (None, Some(dir)) => Some(data_dir::DataDir::kept(dir)?),
+        (None, None) => Some(data_dir::DataDir::temporary()?),
     };
     runtime.block_on(async {
         if let Some(url) = &args.coordinator {

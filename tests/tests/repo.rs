@@ -15,9 +15,10 @@ fn read(rel: &str) -> String {
     std::fs::read_to_string(root().join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"))
 }
 
-/// CI runs the README's test command and no other cargo command, so that
-/// the command a reader copies works on a fresh clone: no extra
-/// `cargo build` may hide that the tests build the binaries they start.
+/// CI runs the README's test command and no other cargo command but the
+/// denoiser's tests the README names, so that the command a reader copies
+/// works on a fresh clone: no extra `cargo build` may hide that the tests
+/// build the binaries they start.
 #[test]
 fn ci_runs_exactly_the_readme_s_test_command() {
     let readme = read("README.md");
@@ -33,10 +34,22 @@ fn ci_runs_exactly_the_readme_s_test_command() {
         .filter(|l| l.contains("cargo "))
         .collect();
     // Once as a newcomer runs it, once more beside two CPU hogs (the suite
-    // must pass on a busy machine): the same command both times.
+    // must pass on a busy machine): the same command both times. Between
+    // them, the denoiser's tests with the library CI fetches, as the
+    // README's Tests section gives them.
+    const DENOISE: &str = "cargo test -p trevi-denoise --features oidn";
+    assert!(
+        readme.contains(DENOISE),
+        "the README gives the denoiser's test command"
+    );
+    let denoise = format!("OIDN_DIR=\"$oidn_root/pyoidn/oidn\" {DENOISE}");
     assert_eq!(
         cargo,
-        ["cargo test --workspace", "cargo test --workspace"],
+        [
+            "cargo test --workspace",
+            denoise.as_str(),
+            "cargo test --workspace"
+        ],
         ".ci/run's cargo commands"
     );
     assert!(ci.contains(&format!("export {}=1", common::REQUIRE_ALL)));

@@ -1,10 +1,9 @@
 //! How a frame's files are laid out: which values each file's samples
-//! hold ([`Layout`]), and where a PNG frame's render passes go
-//! ([`aov_path`]).
+//! hold ([`Layout`]); where a PNG frame's render passes go is
+//! [`crate::aov::aov_path`].
 
 use super::Format;
-use crate::aov::{Aov, Aovs};
-use std::path::{Path, PathBuf};
+use crate::aov::Aovs;
 
 /// What a file's samples are made of. A tile's values are numbered: 0, 1, 2
 /// its R, G, B; 3 onwards its render passes' values in layout order (see
@@ -36,24 +35,6 @@ impl Layout {
             }
         }
     }
-}
-
-/// Where pass `aov` of a frame written to `output` goes when it is not in
-/// the same file: beside a PNG, `NAME.albedo.png` (sRGB, like the beauty),
-/// `NAME.normal.png` ((n+1)/2 per component, linear) and `NAME.depth.exr`
-/// (one float channel `Z`: depth in a PNG would lose all but 8 bits);
-/// `None` for an EXR output, which holds its passes as channels.
-pub fn aov_path(output: &Path, aov: Aov) -> Option<PathBuf> {
-    if Format::from_path(output)? != Format::Png {
-        return None;
-    }
-    let stem = output.file_stem()?.to_string_lossy();
-    let name = match aov {
-        Aov::Albedo => format!("{stem}.albedo.png"),
-        Aov::Normal => format!("{stem}.normal.png"),
-        Aov::Depth => format!("{stem}.depth.exr"),
-    };
-    Some(output.with_file_name(name))
 }
 
 /// A signed unit value (a normal's component) as an 8-bit sample:

@@ -226,7 +226,7 @@ impl<'a> Resolver<'a> {
         // passes go to as well.
         let sidecars = aovs
             .iter()
-            .filter_map(|a| crate::output::aov_path(std::path::Path::new(&output), a))
+            .filter_map(|a| crate::aov::aov_path(std::path::Path::new(&output), a))
             .map(|p| p.to_string_lossy().into_owned());
         for written in std::iter::once(output.clone()).chain(sidecars) {
             let Some((name, other, first)) = self.outputs.add(Output::new(&written, frames), e.pos)
