@@ -108,15 +108,7 @@ impl Source for ExrSource {
     }
 
     fn read(&mut self, rows: Range<u32>, into: &mut Inputs) -> Result<(), DenoiseError> {
-        if rows.start >= rows.end || rows.end > self.height {
-            return Err(DenoiseError::Band {
-                start: rows.start,
-                end: rows.end,
-                width: self.width,
-                height: self.height,
-                what: "rows outside the frame",
-            });
-        }
+        crate::check_rows(&rows, self.width, self.height)?;
         let w = self.width as usize;
         let n = w * (rows.end - rows.start) as usize;
         let fresh = |v: &mut Vec<[f32; 3]>| {

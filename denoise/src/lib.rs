@@ -109,6 +109,21 @@ pub fn frame_exposure(source: &mut dyn Source) -> Result<f32, DenoiseError> {
     Ok(exposure.scale())
 }
 
+/// Refuses a read of `rows` that is empty or runs past a `width` ×
+/// `height` frame: the one check every [`Source`] makes first.
+pub fn check_rows(rows: &Range<u32>, width: u32, height: u32) -> Result<(), DenoiseError> {
+    if rows.start >= rows.end || rows.end > height {
+        return Err(DenoiseError::Band {
+            start: rows.start,
+            end: rows.end,
+            width,
+            height,
+            what: "rows outside the frame",
+        });
+    }
+    Ok(())
+}
+
 /// A frame held in memory: for tests, benchmarks and small previews.
 #[derive(Debug, Clone)]
 pub struct InMemory {
@@ -128,15 +143,7 @@ impl Source for InMemory {
         self.height
     }
     fn read(&mut self, rows: Range<u32>, into: &mut Inputs) -> Result<(), DenoiseError> {
-        if rows.start >= rows.end || rows.end > self.height {
-            return Err(DenoiseError::Band {
-                start: rows.start,
-                end: rows.end,
-                width: self.width,
-                height: self.height,
-                what: "rows outside the frame",
-            });
-        }
+        check_rows(&rows, self.width, self.height)?;
         let w = self.width as usize;
         let span = rows.start as usize * w..rows.end as usize * w;
         let pick = |v: &Option<Vec<[f32; 3]>>| v.as_ref().map(|v| v[span.clone()].to_vec());
