@@ -4,28 +4,41 @@
 here for Blender Cycles from the same triangles), single-threaded, at a ladder
 of sample counts, against a converged reference; in one run, with versions.
 
-    python3 bench/peers.py reference [SPP]        # Mitsuba (llvm if it loads), -> target/peers/
-    python3 bench/peers.py ladder [RENDERERS] [--spp 1,4,16,64,256] [--res 64]
+    python3 bench/peers.py reference [SPP [RES]] [--scene spot]   # Mitsuba (llvm if it loads), -> target/peers/
+    python3 bench/peers.py ladder [RENDERERS] [--spp 1,4,16,64,256] [--res 64] [--scene spot]
+                                  [--target 2e-2,1e-2]
+    python3 bench/peers.py bias [SPP] [--threads 2] [--scene spot]   # Trevi converged vs reference
         RENDERERS: comma list of trevi, trevi-denoised, mitsuba-scalar,
         mitsuba-llvm, cycles, cycles-oidn (default: all that are installed)
+
+--scene spot: the textured real-mesh variant (Spot the cow with its texture
+in place of the boxes; cornell_area.py's `spot`; needs ../shared/meshes).
 
 Each render is timed as the CPU time of the work alone (Trevi: the
 trevi-submit child's user+system time, start to written file; Mitsuba:
 mi.render; Cycles: bpy.ops.render.render, in this process), one thread
 each. Errors: RMSE of linear RGB against the reference, and SSIM of the
-luminance (7x7 box windows), both over the whole frame. The equal-error
-ratio of a peer at a sample count is Trevi's CPU time to reach the peer's
-RMSE (log-log interpolation on Trevi's ladder) over the peer's CPU time:
-below 1, Trevi is faster at equal error.
+luminance (7x7 box windows), both over the whole frame; and the RMSE away
+from the light (rmse_off: the light and a one-pixel border left out, where
+a denoiser's error at the light's edge, values up to 15, otherwise sets the
+RMSE). The equal-error ratio of a peer at a sample count is Trevi's CPU time
+to reach the peer's RMSE (log-log interpolation on Trevi's ladder) over the
+peer's CPU time: below 1, Trevi is faster at equal error. Also printed:
+samples per CPU-second, and the samples (and CPU time) each renderer needs
+for the --target errors, both interpolated on its ladder. The reference
+prints its own estimated RMSE (from two independent halves).
 
-Installs (docs/speed-accuracy.md): pip install mitsuba bpy==5.0.1 OpenEXR
-numpy; Debian's libllvm19 for mitsuba-llvm; trevi-denoised needs a build of the
-trevi-denoise example (cargo build --release -p trevi-denoise --features oidn
---example denoise_exr, OIDN_DIR set; docs/denoise.md).
+Installs (docs/speed-accuracy.md, "Equal-time error with denoising"): pip
+install mitsuba bpy==5.0.1 OpenEXR numpy pyoidn==2.5.1.0; Debian's libllvm19
+for mitsuba-llvm (bookworm main); trevi needs cargo build --release --bin
+trevi-submit, trevi-denoised also a build of the trevi-denoise example (cargo
+build --release -p trevi-denoise --features oidn --example denoise_exr, with
+OIDN_DIR=<pyoidn's directory>/oidn; docs/denoise.md).
 """
 import math
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -61,13 +74,14 @@ def read_exr(path):
     return np.asarray(img, dtype=np.float64)
 
 
-def ref_path(res):
-    return os.path.join(OUT, "reference_%d.npy" % res)
+def ref_path(res, scene):
+    tail = "" if scene == "boxes" else "_" + scene
+    return os.path.join(OUT, "reference_%d%s.npy" % (res, tail))
 
 
 # ------------------------------------------------------------- renderers
 
-def trevi(res, spp, seed, tmp, denoise=False):
+def trevi(res, spp, seed, tmp, scene, denoise=False):
     """trevi-submit --threads 1 on supersample sqrt(spp); CPU of the child."""
     n = int(round(math.sqrt(spp)))
     assert n * n == spp, "Trevi's strata: spp must be a square"
@@ -76,7 +90,9 @@ def trevi(res, spp, seed, tmp, denoise=False):
     xml_path = os.path.join(tmp, name + ".xml")
     with open(xml_path, "w") as f:
         f.write(ca.xml(width=res, height=res, supersample=n, seed=seed, output=name + ".exr",
-                       extra=extra))
+                       extra=extra, scene=scene))
+    for t in ca.textures(scene):
+        shutil.copyfile(t, os.path.join(tmp, os.path.basename(t)))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     subprocess.run([SUBMIT, xml_path, "--quiet", "--threads", "1"], check=True)
     out = os.path.join(tmp, name + ".exr")
@@ -90,11 +106,11 @@ def trevi(res, spp, seed, tmp, denoise=False):
 
 
 def mitsuba(variant):
-    def render(res, spp, seed, tmp):
+    def render(res, spp, seed, tmp, scene_name):
         import mitsuba as mi
         import numpy as np
         mi.set_variant(variant)
-        scene = mitsuba_scene(res, spp)
+        scene = mitsuba_scene(res, spp, scene_name)
         # Once untimed at the same sample count: the LLVM variant compiles
         # its kernels on the first render (the compile is not the render).
         mi.render(scene, spp=spp, seed=seed + 1)
@@ -105,7 +121,7 @@ def mitsuba(variant):
     return render
 
 
-def mitsuba_scene(res, spp):
+def mitsuba_scene(res, spp, scene_name):
     """cornell_area's Mitsuba scene in the variant already set, one thread."""
     import drjit as dr
     import mitsuba as mi
@@ -114,15 +130,15 @@ def mitsuba_scene(res, spp):
     set_variant = mi.set_variant
     mi.set_variant = lambda *_: None
     try:
-        return ca.mitsuba_scene(res=res, spp=spp, sampler="multijitter")
+        return ca.mitsuba_scene(res=res, spp=spp, sampler="multijitter", scene_name=scene_name)
     finally:
         mi.set_variant = set_variant
 
 
 def cycles(denoise):
-    def render(res, spp, seed, tmp):
+    def render(res, spp, seed, tmp, scene):
         import bpy
-        build_cycles(res, spp, seed, denoise)
+        build_cycles(res, spp, seed, denoise, scene)
         path = os.path.join(tmp, "cycles_%d_%d_%d.exr" % (spp, seed, denoise))
         bpy.context.scene.render.filepath = path
         t = time.process_time()
@@ -132,7 +148,7 @@ def cycles(denoise):
     return render
 
 
-def build_cycles(res, spp, seed, denoise):
+def build_cycles(res, spp, seed, denoise, scene):
     """The same triangles, camera and light in Blender; one CPU thread, box
     filter of one pixel, no clamping, no adaptive sampling."""
     import bpy
@@ -164,9 +180,13 @@ def build_cycles(res, spp, seed, denoise):
     world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
     sc.world = world
-    for oid, verts, tris, kd, le in ca.objects():
+    for oid, verts, tris, kd, le, tex in ca.objects(scene):
         mesh = bpy.data.meshes.new(oid)
         mesh.from_pydata([tuple(v) for v in verts], [], [tuple(t) for t in tris])
+        if tex is not None:
+            layer = mesh.uv_layers.new(name="uv")
+            for loop in mesh.loops:
+                layer.data[loop.index].uv = tex[0][loop.vertex_index]
         mesh.update()
         obj = bpy.data.objects.new(oid, mesh)
         sc.collection.objects.link(obj)
@@ -183,6 +203,14 @@ def build_cycles(res, spp, seed, denoise):
         else:
             shader = nodes.new("ShaderNodeBsdfDiffuse")
             shader.inputs["Color"].default_value = (kd[0], kd[1], kd[2], 1.0)
+            if tex is not None:
+                # sRGB PNG, bilinear ("Linear"), repeating; kd is 1 1 1.
+                img = nodes.new("ShaderNodeTexImage")
+                img.image = bpy.data.images.load(tex[1])
+                img.image.colorspace_settings.name = "sRGB"
+                img.interpolation = "Linear"
+                img.extension = "REPEAT"
+                mat.node_tree.links.new(img.outputs["Color"], shader.inputs["Color"])
         mat.node_tree.links.new(shader.outputs[0], out.inputs["Surface"])
         mesh.materials.append(mat)
     cam_data = bpy.data.cameras.new("cam")
@@ -201,8 +229,9 @@ def build_cycles(res, spp, seed, denoise):
 
 
 RENDERERS = {
-    "trevi": lambda res, spp, seed, tmp: trevi(res, spp, seed, tmp),
-    "trevi-denoised": lambda res, spp, seed, tmp: trevi(res, spp, seed, tmp, denoise=True),
+    "trevi": lambda res, spp, seed, tmp, scene: trevi(res, spp, seed, tmp, scene),
+    "trevi-denoised": lambda res, spp, seed, tmp, scene: trevi(res, spp, seed, tmp, scene,
+                                                               denoise=True),
     "mitsuba-scalar": mitsuba("scalar_rgb"),
     "mitsuba-llvm": mitsuba("llvm_ad_rgb"),
     "cycles": cycles(False),
@@ -230,8 +259,16 @@ def available(name):
 def versions():
     out = []
     try:
+        import drjit
         import mitsuba
-        out.append("mitsuba %s" % mitsuba.__version__)
+        out.append("mitsuba %s (drjit %s, LLVM %s)" % (
+            mitsuba.__version__, drjit.__version__,
+            os.environ.get("DRJIT_LIBLLVM_PATH", "found by drjit")))
+    except Exception:
+        pass
+    try:
+        from importlib.metadata import version
+        out.append("pyoidn %s" % version("pyoidn"))
     except Exception:
         pass
     try:
@@ -250,6 +287,26 @@ def versions():
 def rmse(img, ref):
     import numpy as np
     return float(np.sqrt(((img - ref) ** 2).mean()))
+
+
+def off_light(ref):
+    """The pixels away from the light: those whose reference luminance is
+    below 2 and none of whose 8 neighbours' is (the light's radiance is 12-15;
+    lit walls stay below 1). A denoiser's error at the light's anti-aliased
+    edge, a few pixels of value up to 15, otherwise dominates the RMSE."""
+    import numpy as np
+    light = np.pad(ref @ np.array([0.2126, 0.7152, 0.0722]) > 2.0, 1)
+    h, w = ref.shape[:2]
+    near = np.zeros((h, w), dtype=bool)
+    for dy in range(3):
+        for dx in range(3):
+            near |= light[dy:dy + h, dx:dx + w]
+    return ~near
+
+
+def rmse_masked(img, ref, mask):
+    import numpy as np
+    return float(np.sqrt(((img - ref) ** 2)[mask].mean()))
 
 
 def ssim(img, ref):
@@ -271,9 +328,22 @@ def ssim(img, ref):
     return float(s.mean())
 
 
-def trevi_time_at(points, target):
-    """Trevi's CPU time at RMSE `target`, log-log interpolated on its ladder
-    (points: (cpu, rmse)); None outside it."""
+def cpu_model():
+    with open("/proc/cpuinfo") as f:
+        for line in f:
+            if line.startswith("model name"):
+                return "%d CPUs: %s" % (os.cpu_count(), line.split(":", 1)[1].strip())
+    return "%d CPUs" % os.cpu_count()
+
+
+def load_avg():
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
+
+
+def x_at_error(points, target):
+    """x (CPU time or spp) at RMSE `target`, log-log interpolated on a ladder
+    (points: (x, rmse)); None outside it."""
     pts = sorted(points, key=lambda p: -p[1])
     for (t0, e0), (t1, e1) in zip(pts, pts[1:]):
         if e1 <= target <= e0:
@@ -284,8 +354,22 @@ def trevi_time_at(points, target):
 
 # ------------------------------------------------------------- commands
 
+def scene_arg(argv):
+    """Takes `--scene NAME` out of argv; returns NAME (default boxes)."""
+    if "--scene" in argv:
+        i = argv.index("--scene")
+        name = argv[i + 1]
+        del argv[i:i + 2]
+        if name not in ca.SCENES:
+            sys.exit("--scene: one of %s" % ", ".join(ca.SCENES))
+        return name
+    return "boxes"
+
+
 def cmd_reference(argv):
     import numpy as np
+    argv = list(argv)
+    scene_name = scene_arg(argv)
     spp = int(argv[0]) if argv else 65536
     res = int(argv[1]) if len(argv) > 1 else ca.RES
     import mitsuba as mi
@@ -293,17 +377,27 @@ def cmd_reference(argv):
         mi.set_variant("llvm_ad_rgb")
     except Exception:
         mi.set_variant("scalar_rgb")
-    scene = mitsuba_scene(res, spp)
+    scene = mitsuba_scene(res, spp, scene_name)
     t = time.time()
-    acc = None
-    chunks = max(1, spp // 4096)
+    # Chunks of 4096 spp, an even number of them, summed in two halves: the
+    # RMSE between the halves' means, halved, estimates the reference's own
+    # RMSE against the converged image (independent chunks: the mean of two
+    # halves has half the variance of one, their difference twice).
+    chunks = max(2, spp // 4096)
+    chunks += chunks % 2
+    halves = [None, None]
     for c in range(chunks):
         img = np.array(mi.render(scene, spp=spp // chunks, seed=90_000 + c), dtype=np.float64)[:, :, :3]
-        acc = img if acc is None else acc + img
+        h = c % 2
+        halves[h] = img if halves[h] is None else halves[h] + img
     os.makedirs(OUT, exist_ok=True)
-    np.save(ref_path(res), acc / chunks)
-    print("reference %dx%d, %d spp (%s): %.0f s -> %s" % (res, res, spp, mi.variant(),
-                                                       time.time() - t, ref_path(res)))
+    a, b = halves[0] / (chunks // 2), halves[1] / (chunks // 2)
+    np.save(ref_path(res, scene_name), (a + b) / 2)
+    print("reference %s %dx%d, %d spp (%s, %s): %.0f s wall -> %s" % (
+        scene_name, res, res, spp // chunks * chunks, mi.variant(), versions(), time.time() - t,
+        ref_path(res, scene_name)))
+    print("its own estimated RMSE: %.2e (half the RMSE between its two halves, %.2e)" % (
+        rmse(a, b) / 2, rmse(a, b)))
 
 
 def cmd_ladder(argv):
@@ -312,41 +406,132 @@ def cmd_ladder(argv):
     spps = [1, 4, 16, 64, 256]
     res = ca.RES
     args = list(argv)
+    scene = scene_arg(args)
+    targets = [2e-2, 1e-2]
     while args:
         a = args.pop(0)
         if a == "--spp":
             spps = [int(s) for s in args.pop(0).split(",")]
         elif a == "--res":
             res = int(args.pop(0))
+        elif a == "--target":
+            targets = [float(s) for s in args.pop(0).split(",")]
         else:
             names = a.split(",")
-    ref = np.load(ref_path(res))
+    ref = np.load(ref_path(res, scene))
     names = [n for n in names if available(n)]
+    mask = off_light(ref)
     tmp = tempfile.mkdtemp(prefix="trevi-peers-")
-    print("# %s; %dx%d; one thread each; reference %s" % (versions(), res, res, ref_path(res)))
-    print("%-15s %6s %9s %11s %7s" % ("renderer", "spp", "cpu_s", "rmse", "ssim"))
+    print("# %s; scene %s %dx%d; one thread each; reference %s" % (
+        versions(), scene, res, res, ref_path(res, scene)))
+    print("# %s; %s; load average %s" % (time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                                        cpu_model(), load_avg()))
+    print("# rmse_off: RMSE over the %d of %d pixels away from the light (off_light)" % (
+        mask.sum(), mask.size))
+    print("%-15s %6s %9s %11s %11s %7s %12s" % ("renderer", "spp", "cpu_s", "rmse", "rmse_off",
+                                                "ssim", "Msamples/s"))
     rows = {}
     for name in names:
         for spp in spps:
-            img, cpu = RENDERERS[name](res, spp, 7, tmp)
-            e, s = rmse(img, ref), ssim(img, ref)
-            rows.setdefault(name, []).append((spp, cpu, e, s))
-            print("%-15s %6d %9.3f %11.4e %7.4f" % (name, spp, cpu, e, s), flush=True)
+            img, cpu = RENDERERS[name](res, spp, 7, tmp, scene)
+            e, s, eo = rmse(img, ref), ssim(img, ref), rmse_masked(img, ref, mask)
+            rows.setdefault(name, []).append((spp, cpu, e, s, eo))
+            print("%-15s %6d %9.3f %11.4e %11.4e %7.4f %12.3f" % (
+                name, spp, cpu, e, eo, s, res * res * spp / cpu / 1e6), flush=True)
+    print("# %s; load average at the end %s" % (
+        time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), load_avg()))
+    for col, label in ((2, "rmse"), (4, "rmse_off")):
+        print("\nsamples per pixel (and CPU seconds) each needs for a %s of %s"
+              " (log-log interpolation on its ladder; '-' outside it)"
+              % (label, " / ".join("%.0e" % t for t in targets)))
+        for name, rs in rows.items():
+            cells = []
+            for target in targets:
+                n = x_at_error([(r[0], r[col]) for r in rs], target)
+                t = x_at_error([(r[1], r[col]) for r in rs], target)
+                if n is not None:
+                    cells.append("%.0f spp (%.3f s)" % (n, t))
+                elif rs[0][col] <= target:  # below the target from the first rung on
+                    cells.append("<= %d spp (%.3f s)" % (rs[0][0], rs[0][1]))
+                else:
+                    cells.append("-")
+            print("%-15s %s" % (name, " / ".join(cells)))
     if "trevi" not in rows:
         return
-    pts = [(cpu, e) for _, cpu, e, _ in rows["trevi"]]
-    print("\nequal error: Trevi's CPU time to reach the peer's RMSE / the peer's CPU time")
-    for name, rs in rows.items():
-        if name == "trevi":
-            continue
-        for spp, cpu, e, _ in rs:
-            t = trevi_time_at(pts, e)
-            ratio = "outside Trevi's ladder" if t is None else "%.2f" % (t / cpu)
-            print("%-15s %6d spp: %s" % (name, spp, ratio))
+    for col, label in ((2, "rmse"), (4, "rmse_off")):
+        pts = [(r[1], r[col]) for r in rows["trevi"]]
+        print("\nequal %s: Trevi's CPU time to reach the peer's %s / the peer's CPU time"
+              % (label, label))
+        for name, rs in rows.items():
+            if name == "trevi":
+                continue
+            inside = []
+            cells = []
+            for r in rs:
+                t = x_at_error(pts, r[col])
+                cells.append("%d: %s" % (r[0], "-" if t is None else "%.2f" % (t / r[1])))
+                if t is not None:
+                    inside.append(t / r[1])
+            gm = "-"
+            if inside:
+                gm = "%.2f" % math.exp(sum(math.log(x) for x in inside) / len(inside))
+            print("%-15s %s; geometric mean %s" % (name, ", ".join(cells), gm))
+
+
+def cmd_bias(argv):
+    """Trevi's converged image against the reference: two renders of SPP
+    (a square; default 4096) with seeds 11 and 12 on THREADS threads (default
+    2; not timed); the RMSE of their mean, of its own noise (half the RMSE
+    between the two) and what remains, sqrt(mean^2 - noise^2): the difference
+    between Trevi's and Mitsuba's converged images plus the reference's own
+    noise. Also the mean signed difference per channel, away from the light."""
+    import numpy as np
+    args = list(argv)
+    scene = scene_arg(args)
+    threads = "2"
+    if "--threads" in args:
+        i = args.index("--threads")
+        threads = args[i + 1]
+        del args[i:i + 2]
+    spp = int(args[0]) if args else 4096
+    res = ca.RES
+    n = int(round(math.sqrt(spp)))
+    assert n * n == spp, "Trevi's strata: spp must be a square"
+    ref = np.load(ref_path(res, scene))
+    mask = off_light(ref)
+    tmp = tempfile.mkdtemp(prefix="trevi-bias-")
+    for t in ca.textures(scene):
+        shutil.copyfile(t, os.path.join(tmp, os.path.basename(t)))
+    print("# %s; scene %s %dx%d, Trevi %d spp on %s threads, seeds 11 and 12; %s; load average %s"
+          % (versions(), scene, res, res, spp, threads,
+             time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), load_avg()))
+    imgs = []
+    for seed in (11, 12):
+        name = "bias_%d_%d" % (spp, seed)
+        xml_path = os.path.join(tmp, name + ".xml")
+        with open(xml_path, "w") as f:
+            f.write(ca.xml(width=res, height=res, supersample=n, seed=seed, output=name + ".exr",
+                           scene=scene))
+        subprocess.run([SUBMIT, xml_path, "--quiet", "--threads", threads], check=True)
+        imgs.append(read_exr(os.path.join(tmp, name + ".exr")))
+        img = imgs[-1]
+        print("seed %d: rmse %.3e, away from the light %.3e" % (
+            seed, rmse(img, ref), rmse_masked(img, ref, mask)))
+    a, b = imgs
+    m = (a + b) / 2
+    whole = np.ones(mask.shape, dtype=bool)
+    for label, sel in (("whole frame", whole), ("away from the light", mask)):
+        e, noise = rmse_masked(m, ref, sel), rmse_masked(a, b, sel) / 2
+        rest = math.sqrt(max(e * e - noise * noise, 0.0))
+        print("%s: mean of the two %.3e, its own noise %.3e, remaining difference %.3e" % (
+            label, e, noise, rest))
+    d = (m - ref)[mask].reshape(-1, 3).mean(0)
+    print("mean signed difference away from the light (R G B): %.2e %.2e %.2e" % tuple(d))
+    print("# load average at the end %s" % load_avg())
 
 
 def main():
-    cmds = {"reference": cmd_reference, "ladder": cmd_ladder}
+    cmds = {"reference": cmd_reference, "ladder": cmd_ladder, "bias": cmd_bias}
     if len(sys.argv) < 2 or sys.argv[1] not in cmds:
         print(__doc__)
         sys.exit(2)

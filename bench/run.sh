@@ -59,7 +59,7 @@ echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) CPUs: $(grep -m1 'model name'
     "model $(grep -m1 '^model[[:space:]]' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')," \
     "$(grep -m1 '^flags' /proc/cpuinfo | grep -o -w -E 'avx2|avx512f' | tr '\n' ' ')"
 REV=$(git rev-parse --short HEAD 2>/dev/null || echo "${TREVI_REV:-?}")
-echo "# node test path: TREVI_SIMD=${TREVI_SIMD:-unset (the best this machine runs: sse on x86_64)}"
+echo "# node test path: TREVI_SIMD=${TREVI_SIMD:-unset (the best this machine runs: avx where it runs, else sse on x86_64)}"
 echo "# trevi $REV, embree $(dpkg-query -W -f='${Version}' libembree-dev 2>/dev/null || echo '?'), load average $(cut -d' ' -f1-3 /proc/loadavg)"
 
 if [ "$WHAT" = all ] || [ "$WHAT" = micro ]; then

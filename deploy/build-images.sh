@@ -23,6 +23,14 @@
 #                      e.g. target/debug after `cargo test --workspace`, whose
 #                      test profile optimizes too)
 #   TREVI_SKIP_CARGO=1 use target/release as it is
+#   TREVI_DENOISE=0    build trevi-submit without the `denoise` feature (by
+#                      default the release build has it, with Open Image
+#                      Denoise fetched by deploy/fetch-oidn.sh)
+#
+# When trevi-submit links Open Image Denoise (whichever directory it comes
+# from), the library's CPU parts go into the image with it, under
+# /usr/local/lib/trevi-oidn (registered with ldconfig), so `trevi-submit
+# --denoise` runs in a container.
 #
 # With registry access, `docker build -f deploy/Dockerfile .` does the same
 # from public base images instead (see deploy/README.md).
@@ -43,8 +51,15 @@ say() { echo "[build-images] $*"; }
 bins=(trevi-coordinator trevi-worker trevi-submit)
 bindir=${TREVI_BIN_DIR:-target/release}
 if [ "${TREVI_SKIP_CARGO:-0}" != 1 ] && [ "$bindir" = target/release ]; then
-    say "cargo build --release (${bins[*]})"
-    cargo build --release -p trevi-coordinator -p trevi-worker -p trevi-submit
+    if [ "${TREVI_DENOISE:-1}" = 1 ]; then
+        say "cargo build --release (${bins[*]}; trevi-submit with the denoise feature)"
+        OIDN_DIR=$(deploy/fetch-oidn.sh "$root/target/oidn") \
+            cargo build --release -p trevi-coordinator -p trevi-worker -p trevi-submit \
+            --features trevi-submit/denoise
+    else
+        say "cargo build --release (${bins[*]})"
+        cargo build --release -p trevi-coordinator -p trevi-worker -p trevi-submit
+    fi
 fi
 for b in "${bins[@]}"; do
     [ -x "$bindir/$b" ] || { say "$bindir/$b is missing"; exit 1; }
@@ -107,6 +122,18 @@ for b in "${bins[@]}"; do
     fi
 done
 cp -p deploy/trevi-health "$ctx/trevi-health"
+# Open Image Denoise's CPU libraries when trevi-submit links them (its GPU
+# devices stay out: no GPU in these containers). An empty directory
+# otherwise, which Dockerfile.runtime copies all the same.
+rm -rf "$ctx/oidn" && mkdir -p "$ctx/oidn"
+if readelf -d "$bindir/trevi-submit" | grep -q 'libOpenImageDenoise'; then
+    oidn=$(deploy/fetch-oidn.sh "$root/target/oidn")
+    for lib in libOpenImageDenoise.so.2 libOpenImageDenoise_core.so.2.5.1 \
+        libOpenImageDenoise_device_cpu.so.2.5.1 libtbb.so.12; do
+        cp -L "$oidn/lib/$lib" "$ctx/oidn/$lib"
+    done
+    say "trevi-submit denoises: Open Image Denoise's CPU libraries go in ($(du -sh "$ctx/oidn" | cut -f1))"
+fi
 cp deploy/Dockerfile.runtime "$ctx/Dockerfile"
 say "docker build $image (base $base)"
 previous=$(docker image inspect -f '{{.Id}}' "$image" 2>/dev/null || true)

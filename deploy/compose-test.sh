@@ -9,12 +9,15 @@
 #      `docker network disconnect` another;
 #   4. the job completes; its output is byte-identical to the embedded render
 #      (`trevi-submit` without --coordinator) of the same scene;
-#   5. always `down -v` at the end, pass or fail, and check that no container,
+#   5. when trevi-submit has the denoiser, `trevi-submit --denoise` inside
+#      the image gives the host's bytes;
+#   6. always `down -v` at the end, pass or fail, and check that no container,
 #      network or volume of the project is left.
 #
 # Environment: TREVI_BIN_DIR (default target/release, built with cargo if
 # needed), TREVI_IMAGE (default trevi:latest), TREVI_SKIP_BUILD=1 to use the
-# image as it is. Only 127.0.0.1 and the project's own private network are
+# image as it is, TREVI_REQUIRE_DENOISE=1 to fail when trevi-submit cannot
+# denoise (step 5). Only 127.0.0.1 and the project's own private network are
 # used: the coordinator is published on 127.0.0.1 at a free port.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -56,7 +59,7 @@ cleanup() {
         compose logs --no-color --tail 40 2>&1 | sed 's/^/    /'
         [ -s "$work/submit.log" ] && { say "trevi-submit's log:"; sed 's/^/    /' "$work/submit.log"; }
     fi
-    say "step 5: docker compose down -v"
+    say "step 6: docker compose down -v"
     compose down -v --remove-orphans -t 10 >"$work/down.log" 2>&1 || cat "$work/down.log"
     local left
     left=$(
@@ -201,4 +204,44 @@ say "step 4: embedded render of the same scene (trevi-submit without --coordinat
 }
 cmp "$work/farm.png" "$work/embedded.png" || fail "the farm's output differs from the embedded render"
 say "step 4: farm output is byte-identical to the embedded render ($(stat -c %s "$work/farm.png") bytes, sha256 $(sha256sum <"$work/farm.png" | cut -c1-16))"
+
+# ------------------------------------------------------------------ step 5
+# The image's trevi-submit denoises when it was built with the `denoise`
+# feature (build-images.sh then puts Open Image Denoise's CPU libraries in
+# the image): a still rendered and denoised inside a container is the one
+# the host's trevi-submit makes (same code, same library, same CPU, one
+# thread). TREVI_REQUIRE_DENOISE=1 makes a build without the feature a
+# failure instead of a skip.
+if readelf -d "$submit" 2>/dev/null | grep -q libOpenImageDenoise; then
+    say "step 5: trevi-submit --denoise inside the image and on the host"
+    cat >"$work/small.xml" <<'EOF2'
+<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.1 0.1 0.1"/>
+  <sphere id="ball" center="0 1 0" radius="1"> <surface diffuse="0.8 0.3 0.2"/> </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="1"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="96" height="64" shadow-samples="1" ao-samples="1" output="small.png"/>
+  </camera>
+</scene>
+EOF2
+    chmod 0777 "$work"
+    docker run --rm -v "$work:/w" --entrypoint trevi-submit "$TREVI_IMAGE" \
+        /w/small.xml --denoise --threads 1 --quiet -o /w/image-denoised.png >"$work/image-denoise.log" 2>&1 || {
+        cat "$work/image-denoise.log"
+        fail "trevi-submit --denoise failed inside the image"
+    }
+    "$submit" "$work/small.xml" --denoise --threads 1 --quiet -o "$work/host-denoised.png" \
+        >"$work/host-denoise.log" 2>&1 || {
+        cat "$work/host-denoise.log"
+        fail "trevi-submit --denoise failed on the host"
+    }
+    cmp "$work/image-denoised.png" "$work/host-denoised.png" ||
+        fail "the image's denoised frame differs from the host's"
+    say "step 5: the image's denoised frame is the host's ($(stat -c %s "$work/image-denoised.png") bytes)"
+elif [ "${TREVI_REQUIRE_DENOISE:-0}" = 1 ]; then
+    fail "$submit has no denoiser (build it with --features trevi-submit/denoise; TREVI_REQUIRE_DENOISE=1)"
+else
+    say "step 5: SKIPPED: $submit was built without the denoise feature"
+fi
 passed=1

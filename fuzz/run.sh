@@ -18,7 +18,7 @@ cd "$(dirname "$0")"
 secs=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr state duration)
+[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr denoise_exr state duration farm_queries requeue)
 rss_mb=${RSS_MB:-2048}
 timeout=${TIMEOUT:-10}
 
@@ -57,10 +57,11 @@ seed ply '*.ply'
 seed png '*.png'
 seed jpeg '*.jpg'
 seed exr '*.exr'
+seed denoise_exr '*.exr'
 # The project has no JPEG or EXR files: small ones made by seeds/make.py.
-for t in jpeg exr; do
+for t in jpeg exr denoise_exr; do
     [ -n "$(ls -A "corpus/$t")" ] || python3 seeds/make.py seeds/out
-    [ -n "$(ls -A "corpus/$t")" ] || cp seeds/out/$t/* "corpus/$t/"
+    [ -n "$(ls -A "corpus/$t")" ] || cp seeds/out/${t#denoise_}/* "corpus/$t/"
 done
 mkdir -p corpus/bundle
 # The state decoder starts from a valid state: a header and one empty pixel.
@@ -69,6 +70,24 @@ mkdir -p corpus/state
 import struct, sys
 h = b"TVPS" + struct.pack("<HHIIIIII", 1, 0, 0, 0, 1, 1, 0, 0)
 sys.stdout.buffer.write(h + bytes(64))' > corpus/state/empty-pixel
+# The farm's queries start from one valid input of each parser (the first
+# byte picks it: see fuzz_targets/farm_queries.rs).
+mkdir -p corpus/farm_queries
+[ -n "$(ls -A corpus/farm_queries)" ] || {
+    printf '\000frame=3&x=10&y=20&errors=1' > corpus/farm_queries/log
+    printf '\0017d\nworker' > corpus/farm_queries/usage
+    printf '\0020.25' > corpus/farm_queries/cost
+    printf '\00390d' > corpus/farm_queries/retention
+    printf '\004alice tok-a\nbob tok-b' > corpus/farm_queries/tokens
+    printf '\005render-7' > corpus/farm_queries/unblock
+}
+# The requeue grammar starts from a body, a range and a rect.
+mkdir -p corpus/requeue
+[ -n "$(ls -A corpus/requeue)" ] || {
+    printf '%s' '{"frames": "2-4", "rect": [0, 1, 2, 3]}' > corpus/requeue/body
+    printf '%s' '3-7' > corpus/requeue/frames
+    printf '%s' '1,2,30,40' > corpus/requeue/rect
+}
 # The duration grammar starts from each unit.
 mkdir -p corpus/duration
 [ -n "$(ls -A corpus/duration)" ] || for d in 90s 10m 2h 7d; do

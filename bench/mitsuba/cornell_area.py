@@ -87,8 +87,58 @@ def box(cx, cz, hx, hy, hz, angle_deg):
     return verts, tris
 
 
-def objects():
-    """(id, vertices, triangles, diffuse, emission) in world space."""
+# The textured real-mesh variant ("spot"): Spot the cow (Keenan Crane, public
+# domain; ../shared/meshes/spot/, see its README) in place of the two boxes,
+# flat-shaded (the OBJ has no normals), its 1024 x 1024 sRGB texture read
+# bilinearly (Trevi's path mode, Mitsuba's bitmap, Cycles' Linear), repeating.
+SPOT_DIR = os.path.normpath(os.path.join(ROOT, "..", "shared", "meshes", "spot"))
+SPOT_OBJ = os.path.join(SPOT_DIR, "spot_triangulated.obj")
+SPOT_PNG = os.path.join(SPOT_DIR, "spot_texture.png")
+SCENES = ("boxes", "spot")
+
+
+def spot():
+    """Spot in world space: scaled by 0.9, turned -145 degrees about +y (its face to the camera),
+    standing on the floor at the box's centre. One vertex per distinct
+    (position, uv) pair of the OBJ's faces, so each vertex has one uv (OBJ
+    convention: v = 0 is the image's bottom row)."""
+    pos, uv, tris, index = [], [], [], {}
+    verts, uvs = [], []
+    with open(SPOT_OBJ) as f:
+        for line in f:
+            w = line.split()
+            if not w:
+                continue
+            if w[0] == "v":
+                pos.append(tuple(float(x) for x in w[1:4]))
+            elif w[0] == "vt":
+                uv.append(tuple(float(x) for x in w[1:3]))
+            elif w[0] == "f":
+                tri = []
+                for corner in w[1:4]:
+                    vi, ti = (int(x) - 1 for x in corner.split("/")[:2])
+                    if (vi, ti) not in index:
+                        index[(vi, ti)] = len(verts)
+                        verts.append(pos[vi])
+                        uvs.append(uv[ti])
+                    tri.append(index[(vi, ti)])
+                tris.append(tuple(tri))
+    scale, t = 0.9, math.radians(-145.0)
+    c, s = math.cos(t), math.sin(t)
+    lift = -min(p[1] for p in pos) * scale
+    zmid = (min(p[2] for p in pos) + max(p[2] for p in pos)) / 2
+
+    def world(p):
+        x, y, z = p[0] * scale, p[1] * scale + lift, (p[2] - zmid) * scale
+        return (round(x * c + z * s, 6), round(y, 6), round(-x * s + z * c, 6))
+    return [world(p) for p in verts], tris, uvs
+
+
+def objects(scene="boxes"):
+    """(id, vertices, triangles, diffuse, emission, texture) in world
+    space; texture is None or (per-vertex uvs, PNG path), the diffuse
+    colour multiplying the texture's."""
+    assert scene in SCENES, scene
     L = 1.0
     objs = []
     v, t = quad((-L, 0, -L), (-L, 0, L), (L, 0, L), (L, 0, -L))  # floor, +y
@@ -114,15 +164,19 @@ def objects():
     objs.append(("left", v, t, RED, None))
     v, t = quad((L, 0, -L), (L, 0, L), (L, 2, L), (L, 2, -L))  # right, -x
     objs.append(("right", v, t, GREEN, None))
-    v, t = box(0.35, 0.3, 0.3, 0.3, 0.3, -17.0)
-    objs.append(("short-box", v, t, WHITE, None))
-    v, t = box(-0.35, -0.3, 0.3, 0.6, 0.3, 20.0)
-    objs.append(("tall-box", v, t, WHITE, None))
+    if scene == "spot":
+        v, t, uv = spot()
+        objs.append(("spot", v, t, (1.0, 1.0, 1.0), None, (uv, SPOT_PNG)))
+    else:
+        v, t = box(0.35, 0.3, 0.3, 0.3, 0.3, -17.0)
+        objs.append(("short-box", v, t, WHITE, None))
+        v, t = box(-0.35, -0.3, 0.3, 0.6, 0.3, 20.0)
+        objs.append(("tall-box", v, t, WHITE, None))
     # The light: 0.5 x 0.4, the ceiling's centre cell, facing down.
     y = 2.0
     v, t = quad((-0.25, y, -0.2), (0.25, y, -0.2), (0.25, y, 0.2), (-0.25, y, 0.2))
     objs.append(("light", v, t, (0.0, 0.0, 0.0), LIGHT_LE))
-    return objs
+    return [o if len(o) == 6 else o + (None,) for o in objs]
 
 
 def fmt(x):
@@ -131,8 +185,10 @@ def fmt(x):
 
 
 def xml(width=256, height=256, supersample=16, seed=0, output="cornell-area.png",
-        integrator="path", extra=""):
-    """The AISXML scene; the render line is the one thing the callers vary."""
+        integrator="path", extra="", scene="boxes"):
+    """The AISXML scene; the render line is the one thing the callers vary
+    (and the variant: a textured scene names its texture by file name, to be
+    copied beside the XML: see `textures`)."""
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            "<!-- The Cornell box with an area light: diffuse walls, two diffuse boxes, a",
            "     0.5 x 0.4 light of radiance 15 12 8 set in the ceiling, no point",
@@ -142,12 +198,16 @@ def xml(width=256, height=256, supersample=16, seed=0, output="cornell-area.png"
            "     trevi-submit examples/cornell-area.xml -->",
            '<scene version="1">',
            '  <settings background="0 0 0" ambient="0 0 0"/>']
-    for oid, verts, tris, kd, le in objects():
+    for oid, verts, tris, kd, le, tex in objects(scene):
         out.append('  <mesh id="%s-mesh">' % oid)
         out.append("    <vertices>%s</vertices>" % "  ".join(" ".join(fmt(c) for c in p) for p in verts))
+        if tex is not None:
+            out.append("    <uvs>%s</uvs>" % "  ".join(" ".join(fmt(c) for c in p) for p in tex[0]))
         out.append("    <triangles>%s</triangles>" % "  ".join(" ".join(str(i) for i in tr) for tr in tris))
         out.append("  </mesh>")
         surf = 'diffuse="%s" specular="0 0 0"' % " ".join(fmt(c) for c in kd)
+        if tex is not None:
+            surf += ' diffuse-texture="%s"' % os.path.basename(tex[1])
         if le is not None:
             surf += ' emission="%s" sided="front"' % " ".join(fmt(c) for c in le)
         out.append('  <model id="%s" mesh="%s-mesh"><surface %s/></model>' % (oid, oid, surf))
@@ -163,9 +223,14 @@ def xml(width=256, height=256, supersample=16, seed=0, output="cornell-area.png"
     return "\n".join(out) + "\n"
 
 
+def textures(scene="boxes"):
+    """The texture files the scene's XML names, to copy beside it."""
+    return [tex[1] for *_, tex in objects(scene) if tex is not None]
+
+
 # ---------------------------------------------------------------- Mitsuba
 
-def mitsuba_scene(res=RES, spp=64, sampler="independent"):
+def mitsuba_scene(res=RES, spp=64, sampler="independent", scene_name="boxes"):
     import mitsuba as mi
     mi.set_variant("scalar_rgb")
     import tempfile
@@ -186,17 +251,29 @@ def mitsuba_scene(res=RES, spp=64, sampler="independent"):
             "sampler": {"type": sampler, "sample_count": spp},
         },
     }
-    for oid, verts, tris, kd, le in objects():
+    for oid, verts, tris, kd, le, tex in objects(scene_name):
         path = os.path.join(tmp, oid + ".obj")
         with open(path, "w") as f:
             for p in verts:
                 f.write("v %r %r %r\n" % p)
-            for tr in tris:
-                f.write("f %d %d %d\n" % tuple(i + 1 for i in tr))
+            if tex is None:
+                for tr in tris:
+                    f.write("f %d %d %d\n" % tuple(i + 1 for i in tr))
+            else:
+                for p in tex[0]:
+                    f.write("vt %r %r\n" % p)
+                for tr in tris:
+                    f.write("f %d/%d %d/%d %d/%d\n" % tuple(i + 1 for i in tr for _ in (0, 1)))
+        reflectance = {"type": "rgb", "value": list(kd)}
+        if tex is not None:
+            # Mitsuba's OBJ loader flips v (flip_tex_coords), its bitmap's
+            # row 0 being the top: the OBJ convention, as Trevi reads it.
+            # An 8-bit PNG is sRGB-decoded; bilinear; repeat.
+            reflectance = {"type": "bitmap", "filename": tex[1], "filter_type": "bilinear",
+                           "wrap_mode": "repeat"}
         shape = {"type": "obj", "filename": path, "face_normals": True,
                  "bsdf": {"type": "twosided",
-                          "bsdf": {"type": "diffuse",
-                                   "reflectance": {"type": "rgb", "value": list(kd)}}}}
+                          "bsdf": {"type": "diffuse", "reflectance": reflectance}}}
         if le is not None:
             shape["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": list(le)}}
         scene[oid] = shape

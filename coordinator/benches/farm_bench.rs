@@ -319,6 +319,7 @@ fn ingest(args: &[String]) {
                                 session: session.clone(),
                                 frame: None,
                                 render_micros: None,
+                                cpu_micros: None,
                             })),
                         },
                         pb::TileUpload {
@@ -439,6 +440,7 @@ fn farm(args: &[String]) {
             scene: String::new(),
             submitter: String::new(),
             samples: None,
+            aovs: trevi_core::Aovs::NONE,
         };
         let start = Instant::now();
         let job = if sink == "png" {
@@ -989,6 +991,7 @@ fn scale(args: &[String]) {
                                 // Like trevi-worker: the render's own time
                                 // (the modelled one), which sizes leases.
                                 render_micros: Some(render.as_micros() as u64),
+                                cpu_micros: None,
                             })),
                         }];
                         let mut seg_bytes = 0u64;

@@ -11,10 +11,19 @@
 //!   role's token is `PERMISSION_DENIED`.
 //! - Health and reflection are always open (probes and `grpcurl list`).
 //!
+//! - Named submit tokens (`auth/named.rs`, `--submit-tokens-file`) also grant the
+//!   submitter role, and name who submitted: the job records the name.
+//!
 //! Tokens are compared through their SHA-256 digests with a comparison that
 //! looks at every byte, so the time taken does not tell how much of a guess
 //! was right.
 
+mod named;
+
+pub use named::{
+    parse_named_tokens, read_named_tokens, NamedToken, MAX_NAMED_TOKENS, MAX_TOKENS_FILE_BYTES,
+    MAX_TOKEN_NAME_CHARS,
+};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -50,12 +59,30 @@ pub enum TokenError {
         /// Why reading it failed.
         source: std::io::Error,
     },
+    /// A line of the named tokens file is wrong (see `auth/named.rs`).
+    #[error("{at}: {what}")]
+    Named {
+        /// `FILE:LINE` (line 0: the file as a whole).
+        at: String,
+        /// What is wrong.
+        what: String,
+    },
+    /// A named token is also the plain submit token or the worker token.
+    #[error("the named token {name} is also the {role} token: tokens must differ")]
+    Shared {
+        /// The named token's name.
+        name: String,
+        /// `"submit"` or `"worker"`.
+        role: &'static str,
+    },
 }
 
 /// The configured tokens (digests only).
 #[derive(Clone, Default)]
 pub struct Tokens {
     submit: Option<[u8; 32]>,
+    /// Named submit tokens (see `auth/named.rs`).
+    named: Vec<(Arc<str>, [u8; 32])>,
     worker: Option<[u8; 32]>,
 }
 
@@ -84,14 +111,38 @@ impl Tokens {
         }
         Ok(Tokens {
             submit: submit.map(digest),
+            named: Vec::new(),
             worker: worker.map(digest),
         })
+    }
+
+    /// Adds named submit tokens (checked by [`parse_named_tokens`]); each
+    /// must differ from the plain submit token and the worker token.
+    pub fn with_named(mut self, named: &[NamedToken]) -> Result<Tokens, TokenError> {
+        for t in named {
+            let d = digest(&t.token);
+            for (role, other) in [("submit", &self.submit), ("worker", &self.worker)] {
+                if other.is_some_and(|o| same(&o, &d)) {
+                    return Err(TokenError::Shared {
+                        name: t.name.clone(),
+                        role,
+                    });
+                }
+            }
+            self.named.push((t.name.as_str().into(), d));
+        }
+        Ok(self)
+    }
+
+    /// Whether submitting needs no token.
+    fn submit_open(&self) -> bool {
+        self.submit.is_none() && self.named.is_empty()
     }
 
     /// Whether neither role has a token: anyone who can reach the farm may
     /// call anything.
     pub fn is_open(&self) -> bool {
-        self.submit.is_none() && self.worker.is_none()
+        self.submit_open() && self.worker.is_none()
     }
 
     /// What the presented token (if any) lets its bearer do.
@@ -102,22 +153,36 @@ impl Tokens {
             (Some(w), Some(d)) => same(w, d),
             (Some(_), None) => false,
         };
+        // Every named token is compared, whichever matches.
+        let mut name = None;
+        if let Some(d) = &d {
+            for (n, t) in &self.named {
+                if same(t, d) {
+                    name = Some(n.clone());
+                }
+            }
+        }
+        let submitter =
+            self.submit_open() || name.is_some() || (self.submit.is_some() && ok(&self.submit));
         Granted {
-            submitter: ok(&self.submit),
+            submitter,
             worker: ok(&self.worker),
             presented: presented.is_some(),
+            name,
         }
     }
 }
 
 /// The roles a request's token grants; put in the request's extensions.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Granted {
     /// The request may submit and manage jobs and upload bundles.
     pub submitter: bool,
     /// The request may act as a worker.
     pub worker: bool,
     presented: bool,
+    /// The named submit token presented (see `auth/named.rs`).
+    pub name: Option<Arc<str>>,
 }
 
 impl Granted {
@@ -126,6 +191,7 @@ impl Granted {
         submitter: true,
         worker: true,
         presented: false,
+        name: None,
     };
 
     fn refuse(&self, what: &str, needs: &str) -> Status {
@@ -155,7 +221,7 @@ impl Granted {
 pub fn granted<T>(req: &Request<T>) -> Granted {
     req.extensions()
         .get::<Granted>()
-        .copied()
+        .cloned()
         .unwrap_or(Granted::ALL)
 }
 
@@ -249,7 +315,7 @@ mod tests {
                 .insert("authorization", h.parse().unwrap());
         }
         a.call(req)
-            .map(|r| *r.extensions().get::<Granted>().unwrap())
+            .map(|r| r.extensions().get::<Granted>().unwrap().clone())
             .map_err(|s| s.code())
     }
 
@@ -290,5 +356,42 @@ mod tests {
         assert!(call(&w, Need::Submitter, None).is_ok());
         assert_eq!(call(&w, Need::Worker, None), Err(Code::Unauthenticated));
         assert!(Tokens::new(Some(" "), None).is_err());
+    }
+
+    #[test]
+    fn a_named_token_grants_the_submitter_role_and_names_its_bearer() {
+        let named = parse_named_tokens("alice tok-a\nbob tok-b").unwrap();
+        let t = Tokens::new(Some("plain"), Some("work"))
+            .unwrap()
+            .with_named(&named)
+            .unwrap();
+        let g = call(&t, Need::Submitter, Some("Bearer tok-b")).unwrap();
+        assert_eq!(g.name.as_deref(), Some("bob"));
+        let g = call(&t, Need::Submitter, Some("Bearer plain")).unwrap();
+        assert_eq!(g.name, None);
+        assert_eq!(
+            call(&t, Need::Submitter, Some("Bearer tok-c")),
+            Err(Code::Unauthenticated)
+        );
+        assert_eq!(
+            call(&t, Need::Worker, Some("Bearer tok-a")),
+            Err(Code::PermissionDenied)
+        );
+        // Named tokens alone close submitting to everyone else.
+        let only = Tokens::default().with_named(&named).unwrap();
+        assert!(!only.is_open());
+        assert_eq!(
+            call(&only, Need::Submitter, None),
+            Err(Code::Unauthenticated)
+        );
+        assert!(call(&only, Need::Worker, None).is_ok());
+        // A named token may not be another role's.
+        let shared = parse_named_tokens("carol work").unwrap();
+        let e = Tokens::new(None, Some("work"))
+            .unwrap()
+            .with_named(&shared)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("carol"), "{e}");
     }
 }

@@ -199,6 +199,7 @@ impl From<SchedError> for FarmError {
                 FarmError::NotYourLease(e.to_string())
             }
             SchedError::JobOver(j) => FarmError::JobOver(j),
+            e @ SchedError::NotBlocked { .. } => FarmError::Conflict(e.to_string()),
         }
     }
 }

@@ -16,13 +16,18 @@
 //! - `checks.rs`: what is refused before it is taken in; `results.rs`:
 //!   where a tile result is checked and taken; `segments.rs`: leases
 //!   uploaded as encoded PNG segments; `stitch.rs`: where a taken tile is
-//!   stored and stitched into its job's output (`outputs.rs`: that output).
+//!   stored and stitched into its job's output (`outputs.rs`: that output);
+//!   `aovs.rs`: the render passes a job carries with its tiles.
+//! - `tile_log.rs`: the per-tile log (leases rendered and failed);
+//!   `blocks.rs`: workers kept from a job, unblocked, restored.
 //! - `ending.rs`: where a job ends (done, failed or cancelled);
 //!   `control.rs`: jobs paused, resumed, and waiting for others;
 //!   `retry.rs`: a failed still queued again with its finished tiles;
+//!   `requeue.rs`: part of a job rendered again, its output rewritten in
+//!   place (`patch.rs`: a still's output patched with a rect's tiles);
 //!   `sequences.rs`: animations rendered as one job per frame;
 //!   `retention.rs`: how long ended jobs are kept; `restore.rs`: picking
-//!   up after a restart.
+//!   up after a restart; `usage.rs`: the usage history fed and read.
 //! - `status.rs`: what the farm reports (status, lists, outputs, figures);
 //!   `job_previews.rs`: the PNG previews of running and ended jobs;
 //!   `upkeep.rs`: the periodic lease reaper and bundle collector.
@@ -32,6 +37,8 @@
 //! encoding one job's rows never stalls leasing. The order is always
 //! output → state, never the reverse.
 
+mod aovs;
+mod blocks;
 mod checks;
 mod control;
 mod ending;
@@ -40,8 +47,10 @@ mod leasing;
 mod outputs;
 pub mod pass_states;
 mod passes;
+mod patch;
 pub mod progressive;
 mod registrations;
+mod requeue;
 mod restore;
 mod results;
 mod retention;
@@ -51,18 +60,23 @@ pub mod sequences;
 mod status;
 mod stitch;
 mod submit;
+mod tile_log;
 mod upkeep;
+mod usage;
 
-pub use checks::{output_name_as, validate_pixels};
+pub use aovs::{aovs_from, apply_aovs, MAX_AOVS_BYTES};
+pub use checks::{output_name_as, validate_aovs, validate_pixels};
 pub use control::{Hold, MAX_AFTER};
 pub use job_previews::PreviewImage;
 pub use leasing::{Registration, WorkerOptions};
 use outputs::Output;
 pub use progressive::Progressive;
+pub use requeue::check_rect;
 pub use results::{LeaseResult, TileOutcome};
 pub use retention::{BadDuration, BadRetention, Retention, MAX_KEEP_ENDED_FOR, MIN_KEEP_ENDED_FOR};
 pub use segments::{SegmentPlan, SegmentUpload};
 pub use submit::{MakeSink, SubmitOptions};
+pub use tile_log::RenderedLease;
 pub use upkeep::Upkeep;
 
 use crate::bundles::BundleStore;
@@ -142,6 +156,9 @@ struct State {
     registrations: registrations::Registrations,
     /// Jobs paused or waiting for others, by id (see `control`).
     holds: HashMap<JobId, Hold>,
+    /// Tiles taken from workers but not yet in the database, by job: a
+    /// status counts only what a restart would find (see [`State::info`]).
+    unstored: HashMap<JobId, u64>,
     /// Jobs ended whose waiters are still to be looked at, and whether
     /// someone is looking (see `control`).
     ended_deps: Vec<JobId>,
@@ -151,6 +168,26 @@ struct State {
 }
 
 impl State {
+    /// Counts `tiles` of `job` taken but not yet stored (only with a
+    /// database: without one nothing survives a restart anyway).
+    fn taking(&mut self, job: JobId, tiles: u64, durable: bool) {
+        if durable && tiles > 0 {
+            *self.unstored.entry(job).or_default() += tiles;
+        }
+    }
+
+    /// `tiles` of `job` counted by [`State::taking`] are stored (or the job
+    /// ended): its status counts them again.
+    fn stored(&mut self, job: JobId, tiles: u64) {
+        if let Some(n) = self.unstored.get_mut(&job) {
+            *n = n.saturating_sub(tiles);
+            if *n == 0 {
+                self.unstored.remove(&job);
+            }
+            self.publish(job);
+        }
+    }
+
     fn publish(&self, job: JobId) {
         if let (Some(tx), Some(info)) = (self.watchers.get(&job), self.info(job, Instant::now())) {
             tx.send_replace(info);
@@ -166,6 +203,9 @@ impl State {
             Some(seq) => seq.info(job, &self.sched, now),
             None => self.sched.info(job, now)?,
         };
+        if let Some(&n) = self.unstored.get(&job).filter(|_| !info.state.is_final()) {
+            info.tiles_done = info.tiles_done.saturating_sub(n);
+        }
         self.show_hold(job, &mut info);
         Some(info)
     }
@@ -184,6 +224,9 @@ pub struct Farm {
     metrics: Arc<Metrics>,
     /// Job events, to webhooks and the monitor (see [`crate::events`]).
     events: Events,
+    /// The usage history gathered, and kept when there is no store (see
+    /// [`crate::usage`]).
+    usage: crate::usage::Usage,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -220,6 +263,7 @@ impl Farm {
                 ended: retention::Ended::default(),
                 registrations: registrations::Registrations::default(),
                 holds: HashMap::new(),
+                unstored: HashMap::new(),
                 ended_deps: Vec::new(),
                 draining: false,
                 restoring: false,
@@ -230,9 +274,11 @@ impl Farm {
             store,
             metrics: Arc::default(),
             events: Events::default(),
+            usage: usage::history(cfg.durable)?,
             cfg,
         };
         farm.restore()?;
+        farm.restore_blocks()?;
         // The unfinished jobs found there have events again.
         farm.state
             .lock()

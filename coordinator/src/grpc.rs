@@ -2,16 +2,18 @@
 //! per service holding it behind an `Arc`. Server streams are a task feeding
 //! a channel wrapped in `ReceiverStream`.
 //!
-//! One file for each service in `grpc/`: `bundles.rs`, `jobs.rs` and
-//! `workers.rs`; here what they share (running work off the async threads,
+//! One file for each service in `grpc/`: `bundles.rs`, `jobs.rs` (with
+//! `log.rs`: blocklists and the tile log) and `workers.rs`; here what they share (running work off the async threads,
 //! streaming a file) and [`serve`], which serves them.
 
 mod bundles;
 mod jobs;
+mod log;
 mod workers;
 
 pub use bundles::{BundlesService, NOT_SERVED};
 pub use jobs::{job_status, JobsService};
+pub use log::{check_unblock_worker, MAX_UNBLOCK_WORKER_CHARS};
 pub use workers::WorkersService;
 
 use crate::auth::{Auth, Need, Tokens};

@@ -10,9 +10,14 @@
 //! - `GET /api/jobs/{id}/preview.png`: the job's live preview
 //!   ([`crate::preview`]).
 //! - `POST /api/jobs/{id}/cancel`, `POST /api/jobs/{id}/priority` (body
-//!   `{"priority": N}`), `POST /api/jobs/{id}/pause` and `.../resume`.
+//!   `{"priority": N}`), `POST /api/jobs/{id}/pause` and `.../resume`;
+//!   `POST /api/jobs/{id}/requeue` and `.../retry` (`http/control.rs`).
+//! - `GET /api/jobs/{id}/log` and `POST /api/jobs/{id}/unblock`: the tile
+//!   log and the blocklists (`http/log.rs`).
 //! - `GET /events`: the job events ([`crate::events`]) as server-sent
 //!   events, which the page listens to before falling back to polling.
+//! - `GET /usage` and `GET /api/usage?since=7d&by=worker`: the usage
+//!   history's page and its JSON (`http/usage.rs`).
 //! - `GET /metrics` (Prometheus text, [`crate::metrics`]) and `GET /healthz`.
 //!
 //! State-changing requests (the `POST`s) must come from the monitor's own
@@ -58,6 +63,12 @@ use tokio::task::JoinSet;
 use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::{Stream, StreamExt};
 
+mod control;
+mod log;
+mod usage;
+
+pub use usage::MAX_QUERY_LEN as MAX_USAGE_QUERY_LEN;
+
 const MONITOR_HTML: &str = include_str!("../assets/monitor.html");
 
 #[derive(Clone)]
@@ -96,6 +107,23 @@ fn http_code(code: tonic::Code) -> StatusCode {
 }
 
 impl App {
+    /// A submitter's action on a job (`what` names it for a refusal): the
+    /// token checked, `act` run off the async threads (it may wait for the
+    /// farm's lock or the database), its result as the monitor's job card.
+    pub(super) async fn job_action(
+        &self,
+        headers: &HeaderMap,
+        what: &str,
+        act: impl FnOnce(&Farm) -> Result<JobInfo, FarmError> + Send + 'static,
+    ) -> Result<Json<JobView>, ApiError> {
+        self.need_submitter(headers, what)?;
+        let farm = self.farm.clone();
+        let info = tokio::task::spawn_blocking(move || act(&farm))
+            .await
+            .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+        Ok(Json(JobView::from(&info)))
+    }
+
     /// Checks the request's bearer token for the submitter role.
     fn need_submitter(&self, headers: &HeaderMap, what: &str) -> Result<(), ApiError> {
         let presented = headers
@@ -184,6 +212,12 @@ pub fn router(farm: Arc<Farm>, tokens: Tokens) -> Router {
         .route("/api/jobs/{id}/priority", post(api_priority))
         .route("/api/jobs/{id}/pause", post(api_pause))
         .route("/api/jobs/{id}/resume", post(api_resume))
+        .route("/api/jobs/{id}/requeue", post(control::api_requeue))
+        .route("/api/jobs/{id}/retry", post(control::api_retry))
+        .route("/api/jobs/{id}/log", get(log::api_log))
+        .route("/api/jobs/{id}/unblock", post(log::api_unblock))
+        .route("/usage", get(usage::page))
+        .route("/api/usage", get(usage::api))
         .with_state(App {
             farm,
             tokens: Arc::new(tokens),
@@ -373,6 +407,8 @@ struct JobView {
     /// (`--after`); see farm/control.rs.
     paused: bool,
     waiting_for: Vec<u64>,
+    /// The workers kept from it (see http/log.rs).
+    blocked: Vec<log::BlockedView>,
 }
 
 #[derive(Serialize)]
@@ -446,6 +482,7 @@ impl From<&JobInfo> for JobView {
             }),
             paused: j.paused,
             waiting_for: j.waiting_for.clone(),
+            blocked: j.blocked.iter().map(Into::into).collect(),
         }
     }
 }
@@ -601,12 +638,8 @@ async fn api_cancel(
     headers: HeaderMap,
     Path(id): Path<u64>,
 ) -> Result<Json<JobView>, ApiError> {
-    app.need_submitter(&headers, "cancelling a job")?;
-    let farm = app.farm.clone();
-    let info = tokio::task::spawn_blocking(move || farm.cancel(id))
+    app.job_action(&headers, "cancelling a job", move |farm| farm.cancel(id))
         .await
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
-    Ok(Json(JobView::from(&info)))
 }
 
 #[derive(Deserialize)]
@@ -621,12 +654,10 @@ async fn api_priority(
     Path(id): Path<u64>,
     Json(body): Json<PriorityBody>,
 ) -> Result<Json<JobView>, ApiError> {
-    app.need_submitter(&headers, "changing a job's priority")?;
-    let farm = app.farm.clone();
-    let info = tokio::task::spawn_blocking(move || farm.set_priority(id, body.priority))
-        .await
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
-    Ok(Json(JobView::from(&info)))
+    app.job_action(&headers, "changing a job's priority", move |farm| {
+        farm.set_priority(id, body.priority)
+    })
+    .await
 }
 
 /// `POST /api/jobs/{id}/pause`: as `trevi-submit pause ID` (the tiles out
@@ -637,12 +668,8 @@ async fn api_pause(
     headers: HeaderMap,
     Path(id): Path<u64>,
 ) -> Result<Json<JobView>, ApiError> {
-    app.need_submitter(&headers, "pausing a job")?;
-    let farm = app.farm.clone();
-    let info = tokio::task::spawn_blocking(move || farm.pause(id, false))
+    app.job_action(&headers, "pausing a job", move |farm| farm.pause(id, false))
         .await
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
-    Ok(Json(JobView::from(&info)))
 }
 
 /// `POST /api/jobs/{id}/resume`: as `trevi-submit resume ID`.
@@ -652,12 +679,8 @@ async fn api_resume(
     headers: HeaderMap,
     Path(id): Path<u64>,
 ) -> Result<Json<JobView>, ApiError> {
-    app.need_submitter(&headers, "resuming a job")?;
-    let farm = app.farm.clone();
-    let info = tokio::task::spawn_blocking(move || farm.resume(id))
+    app.job_action(&headers, "resuming a job", move |farm| farm.resume(id))
         .await
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
-    Ok(Json(JobView::from(&info)))
 }
 
 #[cfg(test)]

@@ -16,6 +16,8 @@
 //!   small live preview, [`workers`] what is known of each worker.
 //! - [`events`]: job events (submitted, started, done, ...) POSTed to
 //!   webhooks, signed, and streamed to the monitor.
+//! - [`usage`]: the usage history (CPU time, tiles, rays and wall time per
+//!   job, submitter and worker, hour by hour), kept beyond the jobs.
 //! - [`summaries`]: the cameras of each stored bundle's scene, parsed once.
 //! - [`listen`]: accepting connections through errors (out of file
 //!   descriptors) and raising the open-files limit at start-up.
@@ -50,6 +52,7 @@ pub mod store;
 pub mod summaries;
 pub mod timed_lock;
 pub mod tls;
+pub mod usage;
 pub mod workers;
 
 pub use error::FarmError;

@@ -20,7 +20,8 @@ pub struct Limits {
     pub max_message_bytes: usize,
     /// width × height × samples per pixel (supersample²) of a job's frame.
     pub max_image_samples: u64,
-    /// Unfinished jobs one submitter (one client address) may have queued.
+    /// Unfinished jobs one submitter (one named token, else one client
+    /// address) may have queued.
     pub max_jobs_per_submitter: usize,
     /// Bundle uploads in progress at once; one more is refused.
     pub max_uploads: usize,
@@ -94,6 +95,12 @@ pub struct Limits {
     pub max_return_error_chars: usize,
     /// Final previews kept for jobs that have ended (the newest ones).
     pub kept_previews: usize,
+    /// Most entries of a job's tile log (`crate::store::tile_log`); past
+    /// it the oldest are dropped and counted.
+    pub tile_log_entries: u32,
+    /// Most bytes of error text in a job's tile log; past it the oldest
+    /// errors are dropped and counted.
+    pub tile_log_error_bytes: u64,
 
     /// How much of a worker's time one lease aims at, for workers that take
     /// leases of several tiles (see [`crate::scheduler::lease_size`]).
@@ -128,6 +135,15 @@ pub struct Limits {
     /// of 64, see `crate::farm::progressive`); a larger frame is refused at
     /// submission. 16 GiB by default: an 11585-pixel square frame.
     pub max_job_state_bytes: u64,
+
+    /// How long the usage history keeps an hour's rows (`--usage-retention`;
+    /// between [`crate::usage::MIN_USAGE_RETENTION`] and
+    /// [`crate::usage::MAX_USAGE_RETENTION`]), whatever became of the jobs.
+    pub usage_retention: Duration,
+    /// Rows the usage history keeps at most (`--max-usage-rows`, one a
+    /// job, submitter and worker per hour): past it the oldest hour's rows
+    /// go first. At least 1, at most [`crate::usage::MAX_USAGE_ROWS`].
+    pub max_usage_rows: u64,
 }
 
 /// [`Limits::max_state_lease_pixels`] by default: 2¹⁸ pixels, 16 MiB of
@@ -230,6 +246,8 @@ impl Default for Limits {
             list_page_bytes: 1 << 20,
             max_return_error_chars: 500,
             kept_previews: 32,
+            tile_log_entries: 10_000,
+            tile_log_error_bytes: 512 << 10,
 
             lease_target: Duration::from_secs(1),
             // 12 MiB of pixels: a 4096-pixel-wide band of 64-pixel tiles
@@ -242,6 +260,8 @@ impl Default for Limits {
             frames_in_progress: DEFAULT_FRAMES_IN_PROGRESS,
             max_state_lease_pixels: DEFAULT_MAX_STATE_LEASE_PIXELS,
             max_job_state_bytes: 16 << 30,
+            usage_retention: crate::usage::DEFAULT_USAGE_RETENTION,
+            max_usage_rows: crate::usage::DEFAULT_MAX_USAGE_ROWS,
         }
     }
 }

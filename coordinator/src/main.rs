@@ -6,7 +6,7 @@ use clap::Parser;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
-use trevi_coordinator::auth::{token_from, Tokens};
+use trevi_coordinator::auth::{read_named_tokens, token_from, Tokens};
 use trevi_coordinator::events::EventsConfig;
 use trevi_coordinator::farm::Retention;
 use trevi_coordinator::grpc::ServeOptions;
@@ -69,6 +69,18 @@ struct Args {
     #[arg(long, env = "TREVI_MAX_WORKER_FAILURES", value_parser = at_least::<u32>(1),
           default_value_t = defaults().limits.max_worker_failures)]
     max_worker_failures: u32,
+    /// Most entries of a job's tile log (`trevi-submit log`; 1 to
+    /// 20000); past it the oldest are dropped and counted.
+    #[arg(long, env = "TREVI_TILE_LOG_ENTRIES",
+          value_parser = clap::builder::RangedU64ValueParser::<u32>::new().range(1..=20_000),
+          default_value_t = defaults().limits.tile_log_entries)]
+    tile_log_entries: u32,
+    /// Most KiB of error text in a job's tile log (1 to 1024); past it
+    /// the oldest errors are dropped and counted.
+    #[arg(long, env = "TREVI_TILE_LOG_ERROR_KIB",
+          value_parser = clap::builder::RangedU64ValueParser::<u64>::new().range(1..=1024),
+          default_value_t = defaults().limits.tile_log_error_bytes >> 10)]
+    tile_log_error_kib: u64,
     /// A tile whose lease runs out this many times (the worker holding it
     /// crashed, hung or was cut off) fails its job, naming the tile.
     #[arg(long, env = "TREVI_MAX_TILE_LOSSES", value_parser = at_least::<u32>(1),
@@ -102,6 +114,12 @@ struct Args {
     /// Read the submit token from this file.
     #[arg(long, env = "TREVI_SUBMIT_TOKEN_FILE")]
     submit_token_file: Option<PathBuf>,
+    /// Named submit tokens, one `NAME TOKEN` a line: a job records the name
+    /// of the token it was submitted with as its submitter (status, the
+    /// per-submitter limit, `trevi-submit usage --by submitter`). At most
+    /// 1024 tokens in 64 KiB (docs/farm.md, "Tokens and TLS").
+    #[arg(long, env = "TREVI_SUBMIT_TOKENS_FILE")]
+    submit_tokens_file: Option<PathBuf>,
     /// Token workers must present (`trevi-worker --token`); without it
     /// anyone who reaches the coordinator may take tiles.
     #[arg(long, env = "TREVI_WORKER_TOKEN", hide_env_values = true)]
@@ -127,7 +145,7 @@ struct Args {
     #[arg(long, env = "TREVI_MAX_IMAGE_SAMPLES", value_parser = at_least::<u64>(1),
           default_value_t = defaults().limits.max_image_samples)]
     max_image_samples: u64,
-    /// Most unfinished jobs per submitter (per client address).
+    /// Most unfinished jobs per submitter (per named token, else per client address).
     #[arg(long, env = "TREVI_MAX_JOBS_PER_SUBMITTER", value_parser = at_least::<usize>(1),
           default_value_t = defaults().limits.max_jobs_per_submitter)]
     max_jobs_per_submitter: usize,
@@ -142,6 +160,20 @@ struct Args {
     #[arg(long, env = "TREVI_KEEP_ENDED_FOR",
         default_value_t = Retention::format_duration(defaults().retention.keep_ended_for))]
     keep_ended_for: String,
+    /// Keep the usage history (CPU time, tiles, rays and wall time per job,
+    /// submitter and worker, hour by hour; `trevi-submit usage`) this long,
+    /// whatever became of the jobs: from 1h to 3650d.
+    #[arg(long, env = "TREVI_USAGE_RETENTION",
+        default_value_t = trevi_proto::duration::format(defaults().limits.usage_retention))]
+    usage_retention: String,
+    /// Most rows of the usage history (one an hour for each job, submitter
+    /// and worker; as many for the jobs' wall times); past it the oldest
+    /// hour's rows are deleted first.
+    #[arg(long, env = "TREVI_MAX_USAGE_ROWS",
+          value_parser = clap::builder::RangedU64ValueParser::<u64>::new()
+              .range(1..=trevi_coordinator::usage::MAX_USAGE_ROWS),
+          default_value_t = defaults().limits.max_usage_rows)]
+    max_usage_rows: u64,
     /// Most workers registered at once; one more registration is refused
     /// until a silent one is forgotten.
     #[arg(long, env = "TREVI_MAX_WORKERS", value_parser = at_least::<usize>(1),
@@ -235,11 +267,15 @@ impl Args {
                 max_tile_failures: self.max_tile_failures,
                 max_worker_failures: self.max_worker_failures,
                 max_tile_losses: self.max_tile_losses,
+                tile_log_entries: self.tile_log_entries,
+                tile_log_error_bytes: self.tile_log_error_kib.saturating_mul(1 << 10),
                 memory_grace: Duration::from_millis(self.memory_grace_ms),
                 frames_in_progress: self.frames_in_progress,
                 lease_target: Duration::from_millis(self.lease_target_ms),
                 http_header_timeout: Duration::from_millis(self.http_header_timeout_ms),
                 http_max_connections: self.http_max_connections,
+                usage_retention: trevi_coordinator::usage::parse_retention(&self.usage_retention)?,
+                max_usage_rows: self.max_usage_rows,
                 ..d.limits
             },
             retention: Retention {
@@ -282,7 +318,12 @@ async fn main() -> Result<()> {
     if submit_token.is_some() && submit_token == worker_token {
         anyhow::bail!("the submit and worker tokens must differ");
     }
-    let tokens = Tokens::new(submit_token.as_deref(), worker_token.as_deref())?;
+    let mut tokens = Tokens::new(submit_token.as_deref(), worker_token.as_deref())?;
+    if let Some(file) = &args.submit_tokens_file {
+        let named = read_named_tokens(file).context("--submit-tokens-file")?;
+        tracing::info!(tokens = named.len(), file = %file.display(), "named submit tokens");
+        tokens = tokens.with_named(&named)?;
+    }
     if tokens.is_open() {
         tracing::warn!("no tokens: anyone who can reach this coordinator may submit and take work");
     }
@@ -349,9 +390,12 @@ async fn main() -> Result<()> {
         trevi_proto::signal::shutdown().await;
         let _ = stop_tx.send(true);
     };
+    let flush = farm.clone();
     trevi_coordinator::grpc::serve_with(farm, listener, shutdown, opts)
         .await
         .context("the gRPC server failed")?;
+    // What the usage history gathered since its last write.
+    tokio::task::spawn_blocking(move || flush.flush_usage()).await?;
     if let Some(h) = http {
         h.await
             .context("the HTTP server task failed")?
@@ -403,6 +447,7 @@ mod tests {
             "--http-header-timeout-ms",
             "--http-max-connections",
             "--frames-in-progress",
+            "--max-usage-rows",
         ] {
             let e = parse(&[flag, "0"]).unwrap_err();
             assert_eq!(e.kind(), clap::error::ErrorKind::ValueValidation, "{flag}");
@@ -430,6 +475,9 @@ mod tests {
             ("--keep-ended-for", "1s", "shorter than the shortest"),
             ("--keep-ended-for", "0d", "shorter than the shortest"),
             ("--keep-ended-for", "365000d", "longer than the longest"),
+            ("--usage-retention", "30m", "from 1h to 3650d"),
+            ("--usage-retention", "3651d", "from 1h to 3650d"),
+            ("--usage-retention", "forever", "from 1h to 3650d"),
         ] {
             let e = parse(&[flag, value]).unwrap().farm_config().unwrap_err();
             let msg = e.to_string();

@@ -36,7 +36,8 @@
 //! - `scheduler/parking.rs`: where a job is taken out of the queue (paused,
 //!   or waiting for other jobs) and put back;
 //! - `scheduler/expiry.rs`: where an expired lease is re-queued, and the
-//!   failure rules;
+//!   failure rules; `scheduler/blocks.rs`: the workers kept from a job, and
+//!   unblocking one;
 //! - `scheduler/results.rs`: where a tile result is accepted
 //!   (`scheduler/whole_span.rs` for a span taken whole);
 //! - `scheduler/report.rs`: where job status is reported (job info, lists,
@@ -48,6 +49,7 @@
 //!
 //! This file holds the [`Scheduler`] itself and the workers' registration.
 
+mod blocks;
 mod expiry;
 mod failure;
 mod job;
@@ -64,6 +66,7 @@ mod whole_span;
 mod window;
 
 pub use crate::workers::WorkerId;
+pub use blocks::{describe as describe_blocked, Blocked, TileFault, MAX_PENDING_FAULTS};
 pub use failure::{JobFailure, Outcome};
 pub use results::ray_shares;
 pub use types::{
@@ -104,6 +107,7 @@ pub(crate) fn test_spec(width: u32, height: u32, tile: u32, output: &str) -> Job
         scene: "scene.xml".into(),
         submitter: String::new(),
         samples: None,
+        aovs: trevi_core::Aovs::NONE,
     }
 }
 
@@ -143,6 +147,8 @@ pub struct Scheduler {
     finished: u64,
     /// Jobs failed by their tiles' failures, for the caller to wind up.
     failed: Vec<(JobId, JobFailure)>,
+    /// Leases that failed, for the farm's tile log (see [`blocks`]).
+    faults: Vec<TileFault>,
     sizer: LeaseSizer,
     /// Which workers can hold which jobs (see [`memory`]).
     memory: MemoryGate,
@@ -167,6 +173,7 @@ impl Scheduler {
             next_lease: worker_id_base.max(1),
             finished: 0,
             failed: Vec::new(),
+            faults: Vec::new(),
             sizer: LeaseSizer::default(),
             memory: MemoryGate::default(),
         }

@@ -52,20 +52,29 @@
 //! tables and the columns later versions added), `integrity.rs` (the files
 //! refused before SQLite opens them), `jobs.rs` (the jobs' rows),
 //! `tiles.rs` (the tile files and their rows), `spans.rs` (spans of
-//! encoded segments, and replaying what is stored) and `holds.rs` (jobs
-//! paused or waiting for others).
+//! encoded segments, and replaying what is stored), `holds.rs` (jobs
+//! paused or waiting for others), `tile_log.rs` (the per-tile log, bounded
+//! per job), `blocks.rs` (the workers kept from unfinished jobs) and
+//! `usage.rs` (the usage history, kept beyond the jobs' retention under its
+//! own; see [`crate::usage`]).
 
+mod blocks;
 mod holds;
 mod integrity;
 mod jobs;
 mod schema;
 mod spans;
+mod tile_log;
 mod tiles;
+mod usage;
 
+pub use blocks::StoredBlock;
 pub use holds::StoredHold;
 pub use integrity::check_files;
 pub use jobs::{SeqLink, StoredJob, StoredPasses};
 pub use spans::Replayed;
+pub use tile_log::{JobLog, LogBounds, LogEntry, LogFilter, MAX_LOG_QUERY_CHARS, MAX_REPLY_BYTES};
+pub use usage::{add_usage, query_usage, usage_tables};
 
 use crate::error::FarmError;
 use crate::scheduler::JobId;

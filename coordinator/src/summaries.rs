@@ -39,6 +39,9 @@ pub struct CameraSummary {
     pub samples_per_pixel: u32,
     /// Bundle-relative output path.
     pub output: String,
+    /// The camera's render passes (`<render aovs>`): a job's unless its
+    /// submission says otherwise.
+    pub aovs: trevi_core::Aovs,
 }
 
 /// The cameras of a scene, in document order.
@@ -82,6 +85,7 @@ impl SceneSummary {
                     supersample: c.render.supersample,
                     samples_per_pixel: trevi_core::integrator::samples_per_pixel(&c.render),
                     output: c.render.output.clone(),
+                    aovs: c.render.aovs,
                 })
                 .collect(),
             memory,
@@ -221,6 +225,7 @@ mod tests {
                 supersample: 1,
                 samples_per_pixel: 1,
                 output: "c.png".into(),
+                aovs: trevi_core::Aovs::NONE,
             }],
             memory: 0,
         })

@@ -258,6 +258,11 @@ impl Workers {
         }
     }
 
+    /// The name `worker` registered with (`None`: no such worker).
+    pub fn name_of(&self, worker: WorkerId) -> Option<&str> {
+        self.entries.get(&worker).map(|w| w.name.as_str())
+    }
+
     /// Records why `worker` takes no tiles for now (`None`: it works).
     pub fn set_paused(&mut self, worker: WorkerId, why: Option<&str>) {
         if let Some(w) = self.entries.get_mut(&worker) {

@@ -61,7 +61,13 @@ fn submit_after(f: &Farm, name: &str, after: &[u64]) -> Result<JobInfo, FarmErro
         priority: 5,
         ..spec(name)
     };
-    f.submit_after(after, || f.submit(first, SubmitOptions::default()))
+    f.submit(
+        first,
+        SubmitOptions {
+            after: after.to_vec(),
+            ..SubmitOptions::default()
+        },
+    )
 }
 
 fn put(f: &Farm, l: &Lease) -> TileOutcome {

@@ -57,6 +57,7 @@ fn spec(name: &str) -> JobSpec {
         scene: String::new(),
         submitter: String::new(),
         samples: None,
+        aovs: trevi_core::Aovs::NONE,
     }
 }
 
@@ -224,6 +225,71 @@ fn an_extended_job_is_the_one_shot_render_of_its_new_total() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("finished") || e.contains("--samples"), "{e}");
+}
+
+/// A finished progressive job can be extended as long as the farm keeps
+/// it, so its bundle must outlive its pass jobs: here every pass job of the
+/// first job is forgotten (`--keep-ended 1` counts pass jobs apart, and a
+/// second job's pass ends after them) and the bundle is past its grace, yet
+/// the collector keeps it and the extension runs.
+#[test]
+fn a_finished_extendable_job_keeps_its_bundle_after_its_pass_jobs_are_forgotten() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = FarmConfig::new(dir.path());
+    cfg.retention.keep_ended = 1;
+    cfg.retention.bundle_grace = Duration::ZERO;
+    let f = Farm::new(cfg).unwrap();
+    let bundle = Bundle {
+        scene: "s.xml".into(),
+        files: [("s.xml".to_string(), SCENE.as_bytes().to_vec())].into(),
+    };
+    let mut up = f.bundles().begin_upload().unwrap();
+    up.write(&bundle.encode()).unwrap();
+    let hash = f.bundles().finish_upload(up, usize::MAX).unwrap();
+    let stored = dir.path().join("bundles").join(&hash);
+    let long_ago = std::time::SystemTime::now() - Duration::from_secs(3600);
+    let age = |p: &Path| {
+        std::fs::File::options()
+            .write(true)
+            .open(p)
+            .unwrap()
+            .set_modified(long_ago)
+            .unwrap()
+    };
+
+    let job = f
+        .submit_progressive(
+            JobSpec {
+                bundle_hash: hash.clone(),
+                ..spec("p.exr")
+            },
+            progressive(4, 2),
+            "me",
+        )
+        .unwrap()
+        .id;
+    work(&f, |_| false);
+    let other = f
+        .submit_progressive(spec("q.exr"), progressive(2, 2), "me")
+        .unwrap()
+        .id;
+    work(&f, |_| false);
+    assert_eq!(f.info(other).unwrap().state, JobState::Done);
+    assert!(
+        f.list().iter().all(|j| j.spec.bundle_hash != hash),
+        "the first job's pass jobs are forgotten"
+    );
+
+    age(&stored);
+    f.collect_bundles();
+    assert!(stored.exists(), "the extendable job's bundle was collected");
+    assert!(f.bundles().get(&hash).is_ok());
+    f.extend(job, 4, Progressive::default()).unwrap();
+    work(&f, |_| false);
+    assert_eq!(
+        std::fs::read(f.output_file(job).unwrap()).unwrap(),
+        one_shot(8)
+    );
 }
 
 #[test]

@@ -489,6 +489,7 @@ mod grpc {
                 session: reg.session.clone(),
                 frame: None,
                 render_micros: Some(1000),
+                cpu_micros: None,
             })),
         };
         let msgs: Vec<pb::TileUpload> = std::iter::once(header).chain(parts).collect();

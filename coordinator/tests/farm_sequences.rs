@@ -26,6 +26,7 @@ fn spec() -> JobSpec {
         scene: String::new(),
         submitter: String::new(),
         samples: None,
+        aovs: trevi_core::Aovs::NONE,
     }
 }
 

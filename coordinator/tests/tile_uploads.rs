@@ -72,6 +72,7 @@ fn header(reg: &pb::RegisterResponse, lease: &pb::Lease) -> pb::TileUpload {
             session: reg.session.clone(),
             frame: None,
             render_micros: Some(1000),
+            cpu_micros: None,
         })),
     }
 }

@@ -1,5 +1,5 @@
 //! Bounding volume hierarchy: a binned-SAH tree over primitive boxes,
-//! collapsed into a 4-wide tree.
+//! collapsed into an 8-wide tree.
 //!
 //! One builder serves both levels of the acceleration structure: the bottom
 //! level (triangles of one mesh, in object space) and the top level (model
@@ -10,13 +10,13 @@
 //! leaf, copied, and tests them four at a time.
 //!
 //! `build.rs` makes a binary tree by binned SAH, `wide.rs` collapses it into
-//! nodes of up to four children (the largest child opened first, as
-//! Embree's BVH4 does), `traverse.rs` walks that, nearest child first, and
-//! `simd.rs` (the only `unsafe` code) tests a node's four boxes, or a leaf's
-//! four triangles, at once.
+//! nodes of up to `WIDTH` (eight) children (the largest child opened
+//! first, as Embree's BVH8 builder does), `traverse.rs` walks that, nearest
+//! child first, and `simd.rs` (the only `unsafe` code) tests a node's eight
+//! boxes (one AVX pass or two SSE ones), or a leaf's four triangles, at once.
 //!
-//! Layout: a `Node` holds its four children's boxes plane by plane (one
-//! SSE register per plane: 96 bytes) and their references, 128 bytes, two
+//! Layout: a `Node` holds its eight children's boxes plane by plane (one
+//! AVX register per plane: 192 bytes) and their references, 256 bytes, four
 //! cache lines. The binary tree is dropped once collapsed.
 //!
 //! Visit order is not part of the image: the closest-hit query answers by a
@@ -67,27 +67,31 @@ impl Ref {
     };
 }
 
-/// A wide node: up to four children. `b[2·axis]` holds the four children's
+/// Children per wide node: the lanes of the node test (one AVX register,
+/// or two SSE ones, per plane).
+pub(crate) const WIDTH: usize = 8;
+
+/// A wide node: up to [`WIDTH`] children. `b[2·axis]` holds the children's
 /// minima on that axis, `b[2·axis + 1]` their maxima; empty slots have
 /// [`Aabb::EMPTY`]'s planes and [`Ref::NONE`].
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(64))]
 struct Node {
-    b: [[f32; 4]; 6],
-    child: [Ref; 4],
+    b: [[f32; WIDTH]; 6],
+    child: [Ref; WIDTH],
 }
 
 impl Node {
     const EMPTY: Node = Node {
         b: [
-            [f32::INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
-            [f32::INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
-            [f32::INFINITY; 4],
-            [f32::NEG_INFINITY; 4],
+            [f32::INFINITY; WIDTH],
+            [f32::NEG_INFINITY; WIDTH],
+            [f32::INFINITY; WIDTH],
+            [f32::NEG_INFINITY; WIDTH],
+            [f32::INFINITY; WIDTH],
+            [f32::NEG_INFINITY; WIDTH],
         ],
-        child: [Ref::NONE; 4],
+        child: [Ref::NONE; WIDTH],
     };
 
     fn set(&mut self, i: usize, b: Aabb, r: Ref) {
@@ -215,7 +219,7 @@ impl Bvh {
                 ));
             } else if self.len > 0 {
                 let n = &self.nodes[r.first as usize];
-                for i in (0..4).rev() {
+                for i in (0..WIDTH).rev() {
                     if n.child[i] == Ref::NONE {
                         continue;
                     }

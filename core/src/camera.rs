@@ -145,6 +145,7 @@ mod tests {
                 integrator: IntegratorKind::Whitted,
                 max_bounces: DEFAULT_MAX_BOUNCES,
                 aovs: crate::aov::Aovs::NONE,
+                denoise: false,
                 frames: None,
                 fps: 24.0,
             },

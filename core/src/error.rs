@@ -222,4 +222,16 @@ pub enum OutputError {
         /// How many values the tile had.
         values: usize,
     },
+    /// A denoised frame's tile without its noisy beauty (or with a pixel
+    /// count not the tile's), or a noisy beauty for a frame that keeps
+    /// none (see `FrameWriter::create_denoised`). Nothing was written.
+    #[error("tile {x},{y}: {what}")]
+    NoisyMismatch {
+        /// The tile's first column.
+        x: u32,
+        /// The tile's first row.
+        y: u32,
+        /// What is wrong.
+        what: &'static str,
+    },
 }

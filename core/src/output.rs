@@ -73,7 +73,9 @@
 mod aov_tests;
 mod deflate;
 mod exr;
+mod format;
 mod layout;
+mod patch;
 mod pending;
 mod png;
 mod srgb;
@@ -82,6 +84,8 @@ mod tests;
 
 pub use self::deflate::{adler32, adler32_combine, FINAL_EMPTY_BLOCK, SYNC_FLUSH};
 pub use self::exr::{read_exr_channels, read_exr_rgb};
+pub use self::format::{check_output, check_target, Format};
+pub use self::patch::PngRows;
 pub use self::png::{
     check_segment, decode_png, encode_segment, encode_segment_srgb, max_segment_deflate_len,
     png_from_segments, read_png_rgb8, segment_count, segment_filtered_len, segment_rows,
@@ -92,6 +96,7 @@ pub use self::srgb::{linear_to_srgb8, Srgb8};
 pub use crate::aov::aov_path;
 
 use self::exr::{ExrSink, BLOCK_ROWS};
+pub use self::layout::NOISY_CHANNELS;
 use self::layout::{signed_unit8, Layout};
 use self::pending::PendingRows;
 use self::png::PngSink;
@@ -103,120 +108,6 @@ use std::ffi::OsString;
 use std::fs::{self, File, OpenOptions};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-
-/// The output file formats.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Format {
-    /// 8-bit sRGB RGB PNG.
-    Png,
-    /// 32-bit float linear RGB OpenEXR.
-    Exr,
-}
-
-impl Format {
-    /// The format chosen by `path`'s extension (case-insensitive), if any.
-    pub fn from_path(path: &Path) -> Option<Format> {
-        Format::from_extension(path.extension()?.to_str()?)
-    }
-
-    /// The format named by `ext` (`png` or `exr`, any case), if any.
-    pub fn from_extension(ext: &str) -> Option<Format> {
-        if ext.eq_ignore_ascii_case("png") {
-            Some(Format::Png)
-        } else if ext.eq_ignore_ascii_case("exr") {
-            Some(Format::Exr)
-        } else {
-            None
-        }
-    }
-
-    /// The format whose signature `bytes` start with, if any: what a file
-    /// really holds, whatever its name says.
-    pub fn sniff(bytes: &[u8]) -> Option<Format> {
-        const PNG: &[u8] = b"\x89PNG\r\n\x1a\n";
-        const EXR: &[u8] = &[0x76, 0x2f, 0x31, 0x01];
-        if bytes.starts_with(PNG) {
-            Some(Format::Png)
-        } else if bytes.starts_with(EXR) {
-            Some(Format::Exr)
-        } else {
-            None
-        }
-    }
-
-    /// The file name extension, lower case: `png` or `exr`.
-    pub fn extension(self) -> &'static str {
-        match self {
-            Format::Png => "png",
-            Format::Exr => "exr",
-        }
-    }
-}
-
-/// Checks, before anything is rendered, that a frame can be written to
-/// `path`: its extension names a [`Format`] ([`OutputError::UnsupportedFormat`]
-/// if not) and [`check_target`] accepts it. Returns the format.
-pub fn check_output(path: &Path) -> Result<Format, OutputError> {
-    let format = Format::from_path(path).ok_or_else(|| OutputError::UnsupportedFormat {
-        path: path.display().to_string(),
-    })?;
-    check_target(path)?;
-    Ok(format)
-}
-
-/// Checks that a finished file may be renamed onto `path`: nothing is
-/// there, or a regular file (symbolic links followed) that it replaces.
-/// Anything else, a directory, a device such as `/dev/full`, a FIFO or a
-/// socket, is [`OutputError::NotARegularFile`]: a rename would replace the
-/// node itself. Every writer that renames a finished file into place calls
-/// this first.
-pub fn check_target(path: &Path) -> Result<(), OutputError> {
-    let meta = match fs::metadata(path) {
-        Ok(m) => m,
-        // Nothing there (or a dangling link, which the rename replaces).
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-        Err(source) => {
-            return Err(OutputError::Io {
-                path: path.display().to_string(),
-                source,
-            })
-        }
-    };
-    let kind = meta.file_type();
-    if kind.is_file() {
-        return Ok(());
-    }
-    let what = if kind.is_dir() {
-        "a directory"
-    } else {
-        special_kind(&kind)
-    };
-    Err(OutputError::NotARegularFile {
-        path: path.display().to_string(),
-        what,
-    })
-}
-
-#[cfg(unix)]
-fn special_kind(kind: &fs::FileType) -> &'static str {
-    use std::os::unix::fs::FileTypeExt;
-    if kind.is_char_device() {
-        "a character device"
-    } else if kind.is_block_device() {
-        "a block device"
-    } else if kind.is_fifo() {
-        "a FIFO"
-    } else if kind.is_socket() {
-        "a socket"
-    } else {
-        "not a regular file"
-    }
-}
-
-#[cfg(not(unix))]
-fn special_kind(_kind: &fs::FileType) -> &'static str {
-    "a special file"
-}
 
 /// The temporary file, removed when dropped unless it was renamed into place.
 struct TempFile {
@@ -287,6 +178,9 @@ pub struct FrameWriter {
     /// A PNG frame's passes, each written to its own file by its own writer
     /// (see [`aov_path`]).
     sidecars: Vec<(Aov, FrameWriter)>,
+    /// A denoised frame: every tile brings its noisy beauty too
+    /// ([`FrameWriter::create_denoised`]).
+    noisy: bool,
 }
 
 static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
@@ -314,9 +208,36 @@ impl FrameWriter {
         height: u32,
         aovs: Aovs,
     ) -> Result<Self, OutputError> {
+        FrameWriter::create_layers(path, width, height, aovs, false)
+    }
+
+    /// [`FrameWriter::create_with_aovs`] for a denoised frame: an EXR file
+    /// also holds the beauty before denoising, as the layer `noisy`
+    /// ([`NOISY_CHANNELS`]); a PNG holds the denoised beauty alone (its
+    /// passes beside it, as for any frame; keeping the noisy beauty is the
+    /// caller's affair). Its tiles come through
+    /// [`FrameWriter::write_tile_denoised`].
+    pub fn create_denoised(
+        path: &Path,
+        width: u32,
+        height: u32,
+        aovs: Aovs,
+    ) -> Result<Self, OutputError> {
+        FrameWriter::create_layers(path, width, height, aovs, true)
+    }
+
+    fn create_layers(
+        path: &Path,
+        width: u32,
+        height: u32,
+        aovs: Aovs,
+        noisy: bool,
+    ) -> Result<Self, OutputError> {
         let format = check_output(path)?;
-        let mut writer = FrameWriter::open(path, width, height, Layout::of(format, aovs))?;
+        let layout = Layout::of(format, aovs, noisy);
+        let mut writer = FrameWriter::open(path, width, height, layout)?;
         writer.aovs = aovs;
+        writer.noisy = noisy;
         for aov in aovs.iter() {
             let Some(side) = aov_path(path, aov) else {
                 continue;
@@ -404,6 +325,7 @@ impl FrameWriter {
             failure: None,
             aovs: Aovs::NONE,
             sidecars: Vec::new(),
+            noisy: false,
         })
     }
 
@@ -529,6 +451,45 @@ impl FrameWriter {
         pixels: &[[f32; 3]],
         aov: &AovTile,
     ) -> Result<(), OutputError> {
+        self.write_layers(rect, pixels, aov, None)
+    }
+
+    /// [`FrameWriter::write_tile_aovs`] for a denoised frame
+    /// ([`FrameWriter::create_denoised`]): `pixels` denoised, `noisy` the
+    /// same pixels before denoising, or [`OutputError::NoisyMismatch`]
+    /// (nothing written).
+    pub fn write_tile_denoised(
+        &mut self,
+        rect: Rect,
+        pixels: &[[f32; 3]],
+        aov: &AovTile,
+        noisy: &[[f32; 3]],
+    ) -> Result<(), OutputError> {
+        self.write_layers(rect, pixels, aov, Some(noisy))
+    }
+
+    fn write_layers(
+        &mut self,
+        rect: Rect,
+        pixels: &[[f32; 3]],
+        aov: &AovTile,
+        noisy: Option<&[[f32; 3]]>,
+    ) -> Result<(), OutputError> {
+        let mismatch = |what| OutputError::NoisyMismatch {
+            x: rect.x,
+            y: rect.y,
+            what,
+        };
+        match noisy {
+            None if self.noisy => {
+                return Err(mismatch("a denoised frame's tile needs its noisy beauty"))
+            }
+            Some(_) if !self.noisy => return Err(mismatch("this frame keeps no noisy beauty")),
+            Some(v) if v.len() != pixels.len() => {
+                return Err(mismatch("the noisy beauty's pixel count is not the tile's"))
+            }
+            _ => {}
+        }
         let n = self.aovs.channels();
         if aov.aovs != self.aovs || aov.values.len() != pixels.len().saturating_mul(n) {
             return Err(OutputError::AovMismatch {
@@ -567,11 +528,26 @@ impl FrameWriter {
                 self.failure = Some(e.to_string());
             })?;
         }
-        self.put_tile(rect, pixels, &aov.values, n)
+        match noisy {
+            // The noisy beauty's values follow each pixel's passes
+            // (Layout::of).
+            Some(noisy) => {
+                let values: Vec<f32> = (0..pixels.len())
+                    .flat_map(|i| aov.pixel(i).iter().chain(&noisy[i]).copied())
+                    .collect();
+                self.put_tile(rect, pixels, &values, n + 3)
+            }
+            None => self.put_tile(rect, pixels, &aov.values, n),
+        }
     }
 
     /// The checks of [`FrameWriter::write_tile`], writing nothing.
     fn check_tile(&self, rect: Rect, pixels: &[[f32; 3]]) -> Result<(), OutputError> {
+        self.check_rect(rect, pixels.len())
+    }
+
+    /// [`FrameWriter::check_tile`] for a tile of `count` pixels.
+    fn check_rect(&self, rect: Rect, count: usize) -> Result<(), OutputError> {
         if let Some(message) = &self.failure {
             return Err(OutputError::Encode {
                 path: self.path.display().to_string(),
@@ -589,14 +565,14 @@ impl FrameWriter {
         if !rect.fits(self.width, self.height) {
             return Err(bad_tile);
         }
-        if pixels.len() != rect.pixel_count() {
+        if count != rect.pixel_count() {
             return Err(OutputError::TilePixelCount {
                 x: rect.x,
                 y: rect.y,
                 w: rect.w,
                 h: rect.h,
                 expected: rect.pixel_count(),
-                got: pixels.len(),
+                got: count,
             });
         }
         // Rows above `next_row` are complete, so any tile reaching them overlaps.

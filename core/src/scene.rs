@@ -295,6 +295,10 @@ pub struct RenderSettings {
     /// `aovs=` (a Trevi extension): the render passes written beside the
     /// beauty (none by default; see [`crate::aov`]).
     pub aovs: crate::aov::Aovs,
+    /// `denoise=` (a Trevi extension): the frame is denoised after it is
+    /// rendered (`trevi-submit --denoise`; docs/denoise.md). The renderer
+    /// itself ignores it: the noisy frame is the same either way.
+    pub denoise: bool,
 }
 
 /// `<render integrator>`: which light transport a camera renders with.

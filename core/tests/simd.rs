@@ -1,5 +1,5 @@
 //! Determinism across instruction sets: every node-test path this machine
-//! can run (`TREVI_SIMD=scalar|sse`) renders the same bytes. A farm that
+//! can run (`TREVI_SIMD=scalar|sse|avx`) renders the same bytes. A farm that
 //! mixes machines with and without a SIMD path must stitch one image.
 //!
 //! One test in its own binary: it switches the process-wide path.
@@ -46,8 +46,15 @@ fn every_simd_path_renders_the_same_bytes() {
     ];
     let paths = Simd::available();
     assert_eq!(paths[0], Simd::Scalar);
-    if cfg!(target_arch = "x86_64") {
+    #[cfg(target_arch = "x86_64")]
+    {
         assert!(paths.contains(&Simd::Sse));
+        // The AVX path (8 boxes a pass, the walk compiled for AVX) wherever
+        // the machine runs it.
+        assert_eq!(
+            paths.contains(&Simd::Avx),
+            std::arch::is_x86_feature_detected!("avx")
+        );
     }
     for (k, scene) in scenes.iter().enumerate() {
         for camera in 0..scene.cameras.len() {

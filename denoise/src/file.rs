@@ -3,7 +3,7 @@
 
 use crate::{denoise_frame, BandPlan, DenoiseError, Denoiser, ExrSource, Source};
 use std::path::Path;
-use trevi_core::{FrameWriter, Rect};
+use trevi_core::{Aovs, FrameWriter, Rect};
 
 /// What a denoise of a file did.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -22,19 +22,29 @@ pub struct Denoised {
 
 /// Denoises the multi-layer EXR at `noisy` (see [`ExrSource`]) into
 /// `output`, a PNG or EXR chosen by its extension, band by band as `plan`
-/// cuts it (`plan.height` is replaced by the file's). The output appears
-/// under its name only when complete (the writer's part file is renamed).
+/// cuts it (`plan.height` is replaced by the file's). The output carries
+/// the render passes `carry` from the noisy file (which must hold them:
+/// refused before anything is written otherwise), as channels of an EXR or
+/// files beside a PNG, and an EXR output also the beauty before denoising
+/// (its layer `noisy`, [`trevi_core::output::NOISY_CHANNELS`]). The output
+/// appears under its name only when complete (the writer's part file is
+/// renamed).
 pub fn denoise_file(
     denoiser: &Denoiser,
     noisy: &Path,
     output: &Path,
     band_rows: u32,
     overlap: u32,
+    carry: Aovs,
 ) -> Result<Denoised, DenoiseError> {
     let mut source = ExrSource::open(noisy)?;
+    // A second reader of the same file for what the output carries: the
+    // first is the denoiser's while the bands are written.
+    let layers = ExrSource::open(noisy)?;
     let (width, height) = (source.width(), source.height());
     let plan = BandPlan::new(height, band_rows, overlap)?;
-    let mut writer = FrameWriter::create(output, width, height)?;
+    layers.check_holds(carry)?;
+    let mut writer = FrameWriter::create_denoised(output, width, height, carry)?;
     let exposure = denoise_frame(denoiser, &mut source, plan, &mut |rows, px| {
         let rect = Rect {
             x: 0,
@@ -42,7 +52,10 @@ pub fn denoise_file(
             w: width,
             h: rows.end - rows.start,
         };
-        writer.write_tile(rect, px).map_err(DenoiseError::from)
+        let (noisy, passes) = layers.read_layers(rows, carry)?;
+        writer
+            .write_tile_denoised(rect, px, &passes, &noisy)
+            .map_err(DenoiseError::from)
     })?;
     writer.finish()?;
     Ok(Denoised {

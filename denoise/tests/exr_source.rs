@@ -178,3 +178,34 @@ fn files_without_the_beauty_or_with_half_a_layer_are_refused_by_name() {
     };
     assert!(src.read(60..71, &mut Inputs::default()).is_err());
 }
+
+/// Replaces the `i32` at `at` of the little-endian file `bytes`.
+fn patch_i32(bytes: &mut [u8], at: usize, v: i32) {
+    bytes[at..at + 4].copy_from_slice(&v.to_le_bytes());
+}
+
+#[test]
+fn a_header_claiming_a_frame_wider_than_any_scene_is_refused_before_a_band_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("wide.exr");
+    let layer = Layer::new(
+        (W, H),
+        LayerAttributes::default(),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(channels(0, ["R", "G", "B"], "").into()),
+    );
+    Image::from_layer(layer).write().to_file(&path).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    // The data window: "dataWindow\0box2i\0", its size (16), then xMin,
+    // yMin, xMax, yMax. One line a block uncompressed: 70 chunks, blocks of
+    // 70 000 × 12 bytes, within every other bound: only the side is over.
+    let name = b"dataWindow\0box2i\0";
+    let at = bytes.windows(name.len()).position(|w| w == name).unwrap() + name.len() + 4;
+    patch_i32(&mut bytes, at + 8, 70_000 - 1);
+    std::fs::write(&path, &bytes).unwrap();
+    let e = ExrSource::open(&path).err().expect("refused").to_string();
+    assert!(
+        e.contains("wide.exr") && e.contains("70000x70") && e.contains("65536"),
+        "{e}"
+    );
+}

@@ -6,8 +6,8 @@ mod common;
 
 use exr::prelude::*;
 use std::path::Path;
-use trevi_core::output::read_exr_rgb;
-use trevi_core::{FrameWriter, Rect};
+use trevi_core::output::{read_exr_channels, read_exr_rgb};
+use trevi_core::{Aov, AovTile, Aovs, FrameWriter, Rect};
 use trevi_denoise::{denoise_file, frame_exposure, Denoiser, DEFAULT_OVERLAP};
 
 fn write_noisy(path: &Path, frame: &trevi_denoise::InMemory) {
@@ -35,9 +35,13 @@ fn write_noisy(path: &Path, frame: &trevi_denoise::InMemory) {
     Image::from_layer(part).write().to_file(path).unwrap();
 }
 
-fn write_whole(path: &Path, w: u32, h: u32, px: &[[f32; 3]]) {
-    let mut writer = FrameWriter::create(path, w, h).unwrap();
-    writer.write_tile(Rect { x: 0, y: 0, w, h }, px).unwrap();
+/// The whole denoised frame `px` (with `noisy`, its beauty before
+/// denoising) written at once.
+fn write_whole(path: &Path, w: u32, h: u32, px: &[[f32; 3]], noisy: &[[f32; 3]]) {
+    let mut writer = FrameWriter::create_denoised(path, w, h, Aovs::NONE).unwrap();
+    writer
+        .write_tile_denoised(Rect { x: 0, y: 0, w, h }, px, &AovTile::default(), noisy)
+        .unwrap();
     writer.finish().unwrap();
 }
 
@@ -59,14 +63,14 @@ fn a_noisy_exr_denoised_in_bands_equals_the_whole_frame_in_exr_and_png() {
 
     for ext in ["exr", "png"] {
         let out = dir.path().join(format!("out.{ext}"));
-        let done = denoise_file(&denoiser, &noisy, &out, 64, DEFAULT_OVERLAP).unwrap();
+        let done = denoise_file(&denoiser, &noisy, &out, 64, DEFAULT_OVERLAP, Aovs::NONE).unwrap();
         assert_eq!(
             (done.width, done.height, done.albedo, done.normal),
             (w, h, true, true)
         );
         assert_eq!(done.exposure, scale);
         let reference = dir.path().join(format!("whole.{ext}"));
-        write_whole(&reference, w, h, &whole);
+        write_whole(&reference, w, h, &whole, &frame.frame.color);
         assert_eq!(
             std::fs::read(&out).unwrap(),
             std::fs::read(&reference).unwrap(),
@@ -77,6 +81,53 @@ fn a_noisy_exr_denoised_in_bands_equals_the_whole_frame_in_exr_and_png() {
     let (_, _, back) = read_exr_rgb(&dir.path().join("out.exr")).unwrap();
     assert_eq!(back, whole);
     assert_ne!(back, frame.frame.color);
+}
+
+/// What the output carries: the passes asked for, as the noisy file has
+/// them, and the beauty before denoising (the layer `noisy`) in an EXR;
+/// a pass the noisy file lacks is refused before anything is written.
+#[test]
+fn a_denoised_exr_carries_the_passes_asked_for_and_the_noisy_beauty() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (40u32, 90u32);
+    let frame = common::noisy_frame(w, h);
+    let noisy = dir.path().join("noisy.exr");
+    write_noisy(&noisy, &frame);
+    let denoiser = Denoiser::new(1).unwrap();
+    let out = dir.path().join("out.exr");
+    let carry = Aovs::NONE.with(Aov::Albedo);
+    denoise_file(&denoiser, &noisy, &out, 32, DEFAULT_OVERLAP, carry).unwrap();
+    let (_, _, channels) = read_exr_channels(&out).unwrap();
+    let names: Vec<&str> = channels.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        ["B", "G", "R", "albedo.B", "albedo.G", "albedo.R", "noisy.B", "noisy.G", "noisy.R"]
+    );
+    let get = |name: &str| &channels.iter().find(|(n, _)| n == name).unwrap().1;
+    let albedo = frame.frame.albedo.as_ref().unwrap();
+    for (c, name) in ["R", "G", "B"].into_iter().enumerate() {
+        let column = |v: &[[f32; 3]]| v.iter().map(|p| p[c]).collect::<Vec<f32>>();
+        assert_eq!(get(&format!("noisy.{name}")), &column(&frame.frame.color));
+        assert_eq!(get(&format!("albedo.{name}")), &column(albedo));
+        assert_ne!(get(name), &column(&frame.frame.color), "{name} is denoised");
+    }
+    // No depth in the noisy file: refused, nothing written.
+    let depth = dir.path().join("depth.exr");
+    let e = denoise_file(
+        &denoiser,
+        &noisy,
+        &depth,
+        32,
+        DEFAULT_OVERLAP,
+        Aovs::NONE.with(Aov::Depth),
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("depth"), "{e}");
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        2,
+        "noisy.exr and out.exr only"
+    );
 }
 
 #[test]
@@ -90,6 +141,7 @@ fn a_missing_or_beauty_less_input_leaves_no_output() {
         &out,
         64,
         DEFAULT_OVERLAP,
+        Aovs::NONE,
     )
     .unwrap_err();
     assert!(e.to_string().contains("absent.exr"), "{e}");
@@ -99,7 +151,8 @@ fn a_missing_or_beauty_less_input_leaves_no_output() {
         &dir.path().join("bad.exr"),
         &out,
         64,
-        DEFAULT_OVERLAP
+        DEFAULT_OVERLAP,
+        Aovs::NONE
     )
     .is_err());
     assert_eq!(

@@ -11,6 +11,7 @@ use trevi_core::Rect;
 
 pub mod connect;
 pub mod duration;
+pub mod requeue;
 pub mod signal;
 pub use connect::{endpoint, ClientTls, EndpointError};
 
@@ -128,6 +129,22 @@ pub fn pixels_as_bytes(pixels: &[[f32; 3]]) -> std::borrow::Cow<'_, [u8]> {
         }
     }
     std::borrow::Cow::Owned(out)
+}
+
+/// Floats (a tile's render pass values) as little-endian f32.
+pub fn floats_to_bytes(values: &[f32]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// The inverse of [`floats_to_bytes`]: `None` for a length that is not a
+/// whole number of floats.
+pub fn floats_from_bytes(bytes: &[u8]) -> Option<Vec<f32>> {
+    (bytes.len() % 4 == 0).then(|| {
+        bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    })
 }
 
 /// The inverse of [`pixels_to_bytes`].

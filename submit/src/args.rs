@@ -68,6 +68,14 @@ pub struct Args {
     /// No progress output.
     #[arg(short, long, env = "TREVI_QUIET")]
     pub quiet: bool,
+    /// Denoise every still (Intel Open Image Denoise, with the albedo and
+    /// normal passes) after it is rendered, here, band by band: the noisy
+    /// frame is kept beside the output as NAME.noisy.exr. A camera's
+    /// denoise="true" does the same for it. Needs a build with the
+    /// `denoise` feature (docs/denoise.md); refused before rendering
+    /// otherwise.
+    #[arg(long, env = "TREVI_DENOISE")]
+    pub denoise: bool,
     /// Keep the live preview of the frame being rendered in this PNG file
     /// (at most 512 pixels a side, updated about once a second).
     #[arg(long, env = "TREVI_PREVIEW")]
@@ -95,6 +103,26 @@ pub struct Args {
     /// --coordinator.
     #[arg(long, env = "TREVI_AFTER", value_delimiter = ',')]
     pub after: Vec<u64>,
+    /// Render these passes with the beauty (albedo, normal, depth;
+    /// comma-separated, at most 64 bytes; "" for none) instead of the
+    /// camera's `<render aovs>`: an EXR output holds them as layers
+    /// (albedo.R…, N.X…, Z), a PNG output gets NAME.albedo.png,
+    /// NAME.normal.png and NAME.depth.exr beside it. Stills only, not
+    /// progressive.
+    #[arg(long, env = "TREVI_AOVS", value_parser = aovs_arg)]
+    pub aovs: Option<trevi_core::Aovs>,
+}
+
+/// `--aovs`: at most 64 bytes of known pass names (the coordinator's
+/// bound too).
+fn aovs_arg(s: &str) -> Result<trevi_core::Aovs, String> {
+    if s.len() > 64 {
+        return Err(format!(
+            "{} bytes, more than the 64 allowed (at most albedo,normal,depth)",
+            s.len()
+        ));
+    }
+    trevi_core::Aovs::parse(s).map_err(|e| e.to_string())
 }
 
 /// How to reach a farm's coordinator: the flags every farm command shares.
@@ -211,11 +239,57 @@ pub enum Command {
         #[command(flatten)]
         farm: Farm,
     },
-    /// Start a failed still again, keeping the tiles it had finished (they
-    /// are not rendered again).
+    /// Start a failed job again, keeping what it had finished: a still's
+    /// tiles, a sequence's frames (they are not rendered again).
     Retry {
         /// The job's id (printed by --detach, listed by `list`).
         id: u64,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Render part of a job again under its id, its output rewritten in
+    /// place with the bytes of a fresh render: an ended still whole or the
+    /// tiles a rect touches (--rect), frames of a sequence (--frames, also
+    /// while it runs).
+    Requeue {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// The frames of a sequence to render again, A-B or one frame A.
+        #[arg(long, value_name = "A-B", value_parser = requeue_frames)]
+        frames: Option<(u32, u32)>,
+        /// Only the tiles this rect of the frame touches (x, y, width,
+        /// height in pixels; inside the frame, not empty; a PNG output).
+        #[arg(long, value_name = "X,Y,W,H", value_parser = requeue_rect)]
+        rect: Option<[u32; 4]>,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Let a worker kept from a job (it failed the coordinator's
+    /// --max-worker-failures of its tiles; `status` lists them) take its
+    /// tiles again.
+    Unblock {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// The worker: its id or its name, as `status` shows it (a name
+        /// unblocks every blocked worker of that name).
+        worker: String,
+        #[command(flatten)]
+        farm: Farm,
+    },
+    /// Print a job's tile log: for each lease of its tiles, the worker,
+    /// when, the render and CPU time, rays, retries, or the error.
+    Log {
+        /// The job's id (printed by --detach, listed by `list`).
+        id: u64,
+        /// Only the tile holding pixel X,Y of the frame.
+        #[arg(long, value_name = "X,Y", value_parser = crate::log::pixel)]
+        tile: Option<(u32, u32)>,
+        /// Only this frame's (a sequence).
+        #[arg(long)]
+        frame: Option<u32>,
+        /// Only the failures.
+        #[arg(long)]
+        errors: bool,
         #[command(flatten)]
         farm: Farm,
     },
@@ -253,6 +327,26 @@ pub enum Command {
         #[command(flatten)]
         local: crate::kept::LocalDir,
     },
+    /// The farm's usage history: CPU time (core-seconds), tiles, rays and
+    /// wall time per job, submitter or worker, as the workers measured it.
+    /// Kept by the coordinator beyond the jobs (its --usage-retention).
+    Usage {
+        /// How far back: 90m, 12h, 7d, 30d (from 1m to 3650d; default 7d).
+        #[arg(long, value_parser = crate::usage::parse_since)]
+        since: Option<std::time::Duration>,
+        /// One row per job, submitter or worker.
+        #[arg(long, value_enum, default_value_t = crate::usage::By::Job)]
+        by: crate::usage::By,
+        /// table (for people), csv or json (for programs).
+        #[arg(long, value_enum, default_value_t = crate::usage::Format::Table)]
+        format: crate::usage::Format,
+        /// Add a cost column: the core-hours times this (a number from 0 to
+        /// 1000000, in your currency).
+        #[arg(long, value_parser = crate::usage::parse_cost, allow_negative_numbers = true)]
+        cost_per_core_hour: Option<f64>,
+        #[command(flatten)]
+        farm: Farm,
+    },
 }
 
 impl Args {
@@ -268,7 +362,7 @@ impl Args {
     }
 
     /// The rules across flags: a pass no larger than the samples; a
-    /// progressive render only of stills.
+    /// progressive render only of stills; render passes not progressive.
     pub fn check(&self) -> Result<(), clap::Error> {
         let (samples, flags) = match &self.command {
             Some(Command::Extend {
@@ -279,6 +373,13 @@ impl Args {
         };
         crate::control::check_after(&self.after, self.coordinator.is_some())
             .map_err(|m| Args::command().error(ErrorKind::ValueValidation, m))?;
+        if self.aovs.is_some_and(|a| !a.is_empty()) && self.progressive().is_some() {
+            return Err(Args::command().error(
+                ErrorKind::ArgumentConflict,
+                "--aovs: render passes are not rendered for a progressive render (--samples, \
+                 --pass, --time-limit, --noise-target) yet",
+            ));
+        }
         passes::check(samples, flags)
             .map_err(|m| Args::command().error(ErrorKind::ValueValidation, m))?;
         if let Some(Command::Extend {
@@ -327,7 +428,11 @@ impl Command {
             | Command::Wait { farm, .. }
             | Command::Pause { farm, .. }
             | Command::Resume { farm, .. }
-            | Command::Retry { farm, .. } => Some((farm.coordinator.as_str(), &farm.auth)),
+            | Command::Retry { farm, .. }
+            | Command::Requeue { farm, .. }
+            | Command::Unblock { farm, .. }
+            | Command::Log { farm, .. }
+            | Command::Usage { farm, .. } => Some((farm.coordinator.as_str(), &farm.auth)),
             Command::Extend {
                 coordinator, auth, ..
             } => coordinator.as_deref().map(|c| (c, auth)),
@@ -380,3 +485,13 @@ pub fn tile_edge(s: &str) -> Result<u32, String> {
 
 #[cfg(test)]
 mod tests;
+
+/// `requeue --frames A-B` (trevi_proto::requeue's grammar and bound).
+fn requeue_frames(s: &str) -> Result<(u32, u32), String> {
+    trevi_proto::requeue::parse_frames(s).map_err(|e| e.to_string())
+}
+
+/// `requeue --rect X,Y,W,H` (trevi_proto::requeue's grammar and bound).
+fn requeue_rect(s: &str) -> Result<[u32; 4], String> {
+    trevi_proto::requeue::parse_rect(s).map_err(|e| e.to_string())
+}

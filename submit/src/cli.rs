@@ -8,8 +8,9 @@ use std::path::Path;
 use trevi_proto::pb;
 
 /// The subcommands, for suggestions (`wait` also answers to `attach`).
-pub const SUBCOMMANDS: [&str; 10] = [
-    "status", "list", "cancel", "fetch", "wait", "extend", "pause", "resume", "retry", "attach",
+pub const SUBCOMMANDS: [&str; 14] = [
+    "status", "list", "cancel", "fetch", "wait", "extend", "pause", "resume", "retry", "requeue",
+    "unblock", "log", "usage", "attach",
 ];
 
 /// A scene argument that is no file and does not look like a scene (no
@@ -39,7 +40,7 @@ pub fn mistyped_subcommand(arg: &Path) -> Option<String> {
         ),
         None => format!(
             "\"{text}\" is neither a scene file nor a subcommand ({}); see --help",
-            SUBCOMMANDS[..9].join(", ")
+            SUBCOMMANDS[..13].join(", ")
         ),
     })
 }

@@ -11,6 +11,7 @@ use std::path::PathBuf;
 use trevi_proto::pb::{self, bundles_client::BundlesClient, jobs_client::JobsClient};
 use trevi_proto::AuthChannel;
 
+mod aovs;
 mod connect;
 mod download;
 mod jobs;

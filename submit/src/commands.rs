@@ -1,5 +1,6 @@
 //! The farm commands: `status`, `list`, `cancel`, `pause`, `resume`,
-//! `retry`, `fetch`, `wait` (also `attach`: follow a job to its end and
+//! `retry`, `requeue`, `unblock`, `log` (log.rs prints it), `usage` (the farm's usage
+//! history, usage.rs), `fetch`, `wait` (also `attach`: follow a job to its end and
 //! download its output, as the submission would have) and `extend` (more
 //! samples for a progressive job; with `--wait`, followed as `wait` does;
 //! without `--coordinator`, a local render's job, see `kept.rs`).
@@ -39,7 +40,11 @@ pub async fn run(cmd: Command) -> Result<()> {
     let mut client = auth.connect(&url).await?;
     match cmd {
         Command::Status { id, preview, .. } => {
-            println!("{}", client::describe(&client.status(id).await?));
+            let s = client.status(id).await?;
+            println!("{}", client::describe(&s));
+            for line in crate::log::blocked_lines(&s.blocked) {
+                println!("{line}");
+            }
             if let Some(out) = &preview {
                 let p = client.save_preview(id, out).await?;
                 println!(
@@ -79,6 +84,52 @@ pub async fn run(cmd: Command) -> Result<()> {
         }
         Command::Retry { id, .. } => {
             println!("{}", client::describe(&client.retry(id).await?));
+        }
+        Command::Requeue {
+            id, frames, rect, ..
+        } => {
+            println!(
+                "{}",
+                client::describe(&client.requeue(id, frames, rect).await?)
+            );
+        }
+        Command::Unblock { id, worker, .. } => {
+            let s = client.unblock(id, &worker).await?;
+            println!("{}", client::describe(&s));
+            for line in crate::log::blocked_lines(&s.blocked) {
+                println!("{line}");
+            }
+        }
+        Command::Log {
+            id,
+            tile,
+            frame,
+            errors,
+            ..
+        } => {
+            let log = client
+                .tile_log(trevi_proto::pb::TileLogRequest {
+                    id,
+                    frame,
+                    x: tile.map(|t| t.0),
+                    y: tile.map(|t| t.1),
+                    errors_only: errors,
+                })
+                .await?;
+            print!("{}", crate::log::table(&log));
+        }
+        Command::Usage {
+            since,
+            by,
+            format,
+            cost_per_core_hour,
+            ..
+        } => {
+            let r = client.usage(since, by).await?;
+            print!(
+                "{}",
+                crate::usage::render(&r, by, format, cost_per_core_hour)
+            );
         }
         Command::Fetch {
             id, output, quiet, ..

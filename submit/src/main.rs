@@ -5,8 +5,10 @@
 //! sequence for a camera with frames. With `--coordinator URL` the frames
 //! are rendered on a farm; without it, by a coordinator and a worker
 //! embedded in this process with every core, through the same client code.
-//! `trevi-submit status|list|cancel|pause|resume|retry|fetch|wait|extend`
-//! manage a farm's jobs (commands.rs; `--after` orders them, control.rs).
+//! `trevi-submit status|list|cancel|pause|resume|retry|requeue|unblock|log|fetch|wait|extend`
+//! manage a farm's jobs (commands.rs; `--after` orders them, control.rs;
+//! log.rs prints the tile log and the blocked workers); `trevi-submit usage`
+//! prints its usage history (usage.rs).
 //! `--samples`, `--pass`, `--time-limit` and `--noise-target` make a still
 //! progressive (passes.rs); a local render with `--samples` keeps its job
 //! for `extend` (kept.rs).
@@ -26,11 +28,14 @@ mod client;
 mod commands;
 mod control;
 mod data_dir;
+mod denoise;
 mod kept;
 mod local;
+mod log;
 mod passes;
 mod progress;
 mod sequence;
+mod usage;
 
 use anyhow::{bail, Context, Result};
 use args::Args;
@@ -139,15 +144,40 @@ fn run(args: Args) -> Result<()> {
         progressive,
         notify: args.notify.clone(),
         after: args.after.clone(),
+        aovs: args.aovs,
     };
     let mut targets = Vec::new();
+    // Stills denoised once rendered (see denoise.rs): checked now.
+    let mut to_denoise = Vec::new();
+    let denoise_threads = args.threads.unwrap_or(0).min(u32::MAX as usize) as u32;
     for &cam in &cameras {
         let c = &desc.cameras[cam];
-        let out = match &args.output {
+        let mut out = match &args.output {
             Some(o) => o.clone(),
             None => scene_dir.join(&c.render.output),
         };
         let frames = args.frames.or(c.render.frames);
+        if args.denoise || c.render.denoise {
+            denoise::check_targets(args.detach, frames.map(|_| c.id.as_str()))?;
+            if to_denoise.is_empty() {
+                denoise::check(denoise_threads)?;
+            }
+            // Checked as the output before it is swapped for the noisy frame.
+            client::Target::new(c.id.clone(), out.clone(), None)
+                .with_context(|| format!("camera \"{}\"", c.id))?;
+            let noisy = denoise::noisy_path(&out);
+            to_denoise.push(denoise::Still {
+                noisy: noisy.clone(),
+                out,
+                // The passes asked for go on to the output; a progressive
+                // job renders none.
+                carry: match progressive {
+                    None => args.aovs.unwrap_or(c.render.aovs),
+                    Some(_) => trevi_core::Aovs::NONE,
+                },
+            });
+            out = noisy;
+        }
         let stops = progressive
             .as_ref()
             .is_some_and(|p| p.time_limit_ms > 0 || p.noise_target > 0.0);
@@ -158,10 +188,14 @@ fn run(args: Args) -> Result<()> {
                 args::SEQUENCE_STOPS
             );
         }
-        targets.push(
-            client::Target::new(c.id.clone(), out, frames)
-                .with_context(|| format!("camera \"{}\"", c.id))?,
-        );
+        let mut target = client::Target::new(c.id.clone(), out, frames)
+            .with_context(|| format!("camera \"{}\"", c.id))?;
+        if (args.denoise || c.render.denoise) && progressive.is_none() {
+            // The noisy frame carries the passes the denoiser uses (a
+            // progressive job renders none: its beauty alone is denoised).
+            target.aovs = Some(denoise::with_guides(args.aovs.unwrap_or(c.render.aovs)));
+        }
+        targets.push(target);
     }
     targets.sort_by_key(|t| t.frames().is_some());
     // A local still with its own samples can be extended later: its job is
@@ -175,7 +209,7 @@ fn run(args: Args) -> Result<()> {
         (None, Some(dir)) => Some(data_dir::DataDir::kept(dir)?),
         (None, None) => Some(data_dir::DataDir::temporary()?),
     };
-    runtime.block_on(async {
+    let rendered = runtime.block_on(async {
         if let Some(url) = &args.coordinator {
             drop(desc);
             let mut client = args.auth.connect(url).await?;
@@ -243,7 +277,17 @@ fn run(args: Args) -> Result<()> {
             }
         }
         result
-    })
+    });
+    rendered?;
+    if !to_denoise.is_empty() {
+        runtime.block_on(denoise::run_interruptible(
+            to_denoise,
+            denoise_threads,
+            args.quiet,
+            &mut signals,
+        ))?;
+    }
+    Ok(())
 }
 
 /// Scene errors name bundle-relative files; show them as the user typed the

@@ -203,7 +203,12 @@ fn priorities_order_jobs_and_a_cancelled_job_stops_and_leaves_no_output() {
     let high = detach(&scene, "5");
     let doomed = detach(&slow, "9");
     let rt = runtime();
-    let _w = worker(&dir, &c.url, "worker");
+    // One tile in flight: priority orders the leases, so the finish order
+    // follows from it only when the worker takes a lease after the last
+    // is in. With two in flight, low's first lease (a whole-frame span,
+    // its cost known from high's identical bundle) can go out while high's
+    // last tile renders, and finish first: CI saw exactly that.
+    let _w = worker_with(&dir, &c.url, "worker", &["--tiles-in-flight", "1"], &[]);
     wait_for(&dir, "the doomed job to start", 60, || {
         job(&rt, &c, doomed).tiles_done >= 2
     });

@@ -78,6 +78,7 @@ async fn render_all(c: &Coordinator, multi_tile: bool) -> (Vec<u32>, u64) {
             session: reg.session.clone(),
             frame: None,
             render_micros: None,
+            cpu_micros: None,
         };
         let bytes = trevi_proto::pixels_to_bytes(&r.pixels);
         let chunks = bytes

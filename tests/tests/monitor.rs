@@ -3,23 +3,20 @@
 //! (`chromedriver`, through the `fantoccini` client).
 //!
 //! The browser test needs Debian's `chromium` and `chromium-driver`
-//! packages; `.ci/run` installs them and sets `TREVI_REQUIRE_ALL=1`, so
-//! in CI a missing browser fails the test. Elsewhere it is skipped with a
-//! message saying what to install.
+//! packages (see [`common::browser`]).
 //!
 //! The screenshot the browser test takes is kept in
 //! `target/test-artifacts/monitor.png` (or `$TREVI_ARTIFACTS_DIR`).
 
 mod common;
 
+use common::browser::{self, poll};
 use common::http::{get as http_get, parse_response};
 use common::{coordinator_with, make_certs, submit, worker_with, Coordinator, Dir, Proc};
 use serde_json::json;
 use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::path::PathBuf;
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use trevi_core::output::decode_png;
 
 const SUBMIT_TOKEN: &str = "submit-s3cret";
@@ -228,35 +225,6 @@ fn metrics_parse_as_prometheus_text_and_count_the_tiles_and_the_preview_file_sho
     assert!(buckets.windows(2).all(|w| w[0].count <= w[1].count));
 }
 
-/// Where chromium and chromedriver are, if installed.
-fn browser() -> Option<(PathBuf, PathBuf)> {
-    let find = |names: &[&str]| {
-        names.iter().find_map(|n| {
-            std::env::var_os("PATH").and_then(|paths| {
-                std::env::split_paths(&paths)
-                    .map(|d| d.join(n))
-                    .find(|p| p.is_file())
-            })
-        })
-    };
-    Some((
-        find(&["chromium", "chromium-browser", "google-chrome"])?,
-        find(&["chromedriver"])?,
-    ))
-}
-
-fn artifacts_dir() -> PathBuf {
-    if let Some(d) = std::env::var_os("TREVI_ARTIFACTS_DIR") {
-        return PathBuf::from(d);
-    }
-    // target/<profile>/deps/this-test → target/test-artifacts
-    let exe = std::env::current_exe().unwrap();
-    exe.ancestors()
-        .nth(3)
-        .expect("target directory")
-        .join("test-artifacts")
-}
-
 /// Draws the preview `<img>` on a canvas in the page and counts its opaque
 /// pixels: what the browser actually shows, not what the server sent.
 const COUNT_OPAQUE_JS: &str = r#"
@@ -274,10 +242,8 @@ return [n, c.width * c.height];
 
 #[test]
 fn the_monitor_shows_a_live_preview_and_its_buttons_change_priority_and_cancel() {
-    let Some((chromium, chromedriver)) = browser() else {
-        let msg = "the browser test needs chromium and chromedriver \
-                   (apt-get install chromium chromium-driver)";
-        common::skip(msg);
+    let Some((chromium, chromedriver)) = browser::browser() else {
+        common::skip(browser::SKIP_MESSAGE);
         return;
     };
     let farm = Farm::start();
@@ -285,56 +251,12 @@ fn the_monitor_shows_a_live_preview_and_its_buttons_change_priority_and_cancel()
     let out = farm.submit(&[scene.to_str().unwrap(), "--detach", "--tile", "32"]);
     let job: u64 = out.trim().parse().expect("--detach prints the job id");
 
-    // chromedriver on a free port.
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let dlog = std::fs::File::create(farm.dir.path().join("chromedriver.log")).unwrap();
-    let _driver = Proc(
-        Command::new(&chromedriver)
-            .arg(format!("--port={port}"))
-            .stdout(Stdio::null())
-            .stderr(dlog)
-            .spawn()
-            .unwrap(),
-    );
-    let driver_addr = format!("127.0.0.1:{port}");
-    common::wait_for(&farm.dir, "chromedriver", 30, || {
-        TcpStream::connect(&driver_addr).is_ok()
-    });
-
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let shot = rt.block_on(async {
-        let mut caps = serde_json::Map::new();
-        caps.insert(
-            "goog:chromeOptions".into(),
-            json!({
-                "binary": chromium,
-                "args": ["--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
-                         "--disable-gpu", "--window-size=1280,1000"],
-            }),
-        );
-        let client = fantoccini::ClientBuilder::new(
-            hyper_util::client::legacy::connect::HttpConnector::new(),
-        )
-        .capabilities(caps)
-        .connect(&format!("http://{driver_addr}"))
-        .await
-        .expect("a WebDriver session with headless Chromium");
-        let result = drive(&client, &farm, job).await;
-        let _ = client.close().await;
-        result
+    let f = &farm;
+    let shot = browser::with_browser(&farm.dir, &chromium, &chromedriver, |c| async move {
+        drive(&c, f, job).await
     });
     let shot = shot.unwrap_or_else(|e| panic!("{e}\n{}", farm.dir.logs()));
-
-    let dir = artifacts_dir();
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("monitor.png");
-    std::fs::write(&path, &shot).unwrap();
-    eprintln!("screenshot of the monitor: {}", path.display());
-    assert!(shot.starts_with(b"\x89PNG"), "the screenshot is a PNG");
+    browser::keep_screenshot("monitor.png", &shot);
 
     // The coordinator itself says the job is cancelled, and it left no output.
     let status = farm.submit(&["status", &job.to_string()]);
@@ -358,38 +280,7 @@ async fn drive(c: &fantoccini::Client, farm: &Farm, job: u64) -> Result<Vec<u8>,
         let what = what.to_string();
         move |e: fantoccini::error::CmdError| format!("{what}: {e}")
     };
-    c.goto(&format!("http://{}/", farm.http()))
-        .await
-        .map_err(err("opening the monitor"))?;
-    // Without the token the page says what it needs.
-    let message = poll(c, "the page to ask for the token", |c| async move {
-        let m = c
-            .find(Locator::Id("message"))
-            .await
-            .ok()?
-            .text()
-            .await
-            .ok()?;
-        m.contains("token").then_some(m)
-    })
-    .await?;
-    assert!(message.contains("submit token"), "{message}");
-
-    // Type the token as a user would; leaving the field applies it.
-    let input = c
-        .find(Locator::Id("token"))
-        .await
-        .map_err(err("the token field"))?;
-    input
-        .send_keys(SUBMIT_TOKEN)
-        .await
-        .map_err(err("typing the token"))?;
-    c.find(Locator::Css("header h1"))
-        .await
-        .map_err(err("the header"))?
-        .click()
-        .await
-        .map_err(err("leaving the token field"))?;
+    browser::open_monitor(c, farm.http(), SUBMIT_TOKEN).await?;
 
     let card = format!("job-{job}");
     let progress = |c: fantoccini::Client, card: String| async move {
@@ -475,24 +366,6 @@ async fn drive(c: &fantoccini::Client, farm: &Farm, job: u64) -> Result<Vec<u8>,
     })
     .await?;
     Ok(shot)
-}
-
-/// Polls `f` against the page every 200 ms for up to two minutes.
-async fn poll<T, F, Fut>(c: &fantoccini::Client, what: &str, mut f: F) -> Result<T, String>
-where
-    F: FnMut(fantoccini::Client) -> Fut,
-    Fut: std::future::Future<Output = Option<T>>,
-{
-    let start = Instant::now();
-    loop {
-        if let Some(v) = f(c.clone()).await {
-            return Ok(v);
-        }
-        if start.elapsed() > Duration::from_secs(120) {
-            return Err(format!("timed out waiting for {what}"));
-        }
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
 }
 
 /// One HTTP/1.1 GET over TLS to the coordinator's monitor, trusting only

@@ -37,18 +37,27 @@ fn ci_runs_exactly_the_readme_s_test_command() {
     // must pass on a busy machine): the same command both times. Between
     // them, the denoiser's tests with the library CI fetches, as the
     // README's Tests section gives them.
+    // Last, trevi-submit --denoise against a build with the library, as
+    // the README gives it.
     const DENOISE: &str = "cargo test -p trevi-denoise --features oidn";
+    const DENOISE_CLI: &str =
+        "cargo test --workspace --features trevi-submit/denoise --test denoise_cli";
+    assert!(
+        readme.contains(DENOISE_CLI),
+        "the README gives the denoise_cli command"
+    );
     assert!(
         readme.contains(DENOISE),
         "the README gives the denoiser's test command"
     );
-    let denoise = format!("OIDN_DIR=\"$oidn_root/pyoidn/oidn\" {DENOISE}");
+    let denoise = format!("OIDN_DIR=\"$oidn_dir\" {DENOISE}");
     assert_eq!(
         cargo,
         [
             "cargo test --workspace",
             denoise.as_str(),
-            "cargo test --workspace"
+            "cargo test --workspace",
+            DENOISE_CLI,
         ],
         ".ci/run's cargo commands"
     );

@@ -374,6 +374,7 @@ fn hostile_input_gets_its_error_and_the_coordinator_keeps_serving() {
                 session: session.clone(),
                 frame: None,
                 render_micros: None,
+                cpu_micros: None,
             };
             let mut w = sender.clone();
             async move {

@@ -8,7 +8,6 @@ use crate::memory;
 use crate::pass::Pass;
 use crate::render::TileEnd;
 use crate::session::{reconnect, span_ids, End, Me, Session};
-use crate::upload::Rendered;
 use std::time::Duration;
 use tokio::sync::watch;
 use tonic::Code;
@@ -102,13 +101,12 @@ impl Session {
             drop(permit);
             let (x, y, id) = (rect.x, rect.y, lease.lease_id);
             match end {
-                TileEnd::Rendered(payload, rays, took) => {
+                TileEnd::Rendered(payload, rendered) => {
                     // One line per tile, also for a span of several: the
                     // logs count tiles, not leases.
                     for id in span_ids(&lease) {
                         tracing::debug!(lease = id, job = lease.job_id, x, y, "tile rendered");
                     }
-                    let rendered = Rendered { rays, took };
                     if let Err(s) = self.send(&me, &lease, rect, rendered, payload).await {
                         if s.code() == Code::InvalidArgument {
                             tracing::error!(lease = id, "tile rejected: {}", s.message());

@@ -59,6 +59,7 @@
 //! | `render.rs` | rendering a leased tile (or a pass on its state) while heartbeating its lease; stopping it |
 //! | `scene_cache.rs` | the built scenes kept between leases (stills' and frames', by their samples too) |
 //! | `scene_load.rs` | a lease's scene: from the cache, or downloaded, checked, built, moved to its frame, given a pass's samples |
+//! | `cpu.rs` | the render threads' CPU clocks: what a result says it cost (the usage history's figure) |
 //! | `upload.rs` | a rendered tile's upload: floats, or PNG segments and preview sums; a pass's state after them |
 //! | `pass.rs` | a progressive job's pass (`Lease.samples`): the range checked, the state fetched (bounded) and checked, the range rendered on it |
 //! | [`segments`] | checking and encoding a lease's pixels as PNG segments |
@@ -74,6 +75,7 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 mod config;
+mod cpu;
 mod error;
 mod lease;
 mod machine;
@@ -98,5 +100,5 @@ pub use pause::{Pause, PauseConfig};
 pub use priority::Priority;
 pub use run::run;
 #[cfg(feature = "test-hooks")]
-pub use test_hooks::{TestFault, ABORT_ON_TILE, PANIC_ON_TILE};
+pub use test_hooks::{TestFault, ABORT_ON_TILE, FAIL_JOB, PANIC_ON_TILE};
 pub use upload::{segment_messages, state_messages, tile_messages, Rendered};

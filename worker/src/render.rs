@@ -7,27 +7,27 @@
 //! coordinator drops the lease, the worker pauses or `shutdown` turns true;
 //! a render that panics becomes a failure of the tile, not of the worker.
 
+use crate::cpu::CpuMeter;
 use crate::error::SceneLoadError;
 use crate::memory;
 use crate::pass::{self, Pass, PassError};
 use crate::scene_cache::Key;
 use crate::segments;
 use crate::session::{span_ids, Me, Session};
-use crate::upload::{Payload, Pixels};
+use crate::upload::{Payload, Pixels, Rendered};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::watch;
 use tonic::Code;
 use trevi_core::passes::TileState;
-use trevi_core::Rect;
+use trevi_core::{Aovs, Rect};
 use trevi_proto::pb;
 
 /// How working on one leased tile ended.
 pub(crate) enum TileEnd {
-    /// The result, the rays traced, and how long the render itself took
-    /// (told to the coordinator, which sizes leases from it).
-    Rendered(Payload, u64, Duration),
+    /// The result, and what its render reports (rays, time, CPU time).
+    Rendered(Payload, Rendered),
     /// The coordinator no longer wants it (the job was cancelled or the
     /// lease expired): the render was stopped.
     Dropped,
@@ -113,6 +113,10 @@ impl Session {
         beat: Duration,
         shutdown: &mut watch::Receiver<bool>,
     ) -> TileEnd {
+        #[cfg(feature = "test-hooks")]
+        if let Some(why) = crate::test_hooks::job_fault(lease.job_id) {
+            return TileEnd::Failed(why);
+        }
         let cancel = Cancel::new();
         let _guard = CancelOnDrop(cancel.clone());
         let work = {
@@ -130,9 +134,14 @@ impl Session {
             let state_bytes = pass.map_or(0, |_| memory::pass_state_bytes(rect));
             let (me, lease_id) = (me.clone(), lease.lease_id);
             let (png, preview_scale) = (lease.png_segments, lease.preview_scale);
+            let aovs = Aovs::parse(&lease.aovs);
             #[cfg(feature = "test-hooks")]
             let fault = self.fault;
             async move {
+                // From here to the render's end the render threads are this
+                // lease's (see `crate::cpu`): the scene's build counts too.
+                let clocks = s.clocks.clone();
+                let meter = CpuMeter::start(&clocks);
                 let scene = s.scene(key, state_bytes).await;
                 let scene = match scene {
                     Ok(s) => s,
@@ -141,6 +150,10 @@ impl Session {
                 };
                 let Some(camera) = scene.camera_index(&camera) else {
                     return TileEnd::Failed(format!("the scene has no camera \"{camera}\""));
+                };
+                let aovs = match aovs {
+                    Ok(a) => a,
+                    Err(e) => return TileEnd::Failed(format!("the lease's render passes: {e}")),
                 };
                 // A pass's state: fetched (bounded) unless it starts at 0.
                 let pass = match pass {
@@ -176,20 +189,28 @@ impl Session {
                             if let Some(f) = fault {
                                 f.strike(rect);
                             }
-                            render_lease(
+                            render_lease_aovs(
                                 &scene,
                                 camera,
                                 rect,
                                 lease_id,
                                 pass,
                                 segments,
+                                aovs,
                                 &cancel.flag,
                             )
                         }))
                     })
                 });
                 match job.await {
-                    Ok(Ok(Ok((payload, rays, took)))) => TileEnd::Rendered(payload, rays, took),
+                    Ok(Ok(Ok((payload, rays, took)))) => TileEnd::Rendered(
+                        payload,
+                        Rendered {
+                            rays,
+                            took,
+                            cpu_micros: meter.micros(),
+                        },
+                    ),
                     Ok(Ok(Err(Stop::Failed(e)))) => TileEnd::Failed(e),
                     Ok(Ok(Err(Stop::Cancelled))) => TileEnd::Dropped,
                     Ok(Err(panic)) => TileEnd::Failed(format!(
@@ -260,6 +281,7 @@ impl Session {
 /// lease, `segments` = the frame's size and the preview's cell edge, the
 /// encoded segments), the rays traced and the time it took (the state's
 /// decoding aside: like loading the scene, it is not the render).
+#[cfg(test)]
 pub(crate) fn render_lease(
     scene: &trevi_core::Scene,
     camera: usize,
@@ -269,6 +291,43 @@ pub(crate) fn render_lease(
     segments: Option<(u32, u32, u32)>,
     cancel: &AtomicBool,
 ) -> Result<(Payload, u64, Duration), Stop> {
+    render_lease_aovs(
+        scene,
+        camera,
+        rect,
+        lease_id,
+        pass,
+        segments,
+        Aovs::NONE,
+        cancel,
+    )
+}
+
+/// [`render_lease`] with the lease's render passes `aovs` (`Lease.aovs`):
+/// rendered with the beauty from the same samples
+/// (`trevi_core::tile::render_tile_aovs`) and uploaded after its floats.
+/// The coordinator never asks for them with segments or a pass.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render_lease_aovs(
+    scene: &trevi_core::Scene,
+    camera: usize,
+    rect: Rect,
+    lease_id: u64,
+    pass: Option<(Pass, Option<Vec<u8>>)>,
+    segments: Option<(u32, u32, u32)>,
+    aovs: Aovs,
+    cancel: &AtomicBool,
+) -> Result<(Payload, u64, Duration), Stop> {
+    if !aovs.is_empty() && (pass.is_some() || segments.is_some()) {
+        return Err(Stop::Failed(format!(
+            "a lease with render passes \"{aovs}\" cannot be {}",
+            if pass.is_some() {
+                "a progressive pass"
+            } else {
+                "encoded PNG segments"
+            }
+        )));
+    }
     let failed = |e: PassError| match e {
         PassError::Cancelled => Stop::Cancelled,
         e => Stop::Failed(e.to_string()),
@@ -286,6 +345,19 @@ pub(crate) fn render_lease(
     // Counted as render time: the coordinator sizes leases by it.
     #[cfg(feature = "test-hooks")]
     crate::test_hooks::lease_delay();
+    if !aovs.is_empty() {
+        let (r, values) = trevi_core::tile::render_tile_aovs(scene, camera, rect, aovs, cancel)
+            .map_err(|trevi_core::tile::Cancelled| Stop::Cancelled)?;
+        let pixels = Pixels::WithAovs(r.pixels, values.values);
+        return Ok((
+            Payload {
+                pixels,
+                state: None,
+            },
+            r.rays,
+            start.elapsed(),
+        ));
+    }
     let (pixels, rays, state) = match pass {
         None => {
             let r = trevi_core::tile::render_tile_cancellable(scene, camera, rect, cancel)

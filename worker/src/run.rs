@@ -4,6 +4,7 @@
 //! lost or `shutdown` turns true.
 
 use crate::config::WorkerConfig;
+use crate::cpu::RenderClocks;
 use crate::error::WorkerError;
 use crate::machine::watch_the_machine;
 use crate::priority;
@@ -29,13 +30,15 @@ pub async fn run(
     } else {
         cfg.threads
     };
+    let clocks = RenderClocks::default();
     let pool = Arc::new(
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("trevi-render-{i}"))
             .start_handler({
-                let priority = cfg.priority;
+                let (priority, clocks) = (cfg.priority, clocks.clone());
                 move |i| {
+                    clocks.register_this_thread();
                     let applied = priority::apply_to_this_thread(priority);
                     if i == 0 {
                         tracing::info!(threads, "render threads at {applied}");
@@ -69,6 +72,7 @@ pub async fn run(
                         .max_decoding_message_size(MAX_MESSAGE_SIZE),
                     pool: pool.clone(),
                     threads,
+                    clocks: clocks.clone(),
                     render: Arc::new(tokio::sync::Semaphore::new(1)),
                     paused: paused.clone(),
                     max_memory: cfg.max_memory,

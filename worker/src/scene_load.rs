@@ -34,7 +34,7 @@ impl Session {
         let scene = if key.frame.is_none() && key.samples.is_none() {
             scene
         } else {
-            to_key(scene, &key).await?
+            to_key(scene, &key, &self.pool).await?
         };
         let scene = Arc::new(scene);
         cache.put(key, scene.clone());
@@ -60,26 +60,32 @@ impl Session {
         }
         let want = hash.to_string();
         let limit = self.max_memory;
-        let scene = tokio::task::spawn_blocking(move || -> Result<Scene, SceneLoadError> {
-            let got = trevi_core::bundle::sha256_hex(&bytes);
-            if got != want {
-                return Err(SceneLoadError::HashMismatch { want, got });
-            }
-            let bundle = Bundle::decode(&bytes)?;
-            drop(bytes);
-            let desc = trevi_core::ParsedBundle::parse(bundle)?.desc;
-            // Checked before the build, which is what takes the memory.
-            let needs = trevi_core::scene::estimate::estimate(&desc)
-                .total()
-                .saturating_add(state);
-            if !limit.allows(needs) {
-                return Err(SceneLoadError::TooBig {
-                    needs,
-                    state,
-                    limit,
-                });
-            }
-            Ok(Scene::build(desc))
+        // On the render threads (under `Session::render`'s permit): at
+        // their priority, and counted in the lease's CPU time
+        // ([`crate::cpu`]), the BVH build's parallel parts included.
+        let pool = self.pool.clone();
+        let scene = tokio::task::spawn_blocking(move || {
+            pool.install(|| -> Result<Scene, SceneLoadError> {
+                let got = trevi_core::bundle::sha256_hex(&bytes);
+                if got != want {
+                    return Err(SceneLoadError::HashMismatch { want, got });
+                }
+                let bundle = Bundle::decode(&bytes)?;
+                drop(bytes);
+                let desc = trevi_core::ParsedBundle::parse(bundle)?.desc;
+                // Checked before the build, which is what takes the memory.
+                let needs = trevi_core::scene::estimate::estimate(&desc)
+                    .total()
+                    .saturating_add(state);
+                if !limit.allows(needs) {
+                    return Err(SceneLoadError::TooBig {
+                        needs,
+                        state,
+                        limit,
+                    });
+                }
+                Ok(Scene::build(desc))
+            })
         })
         .await??;
         let memory = trevi_core::scene::memory::SceneMemory::of(&scene.desc);
@@ -94,13 +100,20 @@ impl Session {
     }
 }
 
-/// Moves `scene` to `key`'s frame and gives it `key`'s samples, off the
-/// async threads.
-async fn to_key(mut scene: Scene, key: &Key) -> Result<Scene, SceneLoadError> {
+/// Moves `scene` to `key`'s frame and gives it `key`'s samples, on the
+/// render threads `pool` (as a build is).
+async fn to_key(
+    mut scene: Scene,
+    key: &Key,
+    pool: &Arc<rayon::ThreadPool>,
+) -> Result<Scene, SceneLoadError> {
     let start = std::time::Instant::now();
     let moved = key.clone();
-    let scene = tokio::task::spawn_blocking(move || apply_key(&mut scene, &moved).map(|()| scene))
-        .await??;
+    let pool = pool.clone();
+    let scene = tokio::task::spawn_blocking(move || {
+        pool.install(|| apply_key(&mut scene, &moved).map(|()| scene))
+    })
+    .await??;
     if let Some((_, frame)) = &key.frame {
         tracing::info!(bundle = %key.hash, frame, set_up_us = start.elapsed().as_micros() as u64,
             "scene moved to the frame");

@@ -8,6 +8,7 @@
 //! (`render.rs`), loading its scene (`scene_load.rs`), sending it
 //! (`upload.rs`) and reporting a pause (`machine.rs`).
 
+use crate::cpu::RenderClocks;
 use crate::memory::MaxMemory;
 use crate::pause::Pause;
 use crate::scene_cache::SharedScenes;
@@ -23,6 +24,8 @@ pub(crate) struct Session {
     pub(crate) bundles: BundlesClient<AuthChannel>,
     pub(crate) pool: Arc<rayon::ThreadPool>,
     pub(crate) threads: usize,
+    /// The render threads' CPU clocks (see [`crate::cpu`]).
+    pub(crate) clocks: RenderClocks,
     /// One permit: the tile that has the render threads. A loop takes it
     /// before leasing and gives it up once its tile is rendered, so the
     /// others send their results meanwhile but never hold a lease they are

@@ -10,7 +10,11 @@
 //!   place of `/proc/stat`, so a test decides the machine's load;
 //! - `TREVI_TEST_LEASE_DELAY_MS=N` ([`LEASE_DELAY_MS`]): every lease's render
 //!   takes at least N ms more, so a job lasts long enough for a test to act
-//!   in its middle however fast the machine is.
+//!   in its middle however fast the machine is;
+//! - `TREVI_TEST_FAIL_JOB=ID[,BYTES]` ([`FAIL_JOB`]): every lease of job
+//!   `ID` fails at once with an error text (of `BYTES` bytes when given, at
+//!   most 16 MiB), standing in for a machine that cannot render one job
+//!   (the blocklist tests).
 
 use trevi_core::Rect;
 
@@ -20,6 +24,30 @@ pub const ABORT_ON_TILE: &str = "TREVI_TEST_ABORT_ON_TILE";
 pub const PANIC_ON_TILE: &str = "TREVI_TEST_PANIC_ON_TILE";
 /// The variable whose milliseconds every lease's render waits first.
 pub const LEASE_DELAY_MS: &str = "TREVI_TEST_LEASE_DELAY_MS";
+
+/// The variable whose `ID[,BYTES]` makes every lease of job `ID` fail.
+pub const FAIL_JOB: &str = "TREVI_TEST_FAIL_JOB";
+
+/// Tests only: the error every lease of `job` fails with when [`FAIL_JOB`]
+/// names it (padded with `x` to `BYTES` bytes when given).
+pub(crate) fn job_fault(job: u64) -> Option<String> {
+    let v = std::env::var(FAIL_JOB).ok()?;
+    let (id, bytes) = match v.split_once(',') {
+        Some((id, b)) => (id, b.trim().parse::<usize>().ok()),
+        None => (v.as_str(), None),
+    };
+    if id.trim().parse::<u64>().ok()? != job {
+        return None;
+    }
+    let mut why = format!("test fault: every tile of job {job} fails");
+    if let Some(n) = bytes {
+        let n = n.min(16 << 20);
+        if n > why.len() {
+            why.push_str(&"x".repeat(n - why.len()));
+        }
+    }
+    Some(why)
+}
 
 /// Tests only: waits [`LEASE_DELAY_MS`] milliseconds (at most a minute)
 /// when it is set, on the render thread.

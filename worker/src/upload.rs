@@ -27,6 +27,9 @@ pub(crate) enum Pixels {
     /// For a lease with `png_segments`: the rect's encoded segments and
     /// preview sums (see [`crate::segments`]).
     Segments(EncodedRect),
+    /// For a lease with `aovs`: the pixels as floats, then the render pass
+    /// values (`trevi_core::AovTile` layout), uploaded after them.
+    WithAovs(Vec<[f32; 3]>, Vec<f32>),
 }
 
 /// What a render of a lease's rectangle reports besides its pixels.
@@ -37,6 +40,10 @@ pub struct Rendered {
     /// Time spent rendering (not loading the scene or waiting): the
     /// coordinator sizes the job's leases from it.
     pub took: Duration,
+    /// CPU time the render threads spent on the lease, scene build
+    /// included, in microseconds (`None`: not measured; see
+    /// `cpu.rs`).
+    pub cpu_micros: Option<u64>,
 }
 
 impl Session {
@@ -73,6 +80,11 @@ pub(crate) fn upload_messages(
         Pixels::Floats(pixels) => tile_messages(worker, session, lease, rect, rendered, &pixels),
         Pixels::Segments(encoded) => {
             segment_messages(worker, session, lease, rect, rendered, encoded)
+        }
+        Pixels::WithAovs(pixels, aovs) => {
+            let mut msgs = tile_messages(worker, session, lease, rect, rendered, &pixels);
+            msgs.extend(aov_messages(&aovs));
+            msgs
         }
     };
     if let Some(state) = payload.state {
@@ -117,6 +129,18 @@ pub fn tile_messages(
     msgs
 }
 
+/// Render pass values as the `aovs` parts of an upload (little-endian
+/// f32), in chunks of at most `CHUNK_SIZE` bytes.
+pub fn aov_messages(values: &[f32]) -> Vec<pb::TileUpload> {
+    use pb::tile_upload::Part;
+    trevi_proto::floats_to_bytes(values)
+        .chunks(CHUNK_SIZE)
+        .map(|c| pb::TileUpload {
+            part: Some(Part::Aovs(c.to_vec())),
+        })
+        .collect()
+}
+
 /// The first message of an upload, floats or segments: the header.
 pub(crate) fn header_message(
     worker: u64,
@@ -135,6 +159,7 @@ pub(crate) fn header_message(
             session: session.to_vec(),
             frame: lease.frame,
             render_micros: Some(rendered.took.as_micros().min(u128::from(u64::MAX)) as u64),
+            cpu_micros: rendered.cpu_micros,
         })),
     }
 }

@@ -32,7 +32,6 @@ pub use targets::{check_urls, MAX_NOTIFY_URLS, MAX_URL_BYTES};
 
 use crate::error::FarmError;
 use crate::scheduler::{JobId, Outcome};
-use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::Ordering;
@@ -45,12 +44,6 @@ pub const SSE_BUFFER: usize = 256;
 pub const MAX_SSE_SUBSCRIBERS: usize = 16;
 /// Largest `--events-secret-file`, in bytes.
 pub const MAX_SECRET_BYTES: usize = 4096;
-
-thread_local! {
-    /// The `--notify` URLs of the submission in progress on this thread
-    /// (see [`Events::with_notify`]).
-    static NOTIFY: RefCell<Option<Arc<[String]>>> = const { RefCell::new(None) };
-}
 
 /// Where the coordinator sends every job's events.
 #[derive(Debug, Clone, Default)]
@@ -132,19 +125,6 @@ impl Events {
         Ok(())
     }
 
-    /// Runs `submit` (a farm submission on this thread) with `notify` as the
-    /// new job's own event URLs, already checked by [`check_urls`]. The
-    /// farm's submission paths are shared with in-process callers and take
-    /// no URLs; the job's `submitted` event, emitted inside `submit` with
-    /// the farm locked, picks them up, so no event of the job can go
-    /// out before its URLs are known.
-    pub fn with_notify<R>(notify: Vec<String>, submit: impl FnOnce() -> R) -> R {
-        NOTIFY.with(|n| *n.borrow_mut() = Some(Arc::from(notify)));
-        let r = submit();
-        NOTIFY.with(|n| n.borrow_mut().take());
-        r
-    }
-
     /// The counters `/metrics` shows.
     pub fn stats(&self) -> &Stats {
         &self.stats
@@ -157,9 +137,11 @@ impl Events {
         (self.sse.receiver_count() < MAX_SSE_SUBSCRIBERS).then(|| self.sse.subscribe())
     }
 
-    /// A job was queued (with the URLs of [`Events::with_notify`], if any).
-    pub fn submitted(&self, job: JobId) {
-        let notify = NOTIFY.with(|n| n.borrow_mut().take());
+    /// A job was queued, with `notify` its own event URLs (`--notify`,
+    /// already checked by [`check_urls`]; emitted with the farm locked, so
+    /// no event of the job can go out before its URLs are known).
+    pub fn submitted(&self, job: JobId, notify: &[String]) {
+        let notify = (!notify.is_empty()).then(|| Arc::from(notify));
         let mut inner = self.lock();
         inner.live.insert(job, false);
         self.emit(&mut inner, job, EventKind::Submitted, None, None, notify);
@@ -287,7 +269,7 @@ mod tests {
     fn a_job_s_events_are_numbered_in_order_and_only_its_first_lease_starts_it() {
         let ev = Events::default();
         let mut rx = ev.subscribe().unwrap();
-        ev.submitted(1);
+        ev.submitted(1, &[]);
         ev.leased(1);
         ev.leased(1);
         ev.leased(7); // A frame (or a job without events): nothing.
@@ -295,7 +277,7 @@ mod tests {
         ev.frame_done(1, None);
         ev.paused(1);
         ev.resumed(1);
-        ev.submitted(2);
+        ev.submitted(2, &[]);
         ev.ended(2, &Err(JobFailure::Output("disk full".into())));
         ev.ended(1, &Ok(()));
         ev.cancelled(1); // Over already: nothing.
@@ -321,8 +303,8 @@ mod tests {
         let ev = Events::default();
         let mut rx = ev.subscribe().unwrap();
         let urls = vec!["http://127.0.0.1:1/a".to_string()];
-        Events::with_notify(urls.clone(), || ev.submitted(1));
-        ev.submitted(2);
+        ev.submitted(1, &urls);
+        ev.submitted(2, &[]);
         let a = rx.try_recv().unwrap();
         let b = rx.try_recv().unwrap();
         assert_eq!((a.job, &a.notify[..]), (1, &urls[..]));
@@ -339,7 +321,7 @@ mod tests {
         subs.pop();
         let mut slow = ev.subscribe().unwrap();
         for job in 0..SSE_BUFFER as u64 + 1 {
-            ev.submitted(job);
+            ev.submitted(job, &[]);
         }
         assert!(matches!(
             slow.try_recv(),
@@ -360,7 +342,7 @@ mod tests {
         // The dispatcher has not run (this runtime has one thread and the
         // test does not yield), so the channel holds QUEUE_EVENTS.
         for job in 0..QUEUE_EVENTS as u64 + 10 {
-            ev.submitted(job);
+            ev.submitted(job, &[]);
         }
         assert_eq!(ev.stats().dropped.load(Ordering::Relaxed), 10);
         assert_eq!(

@@ -6,7 +6,7 @@ use super::Farm;
 use crate::error::{FarmError, LimitKind};
 use crate::scheduler::{band_bytes, encoder_bytes, JobSpec};
 use std::path::Path;
-use trevi_core::Rect;
+use trevi_core::{Aovs, Rect};
 
 /// Checks a result's pixels against its rectangle: right count, every
 /// component finite and not negative. The renderer only ever produces linear
@@ -35,6 +35,30 @@ pub fn validate_pixels(rect: Rect, pixels: &[[f32; 3]]) -> Result<(), FarmError>
     } else {
         format!("pixel ({x}, {y}) is not finite: {p:?}")
     }))
+}
+
+/// Checks a tile's render pass values: exactly `rect`'s pixels × the
+/// job's `aovs` channels (none for a job without passes; `None`: a result
+/// whose values could not be cut into its tiles, of the wrong size too).
+/// Any value is taken (a miss's depth is +∞, and a pass is not radiance).
+pub fn validate_aovs(rect: Rect, aovs: Aovs, values: Option<&[f32]>) -> Result<(), FarmError> {
+    let want = rect.pixel_count().saturating_mul(aovs.channels());
+    match values {
+        Some(v) if v.len() == want => Ok(()),
+        got => Err(FarmError::BadTile(format!(
+            "{}x{} tile at ({}, {}) with render passes \"{aovs}\" needs {want} pass values \
+             ({} a pixel), got {}",
+            rect.w,
+            rect.h,
+            rect.x,
+            rect.y,
+            aovs.channels(),
+            match got {
+                Some(v) => v.len().to_string(),
+                None => "a number that is not a whole number of pixels".to_string(),
+            }
+        ))),
+    }
 }
 
 impl Farm {

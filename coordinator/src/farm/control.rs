@@ -1,6 +1,6 @@
 //! Job control: a job paused and resumed by a user
 //! ([`Farm::pause`], [`Farm::resume`]), and a job that waits for others to
-//! be done before it starts ([`Farm::submit_after`], `--after`).
+//! be done before it starts (`SubmitOptions::after`, `--after`).
 //!
 //! Both are a *hold* on a job as users see it (a still, a sequence or a
 //! progressive job), kept by id in the farm's state and in the database
@@ -24,7 +24,6 @@ use super::{Farm, State};
 use crate::error::FarmError;
 use crate::scheduler::{JobFailure, JobId, JobInfo, JobState, FRAME_IDS};
 use crate::store::StoredHold;
-use std::cell::RefCell;
 use std::time::Instant;
 
 /// Most jobs one submission may wait for (`--after`).
@@ -33,21 +32,15 @@ pub const MAX_AFTER: usize = 64;
 /// Why a job is held: paused, and the jobs it still waits for.
 pub type Hold = StoredHold;
 
-thread_local! {
-    /// The hold [`Farm::submit_after`] gives the job a submission on this
-    /// thread makes, taken by the first job (still, sequence or
-    /// progressive job) queued, under the state lock that gives it its id,
-    /// so no tile of it can be leased before it is held.
-    static INCOMING: RefCell<Option<Hold>> = const { RefCell::new(None) };
-}
-
-/// Clears [`INCOMING`] however the submission ends.
-struct Incoming;
-
-impl Drop for Incoming {
-    fn drop(&mut self) {
-        INCOMING.with(|h| h.borrow_mut().take());
-    }
+/// What a submission's options give the user job it makes (a still, a
+/// sequence or a progressive job), applied under the state lock that gives
+/// it its id: the hold it starts under (`--after`), so no tile of it can be
+/// leased before it is held, and its own event URLs (`--notify`), so no
+/// event of it goes out before they are known.
+#[derive(Debug, Default)]
+pub(super) struct Incoming {
+    pub(super) hold: Option<Hold>,
+    pub(super) notify: Vec<String>,
 }
 
 impl State {
@@ -87,12 +80,23 @@ impl State {
         }
     }
 
-    /// A new user job `id` (a still, a sequence or a progressive job)
-    /// takes the hold [`Farm::submit_after`] set on this thread, if any.
-    pub(super) fn take_incoming_hold(&mut self, id: JobId) -> Option<Hold> {
-        let hold = INCOMING.with(|h| h.borrow_mut().take())?;
+    /// New user job `id` (a still, a sequence or a progressive job) takes
+    /// the hold `incoming` brings, if any: recorded in the database, then
+    /// in the state (neither when the database refuses it).
+    pub(super) fn hold_incoming(
+        &mut self,
+        id: JobId,
+        incoming: &Incoming,
+        store: Option<&crate::store::Store>,
+    ) -> Result<(), FarmError> {
+        let Some(hold) = &incoming.hold else {
+            return Ok(());
+        };
+        if let Some(store) = store {
+            store.set_hold(id, hold)?;
+        }
         self.holds.insert(id, hold.clone());
-        Some(hold)
+        Ok(())
     }
 
     /// Parks new scheduler job `id` when its user job (itself, or the
@@ -216,29 +220,32 @@ impl Farm {
         Ok(ids)
     }
 
-    /// Submits a job (what `submit` does: a still, a sequence, a
-    /// progressive job) that waits for the jobs `after` to be done: it is
-    /// held from the moment it has an id, and queued once they are all
-    /// done; if one of them has failed or been cancelled it fails at once.
-    pub fn submit_after(
+    /// What a submission's `after` and `notify` give its job, checked
+    /// ([`Farm::check_after`]) before anything is queued: a job that waits
+    /// for others is held from the moment it has an id, and queued once
+    /// they are all done ([`Farm::settle_incoming`]).
+    pub(super) fn incoming(
         &self,
         after: &[JobId],
-        submit: impl FnOnce() -> Result<JobInfo, FarmError>,
-    ) -> Result<JobInfo, FarmError> {
+        notify: Vec<String>,
+    ) -> Result<Incoming, FarmError> {
         let after = self.check_after(after)?;
-        if after.is_empty() {
-            return submit();
+        Ok(Incoming {
+            hold: (!after.is_empty()).then_some(Hold {
+                paused: false,
+                after,
+            }),
+            notify,
+        })
+    }
+
+    /// A job just submitted with a hold from `--after`: if one of the jobs
+    /// it waits for has ended meanwhile, it moves on now (queued, or failed
+    /// naming it). Returns its status after that.
+    pub(super) fn settle_incoming(&self, info: JobInfo, waits: bool) -> Result<JobInfo, FarmError> {
+        if !waits {
+            return Ok(info);
         }
-        let info = {
-            let _clear = Incoming;
-            INCOMING.with(|h| {
-                *h.borrow_mut() = Some(Hold {
-                    paused: false,
-                    after,
-                })
-            });
-            submit()?
-        };
         self.check_waiting(info.id);
         self.info(info.id)
     }

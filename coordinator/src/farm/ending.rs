@@ -97,6 +97,7 @@ impl Farm {
             Err(e) => tracing::error!(job, error = %e, "job failed"),
         }
         st.unrecorded.remove(&job);
+        self.usage_ended(parent.unwrap_or(job), &ending);
         self.events.ended(job, &result);
         st.sched.finish(job, result, now);
         st.outputs.remove(&job);
@@ -176,6 +177,7 @@ impl Farm {
                 FarmError::io(format!("cannot record the cancellation of job {job}"), e)
             })?;
             st.unrecorded.remove(&job);
+            self.usage_ended(job, &ending);
         }
         let state = st.sched.cancel(job, now)?;
         st.submitters.remove(&job);

@@ -137,6 +137,7 @@ impl Farm {
         }
         self.work.notify_waiters();
         self.fail_jobs(failed);
+        self.log_faults();
         Ok(())
     }
 
@@ -207,6 +208,7 @@ impl Farm {
             self.work.notify_waiters();
         }
         self.fail_jobs(failed);
+        self.log_faults();
         let unrecorded: Vec<(JobId, crate::scheduler::Outcome)> = self
             .state
             .lock()

@@ -11,13 +11,14 @@ use crate::preview::Preview;
 use crate::scheduler::JobSpec;
 use crate::sink::{SinkError, TileSink};
 use std::path::PathBuf;
-use trevi_core::FrameWriter;
+use trevi_core::{Aovs, FrameWriter};
 
 /// The output file a job writes once its first tile comes.
 struct Pending {
     path: PathBuf,
     width: u32,
     height: u32,
+    aovs: Aovs,
 }
 
 pub(super) struct Output {
@@ -30,6 +31,8 @@ pub(super) struct Output {
     pub(super) total: u64,
     pub(super) max_rows_held: usize,
     pub(super) preview: Preview,
+    /// The job's render passes: what every tile brings with its pixels.
+    pub(super) aovs: Aovs,
 }
 
 impl Output {
@@ -42,6 +45,7 @@ impl Output {
             total,
             max_rows_held: 0,
             preview: Preview::new(spec.width, spec.height),
+            aovs: spec.aovs,
         }
     }
 
@@ -54,11 +58,13 @@ impl Output {
                 path,
                 width: spec.width,
                 height: spec.height,
+                aovs: spec.aovs,
             }),
             written: 0,
             total,
             max_rows_held: 0,
             preview: Preview::new(spec.width, spec.height),
+            aovs: spec.aovs,
         }
     }
 
@@ -68,6 +74,7 @@ impl Output {
         written: u64,
         total: u64,
         preview: Preview,
+        aovs: Aovs,
     ) -> Output {
         Output {
             max_rows_held: sink.rows_held(),
@@ -76,6 +83,7 @@ impl Output {
             written,
             total,
             preview,
+            aovs,
         }
     }
 
@@ -83,7 +91,7 @@ impl Output {
     /// is a sink to write to; false when the output is gone.
     pub(super) fn open(&mut self) -> Result<bool, SinkError> {
         if let Some(p) = self.pending.take() {
-            let writer = FrameWriter::create(&p.path, p.width, p.height)?;
+            let writer = FrameWriter::create_with_aovs(&p.path, p.width, p.height, p.aovs)?;
             self.sink = Some(Box::new(writer));
         }
         Ok(self.sink.is_some())

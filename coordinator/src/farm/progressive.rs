@@ -18,7 +18,7 @@
 //! removes the job.
 
 use super::pass_states::{state_bytes, state_path, StateFile};
-use super::Farm;
+use super::{Farm, SubmitOptions};
 use crate::error::{FarmError, LimitKind};
 use crate::scheduler::{JobId, JobSpec, JobState, SampleRange, WorkerId};
 use std::collections::HashMap;
@@ -169,30 +169,30 @@ impl Farm {
 
     /// Queues a progressive job: `spec`'s camera rendered in passes, as
     /// `p` asks. It counts as one job of its submitter.
-    pub fn submit_progressive(
+    pub fn submit_progressive<'a>(
         &self,
         spec: JobSpec,
         p: Progressive,
-        who: &str,
+        opts: impl Into<SubmitOptions<'a>>,
     ) -> Result<crate::scheduler::JobInfo, FarmError> {
         p.check()?;
         let (total, own) = self.job_samples(&spec, &p);
         self.check_progressive(&spec, total)?;
         let passes = Passes::new(total, own, &p);
-        self.submit_runs(spec, super::sequences::Runs::Passes(passes), who)
+        self.submit_runs(spec, super::sequences::Runs::Passes(passes), opts.into())
     }
 
     /// Queues a sequence in passes: frames `first..=last` of `spec`'s
     /// camera, each rendered in passes as `p` asks (its samples and pass
     /// size; a sequence takes no time limit or noise target), one frame
     /// after the other.
-    pub fn submit_progressive_sequence(
+    pub fn submit_progressive_sequence<'a>(
         &self,
         spec: JobSpec,
         first: u32,
         last: u32,
         p: Progressive,
-        who: &str,
+        opts: impl Into<SubmitOptions<'a>>,
     ) -> Result<crate::scheduler::JobInfo, FarmError> {
         p.check()?;
         if p.time_limit.is_some() || p.noise_target.is_some() {
@@ -206,7 +206,7 @@ impl Farm {
         self.check_progressive(&spec, total)?;
         let mut passes = Passes::new(total, own, &p);
         passes.frames = true;
-        self.submit_frames(spec, first, last, Some(passes), who)
+        self.submit_frames(spec, first, last, Some(passes), opts.into())
     }
 
     /// A job's samples per pixel and whether they are its own (`p.samples`)

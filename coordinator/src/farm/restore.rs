@@ -4,7 +4,7 @@
 //! and new jobs never reuse an id given before.
 
 use super::segments::decode_stored;
-use super::{lock, validate_pixels, Farm, Output};
+use super::{lock, validate_aovs, validate_pixels, Farm, Output};
 use crate::error::FarmError;
 use crate::preview::Preview;
 use crate::scheduler::JobFailure;
@@ -149,8 +149,10 @@ impl Farm {
         let job = info.id;
         let path = self.output_path(job, &info.spec.output_name);
         self.remove_stale_temp_files(info);
-        let mut writer = FrameWriter::create(&path, info.spec.width, info.spec.height)
-            .map_err(|e| FarmError::io("cannot create the output", e))?;
+        let aovs = info.spec.aovs;
+        let mut writer =
+            FrameWriter::create_with_aovs(&path, info.spec.width, info.spec.height, aovs)
+                .map_err(|e| FarmError::io("cannot create the output", e))?;
         let mut preview = Preview::new(info.spec.width, info.spec.height);
         let mut written = 0;
         let tile_rect =
@@ -163,13 +165,22 @@ impl Farm {
             Replayed::Floats { tile, bytes } => {
                 let rect = tile_rect(tile)?;
                 written += 1;
-                // The wire's format; a ragged length reads as no pixels,
+                // The wire's format: the pixels, then the render pass
+                // values (stitch.rs); a ragged length reads as no pixels,
                 // which the pixel count check then refuses.
-                let pixels = trevi_proto::pixels_from_bytes(bytes).unwrap_or_default();
+                let split = rect.pixel_count().saturating_mul(12).min(bytes.len());
+                let (px, rest) = bytes.split_at(split);
+                let pixels = trevi_proto::pixels_from_bytes(px).unwrap_or_default();
                 validate_pixels(rect, &pixels)?;
+                let values = trevi_proto::floats_from_bytes(rest);
+                validate_aovs(rect, aovs, values.as_deref())?;
                 preview.add_tile(rect, &pixels);
+                let aov = trevi_core::AovTile {
+                    aovs,
+                    values: values.unwrap_or_default(),
+                };
                 writer
-                    .write_tile(rect, &pixels)
+                    .write_tile_aovs(rect, &pixels, &aov)
                     .map_err(|e| FarmError::io("writing the output", e))
             }
             Replayed::Segments {
@@ -201,6 +212,7 @@ impl Farm {
             written,
             info.tiles_total,
             preview,
+            aovs,
         ))
     }
 

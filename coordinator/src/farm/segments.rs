@@ -602,13 +602,17 @@ impl Farm {
         };
         // Checked open under this same lock: every tile is new.
         let (stored, _) = st.sched.take_span(job, &span.tiles, up.rays, render, now)?;
+        // Not in a status until stored, below.
+        st.taking(job, stored.len() as u64, self.store.is_some());
         st.publish(job);
         drop(st);
         self.work.notify_waiters();
 
         if let Some(store) = &self.store {
             let record = encode_stored(&plan, up.rect, &up);
-            if let Err(e) = store.put_segment_span(job, &stored, &record.pieces()) {
+            let put = store.put_segment_span(job, &stored, &record.pieces());
+            self.state.lock().stored(job, stored.len() as u64);
+            if let Err(e) = put {
                 lock(&out).sink = None;
                 self.end_job(
                     job,
@@ -663,6 +667,7 @@ impl Farm {
         tracing::warn!(job, lease, error = %e, "segments rejected; tiles re-queued");
         self.work.notify_waiters();
         self.fail_jobs(failed);
+        self.log_faults();
         e
     }
 

@@ -26,6 +26,7 @@
 //! `sequences/restore.rs`, picking sequences up after a restart.
 
 use super::passes::Passes;
+use super::submit::{Role, SubmitOptions};
 use super::{Farm, State};
 use crate::error::FarmError;
 #[cfg(doc)]
@@ -34,7 +35,7 @@ use crate::scheduler::{
     FramesInfo, JobFailure, JobId, JobInfo, JobSpec, JobState, Outcome, Scheduler,
 };
 use crate::store::{wall_ms, SeqLink, StoredJob};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
@@ -62,6 +63,9 @@ pub struct Sequence {
     pub(super) next: u32,
     /// Frames in progress and their jobs.
     pub(super) running: BTreeMap<u32, JobId>,
+    /// Frames before `next` to render again, queued before it (a requeue
+    /// or a retry, `requeue/frames.rs`).
+    pub(super) again: BTreeSet<u32>,
     pub(super) state: JobState,
     pub(super) submitted: Instant,
     /// When its first frame got its first tile leased, once a frame that
@@ -195,6 +199,11 @@ impl Sequence {
             }),
             paused: false,
             waiting_for: Vec::new(),
+            blocked: self
+                .running
+                .values()
+                .flat_map(|&j| sched.blocked(j))
+                .collect(),
         }
     }
 }
@@ -307,14 +316,14 @@ impl Farm {
     /// Queues a sequence: frames `first..=last` of `spec`'s camera, each
     /// output named from `spec.output_name` by [`sequence_pattern`]. It
     /// counts as one job of its submitter.
-    pub fn submit_sequence(
+    pub fn submit_sequence<'a>(
         &self,
         spec: JobSpec,
         first: u32,
         last: u32,
-        who: &str,
+        opts: impl Into<SubmitOptions<'a>>,
     ) -> Result<JobInfo, FarmError> {
-        self.submit_frames(spec, first, last, None, who)
+        self.submit_frames(spec, first, last, None, opts.into())
     }
 
     /// [`Farm::submit_sequence`], each frame in `passes` when given.
@@ -324,7 +333,7 @@ impl Farm {
         first: u32,
         last: u32,
         passes: Option<Passes>,
-        who: &str,
+        opts: SubmitOptions,
     ) -> Result<JobInfo, FarmError> {
         if first > last || last > MAX_FRAME {
             return Err(FarmError::Invalid(format!(
@@ -338,7 +347,7 @@ impl Farm {
                 last,
                 passes,
             },
-            who,
+            opts,
         )
     }
 
@@ -347,12 +356,21 @@ impl Farm {
         &self,
         mut spec: JobSpec,
         runs: Runs,
-        who: &str,
+        opts: SubmitOptions,
     ) -> Result<JobInfo, FarmError> {
+        let who = opts.who;
+        if opts.sink.is_some() {
+            return Err(FarmError::Invalid(
+                "a sink of its own is for a still: a sequence's frames and passes are \
+                 written by the farm"
+                    .into(),
+            ));
+        }
         if spec.width == 0 || spec.height == 0 {
             return Err(FarmError::refused_scene("the frame is empty"));
         }
         self.check_memory(&spec)?;
+        let incoming = self.incoming(&opts.after, opts.notify)?;
         let (first, last, passes) = match runs {
             Runs::Frames {
                 first,
@@ -391,6 +409,7 @@ impl Farm {
             done: 0,
             next: first,
             running: BTreeMap::new(),
+            again: BTreeSet::new(),
             state: JobState::Queued,
             submitted: now,
             started: None,
@@ -401,23 +420,17 @@ impl Farm {
             latest: None,
             passes,
         };
-        if let Some(hold) = st.take_incoming_hold(id) {
-            if let Some(store) = &self.store {
-                if let Err(e) = store.set_hold(id, &hold) {
-                    st.holds.remove(&id);
-                    return Err(e);
-                }
-            }
-        }
+        st.hold_incoming(id, &incoming, self.store.as_ref())?;
         st.seqs.insert(id, seq);
         let info = st.info(id, now).expect("just inserted");
         st.watchers.insert(id, watch::channel(info.clone()).0);
         st.submitters.insert(id, who.to_string());
-        self.events.submitted(id);
+        self.events.submitted(id, &incoming.notify);
         drop(st);
         tracing::info!(job = id, first, last, camera = %info.spec.camera, "sequence queued");
         self.advance(id);
-        self.info(id)
+        let info = self.info(id)?;
+        self.settle_incoming(info, incoming.hold.is_some())
     }
 
     /// Moves a sequence on: queues its next frames while fewer than
@@ -469,7 +482,9 @@ impl Farm {
                 .passes
                 .as_ref()
                 .is_some_and(|p| p.frames && p.samples_done > 0 && p.samples_done < p.total);
-            if s.running.len() >= most || (s.next > s.last && !mid_frame) {
+            // A frame to render again goes first.
+            let again = s.again.first().copied().filter(|_| !mid_frame);
+            if s.running.len() >= most || (again.is_none() && s.next > s.last && !mid_frame) {
                 return;
             }
             let rendered = s.started.map_or(Duration::ZERO, |t| t.elapsed());
@@ -491,7 +506,7 @@ impl Farm {
             let (f, starts) = if mid_frame {
                 (s.next - 1, false)
             } else {
-                (s.next, true)
+                (again.unwrap_or(s.next), true)
             };
             let done = s.done;
             let s = st.seqs.get_mut(&seq).expect("checked above");
@@ -513,9 +528,11 @@ impl Farm {
                 },
             };
             let who = s.spec.submitter.clone();
-            let queued = self.submit_locked(&mut st, spec, None, &who, Some(seq));
+            let queued = self.submit_locked(&mut st, spec, None, &who, Role::Run(seq));
             let s = st.seqs.get_mut(&seq).expect("checked above");
-            if starts {
+            if again.is_some() {
+                s.again.remove(&f);
+            } else if starts {
                 s.next = f + 1;
             }
             match queued {

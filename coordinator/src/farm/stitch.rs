@@ -12,7 +12,7 @@ use crate::scheduler::JobFailure;
 use crate::scheduler::JobId;
 use crate::sink::TileSink;
 use std::sync::Mutex;
-use trevi_core::Rect;
+use trevi_core::{AovTile, Rect};
 
 impl Farm {
     /// Stores admitted tiles of `job` (one transaction: committed before
@@ -28,17 +28,26 @@ impl Farm {
             return Ok(true);
         };
         if let Some(store) = &self.store {
+            // A tile's stored bytes: its pixels, then its render pass
+            // values (none for a job without passes): restore.rs cuts them
+            // apart by the tile's pixel count.
             let rows: Vec<_> = tiles
                 .iter()
                 .map(|t| {
-                    (
-                        t.idx,
-                        t.rays,
-                        trevi_proto::pixels_as_bytes(t.pixels.as_ref()),
-                    )
+                    let pixels = trevi_proto::pixels_as_bytes(t.pixels.as_ref());
+                    let bytes = if t.aovs.is_empty() {
+                        pixels
+                    } else {
+                        let mut b = pixels.into_owned();
+                        b.extend_from_slice(&trevi_proto::floats_to_bytes(&t.aovs));
+                        std::borrow::Cow::Owned(b)
+                    };
+                    (t.idx, t.rays, bytes)
                 })
                 .collect();
-            if let Err(e) = store.put_tiles(job, &rows) {
+            let stored = store.put_tiles(job, &rows);
+            self.state.lock().stored(job, tiles.len() as u64);
+            if let Err(e) = stored {
                 lock(&first.out).close();
                 self.end_job(
                     job,
@@ -52,7 +61,7 @@ impl Farm {
         }
         let mut all = true;
         for t in tiles {
-            all &= self.write_out(job, &t.out, t.rect, t.pixels.as_ref())?;
+            all &= self.write_out(job, &t.out, t.rect, t.pixels.as_ref(), &t.aovs)?;
         }
         Ok(all)
     }
@@ -66,9 +75,14 @@ impl Farm {
         out: &Mutex<Output>,
         rect: Rect,
         pixels: &[[f32; 3]],
+        aovs: &[f32],
     ) -> Result<bool, FarmError> {
+        let aovs = AovTile {
+            aovs: lock(out).aovs,
+            values: aovs.to_vec(),
+        };
         self.write_output(job, out, 1, |sink, preview| {
-            sink.write_tile(rect, pixels)?;
+            sink.write_tile_aovs(rect, pixels, &aovs)?;
             preview.add_tile(rect, pixels);
             Ok(())
         })

@@ -6,6 +6,7 @@
 //! [`Farm::submit_locked`] (see `sequences.rs`).
 
 use super::checks::output_name;
+use super::control::Incoming;
 use super::outputs::Output;
 use super::{Farm, State};
 use crate::error::{FarmError, LimitKind};
@@ -16,19 +17,47 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use tokio::sync::watch;
 
+/// What a job queued by [`Farm::submit_locked`] is.
+#[derive(Clone, Copy)]
+pub(super) enum Role<'a> {
+    /// A job as users see it (a still), with what its submission brings.
+    User(&'a Incoming),
+    /// A frame or pass of the sequence or progressive job given.
+    Run(JobId),
+}
+
 /// Makes a job's [`TileSink`] once its id is known.
 pub type MakeSink<'a> = Box<dyn FnOnce(JobId) -> Result<Box<dyn TileSink>, FarmError> + 'a>;
 
-/// How [`Farm::submit`] queues a job.
+/// How [`Farm::submit`] (and the sequence and progressive submissions)
+/// queue a job. `"name".into()` is a submission by `name` with nothing
+/// else.
 #[derive(Default)]
 pub struct SubmitOptions<'a> {
-    /// Who submits (a client's address), who may have at most
-    /// [`Limits::max_jobs_per_submitter`](crate::limits::Limits::max_jobs_per_submitter) unfinished jobs; empty for
-    /// in-process callers, who share one count.
+    /// Who submits (a client's address or its token's name), who may have
+    /// at most [`Limits::max_jobs_per_submitter`](crate::limits::Limits::max_jobs_per_submitter)
+    /// unfinished jobs; empty for in-process callers, who share one count.
     pub who: &'a str,
     /// Where the job's tiles go; `None`: a [`trevi_core::FrameWriter`] writing
-    /// [`Farm::output_path`].
+    /// [`Farm::output_path`]. Stills only.
     pub sink: Option<MakeSink<'a>>,
+    /// `--after`: jobs this one waits for (at most
+    /// [`MAX_AFTER`](crate::farm::MAX_AFTER), each submitted before it):
+    /// it is held from the moment it has an id and queued once they are
+    /// all done; if one of them fails or is cancelled, it fails naming it.
+    pub after: Vec<JobId>,
+    /// `--notify`: the job's own event URLs, checked by
+    /// [`check_urls`](crate::events::check_urls).
+    pub notify: Vec<String>,
+}
+
+impl<'a> From<&'a str> for SubmitOptions<'a> {
+    fn from(who: &'a str) -> Self {
+        SubmitOptions {
+            who,
+            ..SubmitOptions::default()
+        }
+    }
 }
 
 impl Farm {
@@ -99,12 +128,18 @@ impl Farm {
             scene: summary.scene.clone(),
             submitter: String::new(),
             samples: None,
+            aovs: cam.aovs,
         })
     }
 
     /// Queues a job; its tiles go where `opts` says.
     pub fn submit(&self, spec: JobSpec, opts: SubmitOptions) -> Result<JobInfo, FarmError> {
-        let SubmitOptions { who, sink: make } = opts;
+        let SubmitOptions {
+            who,
+            sink: make,
+            after,
+            notify,
+        } = opts;
         let spec = JobSpec {
             submitter: who.to_string(),
             ..spec
@@ -113,12 +148,13 @@ impl Farm {
             return Err(FarmError::refused_scene("the frame is empty"));
         }
         self.check_memory(&spec)?;
+        let incoming = self.incoming(&after, notify)?;
         let mut st = self.state.lock();
         Self::check_submitter(&st, who, self.cfg.limits.max_jobs_per_submitter)?;
-        let info = self.submit_locked(&mut st, spec, make, who, None)?;
+        let info = self.submit_locked(&mut st, spec, make, who, Role::User(&incoming))?;
         drop(st);
         self.work.notify_waiters();
-        Ok(info)
+        self.settle_incoming(info, incoming.hold.is_some())
     }
 
     /// Refuses a submission from `who` when it has `max` unfinished jobs.
@@ -151,8 +187,12 @@ impl Farm {
         spec: JobSpec,
         make: Option<MakeSink<'_>>,
         who: &str,
-        parent: Option<JobId>,
+        role: Role<'_>,
     ) -> Result<JobInfo, FarmError> {
+        let parent = match role {
+            Role::User(_) => None,
+            Role::Run(seq) => Some(seq),
+        };
         let now = Instant::now();
         // The scene's memory estimate, from the summary `job_spec` made.
         let memory = self
@@ -193,14 +233,11 @@ impl Farm {
         }
         // Held (waiting for other jobs, or a frame of a held sequence):
         // parked before the lock that gave it its id is released.
-        if parent.is_none() {
-            if let Some(hold) = st.take_incoming_hold(id) {
-                if let Some(Err(e)) = self.store.as_ref().map(|s| s.set_hold(id, &hold)) {
-                    st.holds.remove(&id);
-                    st.sched
-                        .finish(id, Err(JobFailure::Output(e.to_string())), now);
-                    return Err(e);
-                }
+        if let Role::User(incoming) = role {
+            if let Err(e) = st.hold_incoming(id, incoming, self.store.as_ref()) {
+                st.sched
+                    .finish(id, Err(JobFailure::Output(e.to_string())), now);
+                return Err(e);
             }
         }
         st.park_if_held(id, parent);
@@ -218,8 +255,8 @@ impl Farm {
         tracing::info!(job = id, camera = %info.spec.camera, width = info.spec.width,
             height = info.spec.height, priority = info.spec.priority, frame = ?info.spec.frame,
             "job queued");
-        if parent.is_none() {
-            self.events.submitted(id)
+        if let Role::User(incoming) = role {
+            self.events.submitted(id, &incoming.notify)
         }
         Ok(info)
     }

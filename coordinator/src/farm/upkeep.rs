@@ -1,7 +1,9 @@
 //! The farm's own periodic work while it serves: re-queueing the tiles whose
 //! leases ran out ([`Farm::expire`], a few times per lease lifetime) and
 //! removing bundles no job uses once past their grace period
-//! ([`Farm::collect_bundles`], first at start-up).
+//! ([`Farm::collect_bundles`], first at start-up), and writing the usage
+//! history gathered ([`Farm::flush_usage`], every
+//! [`FLUSH_EVERY`](crate::usage::FLUSH_EVERY)).
 
 use super::Farm;
 use std::sync::Arc;
@@ -22,8 +24,8 @@ impl Drop for Upkeep {
 }
 
 impl Farm {
-    /// Starts the lease reaper and the bundle collector on the current
-    /// tokio runtime.
+    /// Starts the lease reaper, the bundle collector and the usage flusher
+    /// on the current tokio runtime.
     pub fn start_upkeep(self: &Arc<Self>) -> Upkeep {
         let reaper = {
             let farm = self.clone();
@@ -49,8 +51,19 @@ impl Farm {
                 }
             })
         };
+        let usage = {
+            let farm = self.clone();
+            tokio::spawn(async move {
+                let mut tick = tokio::time::interval(crate::usage::FLUSH_EVERY);
+                loop {
+                    tick.tick().await;
+                    let farm = farm.clone();
+                    let _ = tokio::task::spawn_blocking(move || farm.flush_usage()).await;
+                }
+            })
+        };
         Upkeep {
-            tasks: vec![reaper, collector],
+            tasks: vec![reaper, collector, usage],
         }
     }
 }
@@ -58,6 +71,12 @@ impl Farm {
 impl Farm {
     /// Removes the bundles no job uses that are older than
     /// [`super::Retention::bundle_grace`]; returns how many went.
+    ///
+    /// A job uses its bundle as long as the farm keeps it, ended or not: an
+    /// ended job may still be extended, retried or requeued, which renders
+    /// from the same bundle. So a sequence's or a progressive job's bundle
+    /// stays until retention forgets the job itself, not only its frame or
+    /// pass jobs (which `--keep-ended` counts apart and forgets sooner).
     pub fn collect_bundles(&self) -> usize {
         let mut keep: std::collections::HashSet<String> = self
             .list()
@@ -69,7 +88,6 @@ impl Farm {
                 .lock()
                 .seqs
                 .values()
-                .filter(|s| !s.state.is_final())
                 .map(|s| s.spec.bundle_hash.clone()),
         );
         self.bundles.collect(&keep, self.cfg.retention.bundle_grace)

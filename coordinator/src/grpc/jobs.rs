@@ -1,11 +1,14 @@
 //! `trevi.v1.Jobs`: submitting, watching, listing, pausing, resuming,
-//! retrying and cancelling jobs, their previews and their finished outputs; and
+//! retrying and cancelling jobs, unblocking workers and reading the tile
+//! log (`log.rs`), their previews and their finished outputs, the usage
+//! history; and
 //! [`job_status`], a job's status as the wire carries it.
 
 use super::{blocking, stream_file};
-use crate::events::Events;
+use crate::auth;
 use crate::farm::{Farm, Progressive, SubmitOptions};
 use crate::scheduler::{JobInfo, JobState};
+use crate::usage::{usage_to_pb, UsageQuery};
 use crate::FarmError;
 use std::sync::Arc;
 use std::time::Duration;
@@ -64,6 +67,8 @@ pub fn job_status(info: &JobInfo) -> pb::JobStatus {
         }),
         paused: info.paused,
         waiting_for: info.waiting_for.clone(),
+        blocked: super::log::blocked_status(&info.blocked),
+        aovs: info.spec.aovs.to_string(),
     }
 }
 
@@ -89,40 +94,45 @@ impl pb::jobs_server::Jobs for JobsService {
         &self,
         req: Request<pb::SubmitJobRequest>,
     ) -> Result<Response<pb::JobStatus>, Status> {
-        // Submitters are told apart by their address (see Limits).
-        let who = req
-            .remote_addr()
-            .map(|a| a.ip().to_string())
-            .unwrap_or_default();
+        // Submitters are told apart by their named token, else by their
+        // address (see Limits and `auth::named`).
+        let who = match auth::granted(&req).name {
+            Some(name) => name.to_string(),
+            None => req
+                .remote_addr()
+                .map(|a| a.ip().to_string())
+                .unwrap_or_default(),
+        };
         let r = req.into_inner();
         // Checked before any work.
         let notify = crate::events::check_urls(&r.notify, "--notify")?;
+        let (sequence, progressive) = (r.frames.is_some(), r.progressive.is_some());
+        let aovs = crate::farm::aovs_from(r.aovs.as_deref(), progressive)?;
         let farm = self.farm.clone();
         let info = blocking(move || {
             // Checked before the scene is read (the list is bounded).
             farm.check_after(&r.after)?;
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
-            Events::with_notify(notify, || {
-                farm.submit_after(&r.after, || match (r.frames, r.progressive) {
-                    (Some(f), Some(p)) => farm.submit_progressive_sequence(
-                        spec,
-                        f.first,
-                        f.last,
-                        progressive_from(&p),
-                        &who,
-                    ),
-                    (None, Some(p)) => farm.submit_progressive(spec, progressive_from(&p), &who),
-                    (Some(f), None) => farm.submit_sequence(spec, f.first, f.last, &who),
-                    (None, None) => farm.submit(
-                        spec,
-                        SubmitOptions {
-                            who: &who,
-                            ..SubmitOptions::default()
-                        },
-                    ),
-                })
-            })
+            crate::farm::apply_aovs(&mut spec, aovs, sequence, progressive)?;
+            let opts = SubmitOptions {
+                who: &who,
+                after: r.after,
+                notify,
+                sink: None,
+            };
+            match (r.frames, r.progressive) {
+                (Some(f), Some(p)) => farm.submit_progressive_sequence(
+                    spec,
+                    f.first,
+                    f.last,
+                    progressive_from(&p),
+                    opts,
+                ),
+                (None, Some(p)) => farm.submit_progressive(spec, progressive_from(&p), opts),
+                (Some(f), None) => farm.submit_sequence(spec, f.first, f.last, opts),
+                (None, None) => farm.submit(spec, opts),
+            }
         })
         .await?;
         Ok(Response::new(job_status(&info)))
@@ -249,6 +259,28 @@ impl pb::jobs_server::Jobs for JobsService {
         )))
     }
 
+    type DownloadAovStream = ReceiverStream<Result<pb::OutputChunk, Status>>;
+
+    async fn download_aov(
+        &self,
+        req: Request<pb::AovFileRequest>,
+    ) -> Result<Response<Self::DownloadAovStream>, Status> {
+        let r = req.into_inner();
+        let farm = self.farm.clone();
+        let file = blocking(move || {
+            let path = farm.aov_file(r.id, &r.aov)?;
+            let file = std::fs::File::open(&path).map_err(|e| {
+                FarmError::io(format!("opening the {} pass of job {}", r.aov, r.id), e)
+            })?;
+            Ok(file)
+        })
+        .await?;
+        Ok(Response::new(stream_file(
+            tokio::fs::File::from_std(file),
+            |data, size| pb::OutputChunk { data, size },
+        )))
+    }
+
     async fn extend_job(
         &self,
         req: Request<pb::ExtendJobRequest>,
@@ -280,7 +312,55 @@ impl pb::jobs_server::Jobs for JobsService {
     async fn retry_job(&self, req: Request<pb::JobId>) -> Result<Response<pb::JobStatus>, Status> {
         let id = req.into_inner().id;
         let farm = self.farm.clone();
-        let info = blocking(move || farm.retry(id)).await?;
+        let info = blocking(move || farm.retry_job(id)).await?;
         Ok(Response::new(job_status(&info)))
+    }
+
+    async fn requeue_job(
+        &self,
+        req: Request<pb::RequeueJobRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        let r = req.into_inner();
+        let frames = r.frames.map(|f| (f.first, f.last));
+        if let Some((a, b)) = frames.filter(|(a, b)| a > b) {
+            return Err(Status::invalid_argument(format!(
+                "frames {a}-{b}: the first frame is after the last"
+            )));
+        }
+        let rect = r.rect.map(|q| trevi_core::Rect::new(q.x, q.y, q.w, q.h));
+        let farm = self.farm.clone();
+        let info = blocking(move || farm.requeue(r.id, frames, rect)).await?;
+        Ok(Response::new(job_status(&info)))
+    }
+
+    async fn unblock_worker(
+        &self,
+        req: Request<pb::UnblockWorkerRequest>,
+    ) -> Result<Response<pb::JobStatus>, Status> {
+        Ok(Response::new(
+            super::log::unblock(&self.farm, req.into_inner()).await?,
+        ))
+    }
+
+    async fn get_tile_log(
+        &self,
+        req: Request<pb::TileLogRequest>,
+    ) -> Result<Response<pb::TileLog>, Status> {
+        Ok(Response::new(
+            super::log::get_tile_log(&self.farm, req.into_inner()).await?,
+        ))
+    }
+
+    async fn usage(
+        &self,
+        req: Request<pb::UsageRequest>,
+    ) -> Result<Response<pb::UsageResponse>, Status> {
+        let r = req.into_inner();
+        // Checked before any work.
+        let q = UsageQuery::new(r.since_s, &r.by)
+            .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let farm = self.farm.clone();
+        let report = blocking(move || farm.usage(&q)).await?;
+        Ok(Response::new(usage_to_pb(&report)))
     }
 }

@@ -3,7 +3,7 @@
 //! unrendered.
 
 use super::{blocking, NOT_SERVED};
-use crate::farm::{Farm, LeaseResult, SegmentUpload, TileOutcome, WorkerOptions};
+use crate::farm::{Farm, LeaseResult, RenderedLease, SegmentUpload, TileOutcome, WorkerOptions};
 use crate::FarmError;
 use std::sync::Arc;
 use std::time::Duration;
@@ -194,6 +194,7 @@ impl WorkersService {
         };
         let farm = self.farm.clone();
         let (rays, render) = (header.rays, header.render_micros.map(Duration::from_micros));
+        let (cpu, tiles) = (header.cpu_micros, parts.len() as u64);
         let outcome = blocking(move || {
             if let Err(e) = farm.put_state(job, rect, &parts, state.as_deref()) {
                 return Err(match e {
@@ -203,7 +204,7 @@ impl WorkersService {
                     e => e,
                 });
             }
-            farm.put_segments(
+            let outcome = farm.put_segments(
                 SegmentUpload {
                     lease,
                     job,
@@ -215,13 +216,50 @@ impl WorkersService {
                 },
                 &parts,
                 render,
-            )
+            )?;
+            if outcome == TileOutcome::Accepted {
+                farm.count_usage(job, worker, cpu, tiles, rays);
+            }
+            Ok(outcome)
         })
         .await?;
+        self.log_rendered(&header, rect, tiles as usize, outcome)
+            .await;
         Ok(Response::new(pb::TileAck {
             accepted: outcome == TileOutcome::Accepted,
         }))
     }
+
+    /// Logs a lease whose result was accepted in its job's tile log (see
+    /// `crate::farm::tile_log`).
+    async fn log_rendered(
+        &self,
+        h: &pb::TileHeader,
+        rect: trevi_core::Rect,
+        tiles: usize,
+        outcome: TileOutcome,
+    ) {
+        if outcome != TileOutcome::Accepted {
+            return;
+        }
+        let r = RenderedLease {
+            job: h.job_id,
+            worker: h.worker_id,
+            rect,
+            tiles: tiles as u32,
+            rays: h.rays,
+            render_micros: h.render_micros,
+            cpu_micros: header_cpu_micros(h),
+        };
+        let farm = self.farm.clone();
+        let _ = tokio::task::spawn_blocking(move || farm.log_rendered(&r)).await;
+    }
+}
+
+/// The CPU time a worker reports for a lease, in microseconds (`None`
+/// from workers too old to say): the one place the tile log reads it.
+fn header_cpu_micros(h: &pb::TileHeader) -> Option<u64> {
+    h.cpu_micros
 }
 
 #[tonic::async_trait]
@@ -286,6 +324,7 @@ impl pb::workers_server::Workers for WorkersService {
                     end: r.end,
                     total: r.total,
                 }),
+                aovs: l.aovs.to_string(),
             }),
         }))
     }
@@ -344,9 +383,34 @@ impl pb::workers_server::Workers for WorkersService {
         let mut bytes = Vec::with_capacity(expected.min(64 << 20));
         let mut oversized = false;
         let mut state: Option<Vec<u8>> = None;
+        // Render pass values: read up to the most any job's passes have (7
+        // channels a pixel); their exact count is the job's, checked when
+        // the tiles are admitted (`checks::validate_aovs`).
+        let most_aovs = rect
+            .pixel_count()
+            .saturating_mul(trevi_core::Aovs::ALL.channels() * 4);
+        let mut aovs: Vec<u8> = Vec::new();
         let mut next = first;
         while let Some(m) = next {
             match m.part {
+                Some(Part::Aovs(_)) if state.is_some() => {
+                    return Err(Status::invalid_argument(
+                        "a tile upload's render passes come before its state",
+                    ))
+                }
+                Some(Part::Aovs(a)) if !oversized => {
+                    if aovs.len() + a.len() > most_aovs {
+                        // Stop reading: the size check rejects it.
+                        oversized = true;
+                        break;
+                    }
+                    aovs.extend_from_slice(&a);
+                }
+                Some(Part::Pixels(_)) if !aovs.is_empty() => {
+                    return Err(Status::invalid_argument(
+                        "a tile upload's render passes come after all of its pixels",
+                    ))
+                }
                 Some(Part::State(b)) if !oversized => {
                     if let Err(why) = add_state(&mut state, &b, rect) {
                         let farm = self.farm.clone();
@@ -381,10 +445,13 @@ impl pb::workers_server::Workers for WorkersService {
             }
             next = self.next_part(&mut s).await?;
         }
+        // Pass values that are not whole floats are of the wrong size too.
+        let aovs = trevi_proto::floats_from_bytes(&aovs);
         let pixels = match pixels_from_bytes(&bytes) {
-            Ok(p) if !oversized => p,
+            Ok(p) if !oversized && aovs.is_some() => p,
             _ => Vec::new(), // Wrong size: validation rejects and re-queues.
         };
+        let aovs = aovs.unwrap_or_default();
         let farm = self.farm.clone();
         let (worker, lease, job, rays) = (
             header.worker_id,
@@ -393,6 +460,7 @@ impl pb::workers_server::Workers for WorkersService {
             header.rays,
         );
         let render = header.render_micros.map(Duration::from_micros);
+        let (cpu, tiles) = (header.cpu_micros, parts.len() as u64);
         let outcome = blocking(move || {
             if !pixels.is_empty() {
                 if let Err(e) = farm.put_state(job, rect, &parts, state.as_deref()) {
@@ -404,7 +472,7 @@ impl pb::workers_server::Workers for WorkersService {
                     });
                 }
             }
-            farm.put_span_rendered(
+            let outcome = farm.put_span_aovs(
                 LeaseResult {
                     lease,
                     job,
@@ -413,11 +481,20 @@ impl pb::workers_server::Workers for WorkersService {
                     pixels: &pixels,
                     worker: Some(worker),
                 },
+                &aovs,
                 &parts,
                 render,
-            )
+            )?;
+            // Counted in the usage history once accepted (a late or
+            // duplicate result is the farm's cost, not the job's).
+            if outcome == TileOutcome::Accepted {
+                farm.count_usage(job, worker, cpu, tiles, rays);
+            }
+            Ok(outcome)
         })
         .await?;
+        self.log_rendered(&header, rect, tiles as usize, outcome)
+            .await;
         Ok(Response::new(pb::TileAck {
             accepted: outcome == TileOutcome::Accepted,
         }))

@@ -7,11 +7,12 @@
 //! worker too often fails its job, and so does a job every live worker is
 //! kept from or none can hold ([`Scheduler::take_failed`]).
 
+use super::blocks::{TileFault, MAX_PENDING_FAULTS};
 use super::failure::JobFailure;
 use super::types::{JobId, LeaseId, SchedError};
 use super::window::TileState;
 use super::Scheduler;
-use crate::workers::WorkerId;
+use crate::workers::{WorkerId, Workers};
 use std::time::{Duration, Instant};
 
 /// Why a lease ends before its tile is done.
@@ -23,6 +24,23 @@ pub(super) enum Release {
     Failed,
     /// The worker gave it back unrendered (it is stopping): no one's fault.
     Returned,
+}
+
+/// How a job's error names the workers `ids`: by name and id, the first
+/// eight, then how many more.
+fn name_workers(workers: &Workers, ids: &[WorkerId]) -> String {
+    let mut named: Vec<String> = ids
+        .iter()
+        .take(8)
+        .map(|&w| match workers.name_of(w).unwrap_or_default() {
+            "" => format!("worker {w}"),
+            n => format!("{n} (worker {w})"),
+        })
+        .collect();
+    if ids.len() > 8 {
+        named.push(format!("{} more", ids.len() - 8));
+    }
+    named.join(", ")
 }
 
 /// The earlier of `bound` (if any) and `deadline`.
@@ -142,7 +160,10 @@ impl Scheduler {
                 self.memory
                     .set(e.job, bytes.min(limit.saturating_add(1)), now);
             } else if let Some(j) = self.jobs.get_mut(&e.job) {
-                *j.worker_failures.entry(worker).or_default() += 1;
+                j.count_failure(
+                    worker,
+                    &format!("worker {worker}: declined a tile for memory its limit holds"),
+                );
             }
         }
         self.return_lease(worker, lease, None, now)?;
@@ -183,7 +204,7 @@ impl Scheduler {
             let msg = format!(
                 "every live worker ({}) failed {max} or more tiles of this job and is kept \
                  from it{last}",
-                live.len()
+                name_workers(&self.workers, &live)
             );
             self.failed.push((id, JobFailure::Tiles(msg)));
         }
@@ -209,8 +230,19 @@ impl Scheduler {
         if why == Release::Returned {
             return;
         }
-        *job.worker_failures.entry(e.worker).or_default() += 1;
+        let failures = job.count_failure(e.worker, cause);
         let r = job.window.rect(e.tile);
+        if self.faults.len() < MAX_PENDING_FAULTS {
+            self.faults.push(TileFault {
+                job: e.job,
+                rect: r,
+                worker: e.worker,
+                name: self.workers.name_of(e.worker).unwrap_or_default().into(),
+                cause: cause.to_string(),
+                failures,
+                blocked: failures >= self.cfg.max_worker_failures.max(1),
+            });
+        }
         let f = job.failures.entry(e.tile).or_insert((0, 0, String::new()));
         f.0 += 1;
         if why == Release::Lost {

@@ -27,6 +27,11 @@ pub(super) struct Job {
     pub(super) failures: HashMap<u32, (u32, u32, String)>,
     /// Failures per worker on this job.
     pub(super) worker_failures: HashMap<WorkerId, u32>,
+    /// What each worker that failed here said last (see `blocks.rs`).
+    pub(super) worker_errors: HashMap<WorkerId, String>,
+    /// Blocks read back from the database, by worker name, not yet
+    /// matched to a worker registered since (see `blocks.rs`).
+    pub(super) restored_blocks: HashMap<String, (u32, String)>,
     /// Leases that ran out or were refused while their tile is not done
     /// yet: a late result under one of them still counts.
     pub(super) past_leases: HashMap<LeaseId, (u32, WorkerId)>,
@@ -69,6 +74,8 @@ impl Job {
         self.window.retire();
         self.failures = HashMap::new();
         self.worker_failures = HashMap::new();
+        self.worker_errors = HashMap::new();
+        self.restored_blocks = HashMap::new();
         self.past_leases = HashMap::new();
     }
 }

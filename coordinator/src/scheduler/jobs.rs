@@ -127,6 +127,8 @@ impl Scheduler {
             finish_order: 0,
             failures: HashMap::new(),
             worker_failures: HashMap::new(),
+            worker_errors: HashMap::new(),
+            restored_blocks: HashMap::new(),
             past_leases: HashMap::new(),
             parked: false,
             spec,

@@ -113,20 +113,22 @@ impl Scheduler {
         self.expire_leases(now);
         let max_fail = self.cfg.max_worker_failures.max(1);
         let limit = self.workers.memory_limit(worker);
+        // Its name claims a block read back after a restart (`blocks.rs`).
+        let name = self.workers.name_of(worker).map(str::to_string);
         let mut too_small = false;
         for &(_, id) in &self.queue {
             let job = self.jobs.get_mut(&id).expect("queued jobs exist");
-            if job
-                .worker_failures
-                .get(&worker)
-                .is_some_and(|&n| n >= max_fail)
-            {
+            if job.blocks(worker, name.as_deref(), max_fail) {
                 continue;
             }
             let spans = self.sizer.takes_spans(worker);
             // Whether this lease may ask for encoded PNG segments: then the
             // window lets it run further ahead (see [`window`]).
-            let may_encode = spans && self.sizer.takes_segments(worker) && is_png(&job.spec);
+            // Never for a job with render passes: they travel as floats.
+            let may_encode = spans
+                && self.sizer.takes_segments(worker)
+                && is_png(&job.spec)
+                && job.spec.aovs.is_empty();
             if !self.memory.fits(id, limit) {
                 too_small |= job.window.next_tile(may_encode).is_some();
                 continue;
@@ -235,6 +237,7 @@ impl Scheduler {
                 frame: job.spec.frame,
                 png_segments: segments,
                 samples: job.spec.samples,
+                aovs: job.spec.aovs,
             }));
         }
         if too_small {

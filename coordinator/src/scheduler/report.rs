@@ -3,7 +3,7 @@
 //! the tiles they hold and their rate.
 
 use super::job::Job;
-use super::types::{Counters, JobId, JobInfo, QueueDepth};
+use super::types::{Counters, JobId, JobInfo, JobSpec, QueueDepth};
 use super::Scheduler;
 use crate::workers::{WorkerId, WorkerInfo};
 use std::collections::HashMap;
@@ -34,7 +34,29 @@ impl Scheduler {
             passes: None,
             paused: false,
             waiting_for: Vec::new(),
+            blocked: self.blocked(job),
         })
+    }
+
+    /// What `job` renders (`None`: no such job).
+    pub fn spec_of(&self, job: JobId) -> Option<&JobSpec> {
+        self.jobs.get(&job).map(|j| &j.spec)
+    }
+
+    /// The name `worker` registered with (empty: none, or no such worker).
+    pub fn worker_name(&self, worker: WorkerId) -> String {
+        self.workers.name_of(worker).unwrap_or_default().to_string()
+    }
+
+    /// Who submitted `job` and the name `worker` registered with, for the
+    /// usage history (`None`: no such job; the name is empty for an
+    /// unknown worker or one that said none).
+    pub fn usage_owner(&self, job: JobId, worker: WorkerId) -> Option<(&str, &str)> {
+        let j = self.jobs.get(&job)?;
+        Some((
+            j.spec.submitter.as_str(),
+            self.workers.name_of(worker).unwrap_or_default(),
+        ))
     }
 
     /// Every job, by id.

@@ -482,7 +482,10 @@ fn a_job_every_live_worker_is_kept_from_fails_instead_of_waiting() {
     assert_eq!(failed.len(), 1, "{failed:?}");
     assert_eq!(failed[0].0, j);
     let m = tiles(&failed[0].1);
-    assert!(m.contains("every live worker (1)"), "{m}");
+    assert!(
+        m.contains(&format!("every live worker (worker {w})")),
+        "{m}"
+    );
     assert!(m.contains("NaN in pixel"), "{m}");
     // w2 comes back: too late, the job is over once the farm ends it.
     assert_eq!(s.heartbeat(w2, &[], t1), Ok(vec![]));

@@ -100,6 +100,11 @@ pub struct JobSpec {
     /// For one pass of a progressive job: the samples its workers render
     /// (see `crate::farm::progressive`); `None` for every other job.
     pub samples: Option<SampleRange>,
+    /// The render passes the workers render with the beauty and the
+    /// output writes as layers or files beside it (`trevi_core::aov`);
+    /// none for a plain render. A job with passes is leased as floats,
+    /// never as encoded PNG segments.
+    pub aovs: trevi_core::Aovs,
 }
 
 /// One pass of a progressive job: sample indices `start..end` of every
@@ -158,6 +163,9 @@ pub struct JobInfo {
     /// The jobs it waits for (`--after`) that have not ended yet: none of
     /// its tiles are leased until they are done. Empty once it has ended.
     pub waiting_for: Vec<JobId>,
+    /// The workers kept from it (see `scheduler/blocks.rs`); for a
+    /// sequence, from its frames in progress. Empty once it has ended.
+    pub blocked: Vec<super::Blocked>,
 }
 
 impl JobInfo {
@@ -275,6 +283,9 @@ pub struct Lease {
     /// For a pass of a progressive job: the samples to render, from the
     /// state `FetchState` serves (the job's [`JobSpec::samples`]).
     pub samples: Option<SampleRange>,
+    /// The job's render passes ([`JobSpec::aovs`]), uploaded with the
+    /// pixels.
+    pub aovs: trevi_core::Aovs,
 }
 
 /// What became of a result handed to [`Scheduler::accept_tile`].
@@ -344,6 +355,16 @@ pub enum SchedError {
     /// The job is finished, failed or cancelled: nothing about it changes.
     #[error("job {0} is over")]
     JobOver(JobId),
+    /// An unblock names no worker kept from the job.
+    #[error("no worker \"{who}\" is blocked from job {job} (blocked: {blocked})")]
+    NotBlocked {
+        /// The job.
+        job: JobId,
+        /// The worker as the request named it (an id or a name).
+        who: String,
+        /// The workers that are blocked, as `status` names them.
+        blocked: String,
+    },
 }
 
 /// Running totals since the coordinator started (for `/metrics`).

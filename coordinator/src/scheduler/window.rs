@@ -40,7 +40,9 @@ pub fn band_bytes(spec: &JobSpec) -> u64 {
     let tile = spec.tile_size.max(1) as u64;
     let rows = tile.min(spec.height.max(1) as u64);
     let cols = (spec.width as u64).div_ceil(tile).max(1);
-    spec.width as u64 * rows * 12 + cols * TILE_BOOKKEEPING_BYTES
+    // 12 bytes of beauty a pixel, and 4 for each render pass channel.
+    let pixel = 12 + 4 * spec.aovs.channels() as u64;
+    spec.width as u64 * rows * pixel + cols * TILE_BOOKKEEPING_BYTES
 }
 
 /// Bytes of one encoded segment beyond its filtered bytes' share, at most:

@@ -8,6 +8,7 @@ use crate::error::FarmError;
 use crate::scheduler::{JobId, JobSpec, JobState, SampleRange, StopReason};
 use rusqlite::{params, OptionalExtension};
 use std::time::Duration;
+use trevi_core::Aovs;
 
 /// A job as stored.
 #[derive(Debug, Clone)]
@@ -148,9 +149,9 @@ impl Store {
                      output_name, submitter, state, submitted_ms, frame, parent, first_frame,
                      last_frame, scene, pass, sample_start, sample_end, sample_total,
                      passes_total, passes_own, pass_samples, time_limit_ms, noise_target,
-                     pass_frames, pass_auto)
+                     pass_frames, pass_auto, aovs)
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16,
-                     ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27)",
+                     ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28)",
                 params![
                     j.id as i64,
                     s.bundle_hash,
@@ -179,6 +180,7 @@ impl Store {
                     j.seq.passes.map(|p| p.noise_target),
                     j.seq.passes.map(|p| p.frames),
                     j.seq.passes.map(|p| p.auto),
+                    (!s.aovs.is_empty()).then(|| s.aovs.bits()),
                 ],
             )
             .map_err(db_err)?;
@@ -294,6 +296,53 @@ impl Store {
         Ok(())
     }
 
+    /// Makes ended job `id` unfinished again with none of its tiles (a
+    /// requeue, `crate::farm::requeue`): queued, its end and any tiles it
+    /// kept forgotten, in one transaction.
+    pub fn requeue_job(&self, id: JobId) -> Result<(), FarmError> {
+        let mut guard = self.inner.lock();
+        let inner = &mut *guard;
+        let tx = inner.conn.transaction().map_err(db_err)?;
+        tx.execute(
+            "UPDATE jobs SET state = ?2, elapsed_ms = NULL, error = NULL, finish_order = 0,
+                 tiles_done = 0, rays = 0, render_ms = NULL WHERE id = ?1",
+            params![id as i64, JobState::Queued.name()],
+        )
+        .map_err(db_err)?;
+        tx.execute("DELETE FROM tile_refs WHERE job = ?1", params![id as i64])
+            .map_err(db_err)?;
+        tx.commit().map_err(db_err)?;
+        inner.files.remove(&id);
+        let _ = std::fs::remove_file(inner.dir.join(format!("{id}.f32")));
+        Ok(())
+    }
+
+    /// Records that sequence `id` renders frames again: `frames_done` of
+    /// its frames done, and with `reopen` (it had ended) unfinished again.
+    pub fn requeue_frames(
+        &self,
+        id: JobId,
+        frames_done: u32,
+        reopen: bool,
+    ) -> Result<(), FarmError> {
+        let inner = self.inner.lock();
+        let conn = &inner.conn;
+        if reopen {
+            conn.execute(
+                "UPDATE jobs SET state = ?3, elapsed_ms = NULL, error = NULL, finish_order = 0,
+                     render_ms = NULL, frames_done = ?2 WHERE id = ?1",
+                params![id as i64, frames_done, JobState::Queued.name()],
+            )
+        } else {
+            conn.execute(
+                "UPDATE jobs SET frames_done = ?2 WHERE id = ?1",
+                params![id as i64, frames_done],
+            )
+        }
+        .map_err(db_err)?;
+        Ok(())
+    }
+
     /// Every job, by id.
     pub fn jobs(&self) -> Result<Vec<StoredJob>, FarmError> {
         let inner = self.inner.lock();
@@ -305,7 +354,7 @@ impl Store {
                      rays, frame, parent, first_frame, last_frame, frames_done, render_ms, scene,
                      pass, sample_start, sample_end, sample_total, passes_total, passes_own,
                      pass_samples, time_limit_ms, noise_target, samples_done, noise_error,
-                     stopped_by, pass_frames, pass_auto
+                     stopped_by, pass_frames, pass_auto, aovs
                  FROM jobs ORDER BY id",
             )
             .map_err(db_err)?;
@@ -313,6 +362,7 @@ impl Store {
             .query_map([], |r| {
                 // The state is read below, where a bad one can name its job.
                 let state: String = r.get(9)?;
+                let aov_bits: Option<u8> = r.get(37)?;
                 let job = StoredJob {
                     id: r.get::<_, i64>(0)? as u64,
                     spec: JobSpec {
@@ -342,6 +392,7 @@ impl Store {
                             }
                             _ => None,
                         },
+                        aovs: Aovs::NONE,
                     },
                     state: JobState::Queued,
                     submitted_ms: r.get::<_, i64>(10)? as u64,
@@ -383,13 +434,24 @@ impl Store {
                         },
                     },
                 };
-                Ok((job, state))
+                Ok((job, state, aov_bits))
             })
             .map_err(db_err)?;
-        let rows: Vec<(StoredJob, String)> = rows.collect::<Result<Vec<_>, _>>().map_err(db_err)?;
+        let rows: Vec<(StoredJob, String, Option<u8>)> =
+            rows.collect::<Result<Vec<_>, _>>().map_err(db_err)?;
         rows.into_iter()
-            .map(|(mut j, state)| {
+            .map(|(mut j, state, aov_bits)| {
                 j.state = state_from(j.id, &state)?;
+                j.spec.aovs = match aov_bits {
+                    None => Aovs::NONE,
+                    Some(b) => Aovs::from_bits(b).ok_or_else(|| {
+                        FarmError::Damaged(format!(
+                            "the state database says job {} has render passes {b}, not a set \
+                             this coordinator knows",
+                            j.id
+                        ))
+                    })?,
+                };
                 Ok(j)
             })
             .collect()
@@ -442,6 +504,8 @@ impl Store {
                 del.execute(params![id as i64]).map_err(db_err)?;
                 unhold.execute(params![id as i64]).map_err(db_err)?;
                 untile.execute(params![id as i64]).map_err(db_err)?;
+                super::tile_log::delete(&tx, id)?;
+                super::blocks::delete(&tx, id)?;
             }
         }
         tx.commit().map_err(db_err)?;

@@ -133,12 +133,19 @@ impl Store {
             ("stopped_by", "TEXT"),
             ("pass_frames", "INTEGER"),
             ("pass_auto", "INTEGER"),
+            // Then render passes: the job's set as `Aovs::bits` (NULL:
+            // none, a job of an earlier version).
+            ("aovs", "INTEGER"),
         ] {
             if !have.iter().any(|h| h == col) {
                 conn.execute(&format!("ALTER TABLE jobs ADD COLUMN {col} {decl}"), [])
                     .map_err(db_err)?;
             }
         }
+        super::tile_log::create(&conn)?;
+        super::blocks::create(&conn)?;
+        // Then the usage history (its tables, empty for an older database).
+        super::usage::usage_tables(&conn).map_err(db_err)?;
         let tiles_dir = dir.join("tiles");
         std::fs::create_dir_all(&tiles_dir)
             .map_err(|e| FarmError::io(format!("cannot create {}", tiles_dir.display()), e))?;

@@ -21,6 +21,7 @@ fn job(id: JobId) -> StoredJob {
             scene: "s.xml".into(),
             submitter: "client".into(),
             samples: None,
+            aovs: trevi_core::Aovs::NONE,
         },
         state: JobState::Running,
         submitted_ms: 1,

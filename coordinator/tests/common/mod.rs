@@ -22,6 +22,7 @@ pub fn spec(w: u32, h: u32, tile: u32, name: &str) -> JobSpec {
         scene: String::new(),
         submitter: String::new(),
         samples: None,
+        aovs: trevi_core::Aovs::NONE,
     }
 }
 

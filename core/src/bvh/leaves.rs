@@ -154,7 +154,7 @@ impl MeshBvh {
                 };
                 match path {
                     #[cfg(target_arch = "x86_64")]
-                    Simd::Sse => {
+                    Simd::Sse | Simd::Avx => {
                         let l = simd::triangles_sse(leaf.p, leaf.n, &sheared, t_enter);
                         let live = (1u32 << lanes) - 1;
                         let mut m = (l.hit | l.edge) & live;

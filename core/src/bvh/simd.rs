@@ -1,25 +1,32 @@
-//! The one module of the tree with `unsafe` code: the SSE test of a wide
-//! node's four boxes, its scalar twin, the choice between them, the SSE
-//! test of a leaf's four triangles (whose scalar twin is
+//! The one module of the tree with `unsafe` code: the SSE and AVX tests of
+//! a wide node's eight boxes, their scalar twin, the choice between them,
+//! the SSE test of a leaf's four triangles (whose scalar twin is
 //! [`triangle::intersect`](crate::geometry::triangle::intersect) itself,
 //! lane by lane), and the traversal stack.
 //!
 //! **Bit-identical paths.** The scalar test performs, lane by lane, exactly
-//! the operations of the SSE test, in the same order: `(plane − o) · inv`
-//! (a subtraction then a multiplication, never fused: Rust does not
-//! contract, and no path uses FMA), then `maxps`/`minps`, whose semantics
-//! (`a > b ? a : b`, `a < b ? a : b`: the second operand when either is NaN)
-//! `max_ps` and `min_ps` spell out. So every entry distance, every mask
-//! bit, and with them the walk's visit order, are the same bits on every
-//! path and every machine; `core/tests/simd.rs` renders scenes through each
-//! path and compares the bytes.
+//! the operations of the SSE and AVX tests, in the same order:
+//! `(plane − o) · inv` (a subtraction then a multiplication, never fused:
+//! Rust does not contract, and no path uses FMA, AVX's walk included), then
+//! `maxps`/`minps`, whose semantics (`a > b ? a : b`, `a < b ? a : b`: the
+//! second operand when either is NaN) `max_ps` and `min_ps` spell out. So
+//! every entry distance, every mask bit, and with them the walk's visit
+//! order, are the same bits on every path and every machine;
+//! `core/tests/simd.rs` renders scenes through each path and compares the
+//! bytes.
+//!
+//! **AVX at run time.** The AVX path is chosen only where the machine runs
+//! AVX (detected once by `std`). Its walk runs inside `avx_region`, a
+//! function compiled with AVX enabled into which the walk (its node tests,
+//! and a mesh's leaf tests) is inlined; `AvxTest`, which only exists
+//! where AVX was detected, is what lets it be called.
 //!
 //! **NaN.** A ray with a zero direction component has an infinite `inv`;
 //! a box plane through the origin then gives `0 · ∞ = NaN`. Each slab value
 //! enters the min/max chains as the *first* operand, whose NaN is dropped,
 //! so that slab is treated as unbounded: conservative, never a missed box.
 
-use super::{Node, Ref};
+use super::{Node, Ref, WIDTH};
 use crate::geometry::triangle::TriangleHit;
 use std::mem::MaybeUninit;
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -35,16 +42,30 @@ pub(super) const SLACK: f32 = 1.000_000_4;
 pub enum Simd {
     /// Plain Rust, every target.
     Scalar,
-    /// SSE2 (the x86_64 baseline).
+    /// SSE2 (the x86_64 baseline): a node's eight boxes in two passes of four.
     Sse,
+    /// AVX, detected at run time: a node's eight boxes in one pass, and the
+    /// whole walk (leaf tests included) compiled for AVX (VEX encoding,
+    /// the same IEEE operations; no FMA).
+    Avx,
 }
+
+#[cfg(target_arch = "x86_64")]
+static WITH_AVX: [Simd; 3] = [Simd::Scalar, Simd::Sse, Simd::Avx];
 
 impl Simd {
     /// Every path this machine can run, scalar first.
     pub fn available() -> &'static [Simd] {
-        if cfg!(target_arch = "x86_64") {
-            &[Simd::Scalar, Simd::Sse]
-        } else {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx") {
+                &WITH_AVX
+            } else {
+                &WITH_AVX[..2]
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
             &[Simd::Scalar]
         }
     }
@@ -59,6 +80,7 @@ impl Simd {
         match s {
             "scalar" => Some(Simd::Scalar),
             "sse" => Some(Simd::Sse),
+            "avx" => Some(Simd::Avx),
             _ => None,
         }
     }
@@ -67,6 +89,7 @@ impl Simd {
         match self {
             Simd::Scalar => 1,
             Simd::Sse => 2,
+            Simd::Avx => 3,
         }
     }
 }
@@ -74,7 +97,7 @@ impl Simd {
 /// 0: not chosen yet; otherwise [`Simd::code`].
 static PATH: AtomicU8 = AtomicU8::new(0);
 
-/// The environment variable that forces a path (`scalar` or `sse`).
+/// The environment variable that forces a path (`scalar`, `sse` or `avx`).
 pub const SIMD_ENV: &str = "TREVI_SIMD";
 
 /// The path every traversal of this process takes: the one forced by
@@ -86,6 +109,7 @@ pub fn current() -> Simd {
     match PATH.load(Ordering::Relaxed) {
         1 => Simd::Scalar,
         2 => Simd::Sse,
+        3 => Simd::Avx,
         _ => init_from_env(),
     }
 }
@@ -175,7 +199,7 @@ fn min_ps(a: f32, b: f32) -> f32 {
 /// Entry distance of lane `i` of boxes `b` (laid out as [`Node::b`]) and
 /// whether the ray enters it within `(0, t_max)`: the scalar path.
 #[inline(always)]
-pub(super) fn lane(b: &[[f32; 4]; 6], r: &NodeRay, t_max: f32, i: usize) -> (f32, bool) {
+pub(super) fn lane(b: &[[f32; WIDTH]; 6], r: &NodeRay, t_max: f32, i: usize) -> (f32, bool) {
     let n = |a: usize| (b[r.near[a]][i] - r.o[a]) * r.inv[a];
     let f = |a: usize| (b[r.far[a]][i] - r.o[a]) * r.inv[a];
     let enter = max_ps(n(0), max_ps(n(1), max_ps(n(2), 0.0)));
@@ -183,55 +207,186 @@ pub(super) fn lane(b: &[[f32; 4]; 6], r: &NodeRay, t_max: f32, i: usize) -> (f32
     (enter, enter <= exit * SLACK)
 }
 
-/// The four lanes of `node`: entry distances and the mask of boxes entered.
-#[inline(always)]
-pub(super) fn test_scalar(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) {
-    let mut enter = [0.0; 4];
-    let mut mask = 0;
-    for (i, e) in enter.iter_mut().enumerate() {
-        let (t, hit) = lane(&node.b, r, t_max, i);
-        *e = t;
-        mask |= u32::from(hit) << i;
+/// A node test: the entry distances of a node's [`WIDTH`] lanes and the
+/// mask of boxes entered. One zero-sized type per path, so that the walk is
+/// monomorphised for each (no dispatch per node).
+pub(super) trait NodeTest: Copy {
+    fn test(self, node: &Node, r: &NodeRay, t_max: f32) -> ([f32; WIDTH], u32);
+
+    /// Runs `f` (a walk) compiled for this path's instruction set.
+    #[inline(always)]
+    fn region<R>(self, f: impl FnOnce() -> R) -> R {
+        f()
     }
-    (enter, mask)
 }
 
-/// [`test_scalar`] in SSE: the same operations on all four lanes at once.
+/// The scalar path: [`lane`] for each lane.
+#[derive(Clone, Copy)]
+pub(super) struct ScalarTest;
+
+impl NodeTest for ScalarTest {
+    #[inline(always)]
+    fn test(self, node: &Node, r: &NodeRay, t_max: f32) -> ([f32; WIDTH], u32) {
+        let mut enter = [0.0; WIDTH];
+        let mut mask = 0;
+        for (i, e) in enter.iter_mut().enumerate() {
+            let (t, hit) = lane(&node.b, r, t_max, i);
+            *e = t;
+            mask |= u32::from(hit) << i;
+        }
+        (enter, mask)
+    }
+}
+
+/// The SSE path: [`ScalarTest`]'s operations four lanes at a time.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(super) struct SseTest;
+
+#[cfg(target_arch = "x86_64")]
+impl NodeTest for SseTest {
+    #[inline(always)]
+    fn test(self, node: &Node, r: &NodeRay, t_max: f32) -> ([f32; WIDTH], u32) {
+        use std::arch::x86_64::*;
+        let mut e = [0.0f32; WIDTH];
+        let mut mask = 0;
+        for k in (0..WIDTH).step_by(4) {
+            // SAFETY: the only obligations are that SSE/SSE2 exist, which
+            // the x86_64 baseline guarantees (this is compiled for x86_64
+            // only), and that each unaligned load reads 16 valid bytes and
+            // the store writes 16: each pointer is `&x[k..k + 4]` of an
+            // `[f32; WIDTH]` (`node.b[plane]`, `e`), bounds-checked by the
+            // slicing (`k + 4 ≤ WIDTH` as WIDTH is a multiple of 4). The
+            // indices `r.near[a]`, `r.far[a]` are below 6 by construction
+            // (`NodeRay::new`) and are bounds-checked anyway.
+            unsafe {
+                let slab = |a: usize, plane: usize| {
+                    _mm_mul_ps(
+                        _mm_sub_ps(
+                            _mm_loadu_ps(node.b[plane][k..k + 4].as_ptr()),
+                            _mm_set1_ps(r.o[a]),
+                        ),
+                        _mm_set1_ps(r.inv[a]),
+                    )
+                };
+                let enter = _mm_max_ps(
+                    slab(0, r.near[0]),
+                    _mm_max_ps(
+                        slab(1, r.near[1]),
+                        _mm_max_ps(slab(2, r.near[2]), _mm_setzero_ps()),
+                    ),
+                );
+                let exit = _mm_min_ps(
+                    slab(0, r.far[0]),
+                    _mm_min_ps(
+                        slab(1, r.far[1]),
+                        _mm_min_ps(slab(2, r.far[2]), _mm_set1_ps(t_max)),
+                    ),
+                );
+                let m = _mm_movemask_ps(_mm_cmple_ps(enter, _mm_mul_ps(exit, _mm_set1_ps(SLACK))));
+                mask |= (m as u32) << k;
+                _mm_storeu_ps(e[k..k + 4].as_mut_ptr(), enter);
+            }
+        }
+        (e, mask)
+    }
+}
+
+/// The AVX path: [`ScalarTest`]'s operations eight lanes at a time. Only
+/// [`AvxTest::new`] makes one, and only where AVX runs: holding one is the
+/// proof that its `unsafe` calls may use AVX.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(super) struct AvxTest(());
+
+#[cfg(target_arch = "x86_64")]
+impl AvxTest {
+    /// The AVX test, if this machine runs AVX.
+    #[inline(always)]
+    pub fn new() -> Option<AvxTest> {
+        std::arch::is_x86_feature_detected!("avx").then_some(AvxTest(()))
+    }
+}
+
+/// [`ScalarTest`]'s operations on eight lanes in AVX registers.
+///
+/// # Safety
+///
+/// The machine runs AVX. Not a `#[target_feature]` function, which could
+/// not be `#[inline(always)]`: inlined into [`avx_region`]'s walk, its
+/// intrinsics are inlined there, where AVX is enabled.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-pub(super) fn test_sse(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; 4], u32) {
+unsafe fn test_avx(node: &Node, r: &NodeRay, t_max: f32) -> ([f32; WIDTH], u32) {
     use std::arch::x86_64::*;
-    // SAFETY: the only obligations are that SSE/SSE2 exist, which the
-    // x86_64 baseline guarantees (this is compiled for x86_64 only), and
-    // that each unaligned load reads 16 valid bytes: each pointer comes from
-    // a `&[f32; 4]` (16 bytes) of `node`, and `enter` is a `[f32; 4]`. The
-    // indices `r.near[a]`, `r.far[a]` are below 6 by construction
-    // (`NodeRay::new`) and are bounds-checked anyway.
-    unsafe {
-        let slab = |a: usize, plane: usize| {
-            _mm_mul_ps(
-                _mm_sub_ps(_mm_loadu_ps(node.b[plane].as_ptr()), _mm_set1_ps(r.o[a])),
-                _mm_set1_ps(r.inv[a]),
-            )
-        };
-        let enter = _mm_max_ps(
-            slab(0, r.near[0]),
-            _mm_max_ps(
-                slab(1, r.near[1]),
-                _mm_max_ps(slab(2, r.near[2]), _mm_setzero_ps()),
-            ),
-        );
-        let exit = _mm_min_ps(
-            slab(0, r.far[0]),
-            _mm_min_ps(
-                slab(1, r.far[1]),
-                _mm_min_ps(slab(2, r.far[2]), _mm_set1_ps(t_max)),
-            ),
-        );
-        let mask = _mm_movemask_ps(_mm_cmple_ps(enter, _mm_mul_ps(exit, _mm_set1_ps(SLACK))));
-        let mut e = [0.0f32; 4];
-        _mm_storeu_ps(e.as_mut_ptr(), enter);
-        (e, mask as u32)
+    const { assert!(WIDTH.is_multiple_of(8)) };
+    let mut e = [0.0f32; WIDTH];
+    let mut mask = 0;
+    for k in (0..WIDTH).step_by(8) {
+        // SAFETY: AVX runs (this function's precondition). Each unaligned
+        // load reads 32 valid bytes and the store writes 32: each pointer is
+        // `&x[k..k + 8]` of an `[f32; WIDTH]` (`node.b[plane]`, `e`),
+        // bounds-checked by the slicing. The indices `r.near[a]`,
+        // `r.far[a]` are below 6 by construction (`NodeRay::new`) and are
+        // bounds-checked anyway.
+        unsafe {
+            let slab = |a: usize, plane: usize| {
+                _mm256_mul_ps(
+                    _mm256_sub_ps(
+                        _mm256_loadu_ps(node.b[plane][k..k + 8].as_ptr()),
+                        _mm256_set1_ps(r.o[a]),
+                    ),
+                    _mm256_set1_ps(r.inv[a]),
+                )
+            };
+            let enter = _mm256_max_ps(
+                slab(0, r.near[0]),
+                _mm256_max_ps(
+                    slab(1, r.near[1]),
+                    _mm256_max_ps(slab(2, r.near[2]), _mm256_setzero_ps()),
+                ),
+            );
+            let exit = _mm256_min_ps(
+                slab(0, r.far[0]),
+                _mm256_min_ps(
+                    slab(1, r.far[1]),
+                    _mm256_min_ps(slab(2, r.far[2]), _mm256_set1_ps(t_max)),
+                ),
+            );
+            // `_CMP_LE_OS`: `cmpleps`'s predicate (false when either side
+            // is NaN).
+            let m = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OS>(
+                enter,
+                _mm256_mul_ps(exit, _mm256_set1_ps(SLACK)),
+            ));
+            mask |= (m as u32) << k;
+            _mm256_storeu_ps(e[k..k + 8].as_mut_ptr(), enter);
+        }
+    }
+    (e, mask)
+}
+
+/// Runs `f` in a function compiled for AVX, so that the walk `f` inlines
+/// (node and leaf tests) uses it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+fn avx_region<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+#[cfg(target_arch = "x86_64")]
+impl NodeTest for AvxTest {
+    #[inline(always)]
+    fn test(self, node: &Node, r: &NodeRay, t_max: f32) -> ([f32; WIDTH], u32) {
+        // SAFETY: `self` exists only where AVX runs (`AvxTest::new`).
+        unsafe { test_avx(node, r, t_max) }
+    }
+
+    #[inline(always)]
+    fn region<R>(self, f: impl FnOnce() -> R) -> R {
+        // SAFETY: `self` exists only where AVX runs (`AvxTest::new`).
+        unsafe { avx_region(f) }
     }
 }
 
@@ -382,8 +537,8 @@ pub(super) fn triangles_sse(
     }
 }
 
-/// Depth of the traversal stack. A node pushes at most 3 children, so a
-/// tree of depth `d` needs at most `3·d` slots; a walk that would need more
+/// Depth of the traversal stack. A node pushes at most `WIDTH − 1`
+/// children, so a tree of depth `d` needs at most `(WIDTH − 1)·d` slots; a walk that would need more
 /// goes on recursively from the child it cannot push (tests use a shallow
 /// stack so that this is exercised).
 pub(super) const STACK: usize = if cfg!(test) { 5 } else { 96 };

@@ -1,12 +1,13 @@
 //! Walking the wide tree: closest-hit, any-hit and every-hit queries through
-//! one generic walk, nearest child first, a node's four boxes tested at once
-//! on the path chosen in [`simd`] (the same bits on each).
+//! one generic walk, nearest child first, a node's eight boxes tested at
+//! once on the path chosen in [`simd`] (the same bits on each; the walk is
+//! monomorphised per path and chosen by one branch per walk).
 //! Queries whose answer cannot depend on the visit order (opaque shadow
 //! rays: is anything hit at all?) skip the sort and take the entered
 //! children in slot order ([`Bvh::traverse_unordered`]).
 
-use super::simd::{self, NodeRay, Simd, Stack, SLACK};
-use super::{Bvh, Ref, Visit};
+use super::simd::{self, NodeRay, NodeTest, ScalarTest, Simd, Stack, SLACK};
+use super::{Bvh, Ref, Visit, WIDTH};
 use glam::Vec3;
 
 /// How a walk ended: the final `t_max`, whether any primitive reported a
@@ -112,29 +113,57 @@ impl Bvh {
         // any path's).
         let b = self.root_box;
         let root = [
-            [b.min.x; 4],
-            [b.max.x; 4],
-            [b.min.y; 4],
-            [b.max.y; 4],
-            [b.min.z; 4],
-            [b.max.z; 4],
+            [b.min.x; WIDTH],
+            [b.max.x; WIDTH],
+            [b.min.y; WIDTH],
+            [b.max.y; WIDTH],
+            [b.min.z; WIDTH],
+            [b.max.z; WIDTH],
         ];
         if !simd::lane(&root, &ray, t_max, 0).1 {
             return (t_max, false);
         }
         let w = match path {
             #[cfg(target_arch = "x86_64")]
-            Simd::Sse => self.walk::<F, true, ORDERED>(self.root, &ray, t_max, &mut leaf),
-            _ => self.walk::<F, false, ORDERED>(self.root, &ray, t_max, &mut leaf),
+            Simd::Avx => match simd::AvxTest::new() {
+                Some(avx) => self.walk_in::<_, F, ORDERED>(avx, self.root, &ray, t_max, &mut leaf),
+                None => {
+                    self.walk_in::<_, F, ORDERED>(simd::SseTest, self.root, &ray, t_max, &mut leaf)
+                }
+            },
+            #[cfg(target_arch = "x86_64")]
+            Simd::Sse => {
+                self.walk_in::<_, F, ORDERED>(simd::SseTest, self.root, &ray, t_max, &mut leaf)
+            }
+            _ => self.walk_in::<_, F, ORDERED>(ScalarTest, self.root, &ray, t_max, &mut leaf),
         };
         (w.t_max, w.hit)
     }
 
-    /// The walk from `start` (already entered). `SSE`: which node test;
-    /// `ORDERED`: entered children nearest first (else in slot order).
-    #[inline]
-    fn walk<F: FnMut(u32, u32, f32) -> Visit, const SSE: bool, const ORDERED: bool>(
+    /// [`Bvh::walk`] compiled for the instruction set of `test`'s path.
+    #[inline(always)]
+    fn walk_in<T: NodeTest, F: FnMut(u32, u32, f32) -> Visit, const ORDERED: bool>(
         &self,
+        test: T,
+        start: Ref,
+        ray: &NodeRay,
+        t_max: f32,
+        visit: &mut F,
+    ) -> Walked {
+        // Inlined into the region, so that the walk is compiled for its
+        // instruction set (a call per node test otherwise).
+        test.region(
+            #[inline(always)]
+            || self.walk::<T, F, ORDERED>(test, start, ray, t_max, visit),
+        )
+    }
+
+    /// The walk from `start` (already entered). `test`: the node test's
+    /// path; `ORDERED`: entered children nearest first (else in slot order).
+    #[inline(always)]
+    fn walk<T: NodeTest, F: FnMut(u32, u32, f32) -> Visit, const ORDERED: bool>(
+        &self,
+        test: T,
         start: Ref,
         ray: &NodeRay,
         mut t_max: f32,
@@ -163,12 +192,12 @@ impl Bvh {
                 }
             } else {
                 let n = &self.nodes[node.first as usize];
-                let (enter, mask) = node_test::<SSE>(n, ray, t_max);
+                let (enter, mask) = test.test(n, ray, t_max);
                 // The entered children by entry distance, equal ones in
-                // slot order (insertion sort of at most four).
-                let mut order = [0usize; 4];
+                // slot order (insertion sort of at most WIDTH).
+                let mut order = [0usize; WIDTH];
                 let mut k = 0;
-                for i in 0..4 {
+                for i in 0..WIDTH {
                     if mask & (1 << i) == 0 || n.child[i] == Ref::NONE {
                         continue;
                     }
@@ -185,7 +214,9 @@ impl Bvh {
                     for &i in order[1..k].iter().rev() {
                         if !stack.push((n.child[i], enter[i])) {
                             // Stack full: walk that subtree now.
-                            let w = self.walk::<F, SSE, ORDERED>(n.child[i], ray, t_max, visit);
+                            let w = self.walk_overflow::<T, F, ORDERED>(
+                                test, n.child[i], ray, t_max, visit,
+                            );
                             t_max = w.t_max;
                             hit |= w.hit;
                             if w.stop {
@@ -215,14 +246,18 @@ impl Bvh {
             }
         }
     }
-}
 
-/// The node test of the path `SSE` selects.
-#[inline(always)]
-fn node_test<const SSE: bool>(n: &super::Node, ray: &NodeRay, t_max: f32) -> ([f32; 4], u32) {
-    #[cfg(target_arch = "x86_64")]
-    if SSE {
-        return simd::test_sse(n, ray, t_max);
+    /// The walk of a subtree whose root did not fit on the stack: a call,
+    /// not inlined, since [`Bvh::walk`] is.
+    #[inline(never)]
+    fn walk_overflow<T: NodeTest, F: FnMut(u32, u32, f32) -> Visit, const ORDERED: bool>(
+        &self,
+        test: T,
+        start: Ref,
+        ray: &NodeRay,
+        t_max: f32,
+        visit: &mut F,
+    ) -> Walked {
+        self.walk_in::<T, F, ORDERED>(test, start, ray, t_max, visit)
     }
-    simd::test_scalar(n, ray, t_max)
 }

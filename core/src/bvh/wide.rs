@@ -1,12 +1,12 @@
-//! Collapsing the binary tree into the 4-wide one: each wide node takes a
-//! binary node's two children and, while it has fewer than four, replaces
-//! the interior child of largest surface area by its two children (the
-//! child most likely to be entered is the one opened, as in Embree's BVH4
-//! builder). Leaves stay as they are, so the leaf order, and with it the
+//! Collapsing the binary tree into the wide one: each wide node takes a
+//! binary node's two children and, while it has fewer than [`WIDTH`]
+//! (eight), replaces the interior child of largest surface area by its two
+//! children (the child most likely to be entered is the one opened, as in
+//! Embree's BVH8 builder). Leaves stay as they are, so the leaf order, and with it the
 //! primitive numbering [`Bvh::take_leaf_order`](super::Bvh::take_leaf_order)
 //! hands out, is the binary tree's.
 
-use super::{Node, Pair, Ref};
+use super::{Node, Pair, Ref, WIDTH};
 use crate::geometry::Aabb;
 
 /// The wide tree of the binary tree `pairs` rooted at `root`: its nodes
@@ -16,8 +16,9 @@ pub(super) fn collapse(pairs: &[Pair], root: Ref) -> (Vec<Node>, Ref) {
         return (Vec::new(), root);
     }
     // A binary tree of p interior nodes collapses into at most p wide ones
-    // (usually about p/3); reserve for p/2 and shrink at the end.
-    let mut nodes = Vec::with_capacity(pairs.len() / 2 + 1);
+    // (usually about p/(WIDTH − 1)); reserve for 2·p/WIDTH (the bytes of p/2
+    // nodes of four) and shrink at the end.
+    let mut nodes = Vec::with_capacity(2 * pairs.len() / WIDTH + 1);
     let r = node(pairs, root.first as usize, &mut nodes);
     nodes.shrink_to_fit();
     (nodes, r)
@@ -26,11 +27,11 @@ pub(super) fn collapse(pairs: &[Pair], root: Ref) -> (Vec<Node>, Ref) {
 /// Makes the wide node for binary node `pairs[i]` and its subtree.
 fn node(pairs: &[Pair], i: usize, out: &mut Vec<Node>) -> Ref {
     let p = &pairs[i];
-    let mut kids: [(Aabb, Ref); 4] = [(Aabb::EMPTY, Ref::NONE); 4];
+    let mut kids: [(Aabb, Ref); WIDTH] = [(Aabb::EMPTY, Ref::NONE); WIDTH];
     kids[0] = (p.child_box(0), p.child[0]);
     kids[1] = (p.child_box(1), p.child[1]);
     let mut n = 2;
-    while n < 4 {
+    while n < WIDTH {
         // The interior child of largest area (the first of equals).
         let mut best: Option<usize> = None;
         for (k, (b, r)) in kids[..n].iter().enumerate() {

@@ -209,3 +209,78 @@ fn tiles_with_the_wrong_passes_are_refused_and_nothing_is_left_behind() {
         Err(OutputError::BadSegment { .. })
     ));
 }
+
+/// A denoised frame's EXR holds the noisy beauty as `noisy.R G B` after
+/// the passes, each pixel's own (tiles in any order); a PNG holds the
+/// denoised beauty alone, its passes beside it. Tiles without their noisy
+/// beauty, or with one for a frame that keeps none, or of the wrong size,
+/// are refused and change nothing.
+#[test]
+fn a_denoised_frame_keeps_its_noisy_beauty_as_a_layer() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (13, 22);
+    let aovs = Aovs::NONE.with(Aov::Depth);
+    // The "noisy" beauty of a pixel: its beauty, reversed and halved.
+    let noisy_of = |px: &[[f32; 3]]| -> Vec<[f32; 3]> {
+        px.iter()
+            .map(|p| [p[2] * 0.5, p[1] * 0.5, p[0] * 0.5])
+            .collect()
+    };
+    for ext in ["exr", "png"] {
+        let path = dir.path().join(format!("d.{ext}"));
+        let mut fw = FrameWriter::create_denoised(&path, w, h, aovs).unwrap();
+        let mut tiles = band_order_tiles(w, h, 8);
+        tiles.reverse();
+        for (i, r) in tiles.into_iter().enumerate() {
+            let (px, t) = tile(r, w, aovs);
+            if i == 0 {
+                let e = fw.write_tile_aovs(r, &px, &t).unwrap_err();
+                assert!(matches!(e, OutputError::NoisyMismatch { .. }), "{e}");
+                let short = &noisy_of(&px)[1..];
+                let e = fw.write_tile_denoised(r, &px, &t, short).unwrap_err();
+                assert!(matches!(e, OutputError::NoisyMismatch { .. }), "{e}");
+            }
+            fw.write_tile_denoised(r, &px, &t, &noisy_of(&px)).unwrap();
+        }
+        fw.finish().unwrap();
+    }
+    let (_, _, channels) = read_exr_channels(&dir.path().join("d.exr")).unwrap();
+    let names: Vec<&str> = channels.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["B", "G", "R", "Z", "noisy.B", "noisy.G", "noisy.R"]);
+    let get = |name: &str| &channels.iter().find(|(n, _)| n == name).unwrap().1;
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let (b, a) = values(x, y, w);
+            assert_eq!(
+                [get("R")[i], get("G")[i], get("B")[i]],
+                b,
+                "denoised beauty at {x},{y}"
+            );
+            assert_eq!(
+                [get("noisy.R")[i], get("noisy.G")[i], get("noisy.B")[i]],
+                [b[2] * 0.5, b[1] * 0.5, b[0] * 0.5],
+                "noisy beauty at {x},{y}"
+            );
+            assert!(get("Z")[i] == a[6] || (get("Z")[i].is_infinite() && a[6].is_infinite()));
+        }
+    }
+    // The PNG is what a plain frame of the same beauty writes.
+    let plain = dir.path().join("plain.png");
+    write(&plain, w, h, aovs, 8);
+    assert_eq!(
+        std::fs::read(dir.path().join("d.png")).unwrap(),
+        std::fs::read(&plain).unwrap()
+    );
+    assert!(dir.path().join("d.depth.exr").exists());
+    // A plain frame takes no noisy beauty.
+    let mut fw = FrameWriter::create(&dir.path().join("p.exr"), 4, 4).unwrap();
+    let r = Rect::new(0, 0, 4, 4);
+    let px = vec![[0.5; 3]; 16];
+    let e = fw
+        .write_tile_denoised(r, &px, &AovTile::default(), &px)
+        .unwrap_err();
+    assert!(matches!(e, OutputError::NoisyMismatch { .. }), "{e}");
+    fw.write_tile(r, &px).unwrap();
+    fw.finish().unwrap();
+}

@@ -5,6 +5,10 @@
 use super::Format;
 use crate::aov::Aovs;
 
+/// The channels of a denoised EXR frame's beauty before denoising (its
+/// layer `noisy`), in R G B order.
+pub const NOISY_CHANNELS: [&str; 3] = ["noisy.R", "noisy.G", "noisy.B"];
+
 /// What a file's samples are made of. A tile's values are numbered: 0, 1, 2
 /// its R, G, B; 3 onwards its render passes' values in layout order (see
 /// [`crate::aov`]).
@@ -20,8 +24,10 @@ pub(super) enum Layout {
 impl Layout {
     /// The layout of a frame in `format` with passes `aovs`: the beauty
     /// alone in a PNG (the passes go to files beside it), every pass as
-    /// channels of the same file in an EXR.
-    pub(super) fn of(format: Format, aovs: Aovs) -> Layout {
+    /// channels of the same file in an EXR; with `noisy` (a denoised
+    /// frame), an EXR also holds the beauty before denoising as
+    /// [`NOISY_CHANNELS`], the values after the passes'.
+    pub(super) fn of(format: Format, aovs: Aovs, noisy: bool) -> Layout {
         match format {
             Format::Png => Layout::Png { signed: false },
             Format::Exr => {
@@ -29,6 +35,10 @@ impl Layout {
                 for aov in aovs.iter() {
                     let at = 3 + aovs.offset(aov).unwrap_or(0);
                     channels.extend((at..).zip(aov.exr_channels()).map(|(i, n)| (*n, i)));
+                }
+                if noisy {
+                    let at = 3 + aovs.channels();
+                    channels.extend((at..).zip(NOISY_CHANNELS).map(|(i, n)| (n, i)));
                 }
                 channels.sort_by(|a, b| a.0.as_bytes().cmp(b.0.as_bytes()));
                 Layout::Exr(channels)

@@ -25,8 +25,9 @@
 //! constants are the BVH's cost with a margin: a mesh's tree holds its
 //! triangles copied into leaves of up to four (144 bytes a leaf, 36 a
 //! triangle when full, plus 4 bytes a leaf for its first triangle) and wide
-//! nodes of 128 bytes for about every three leaves;
-//! [`BVH_BYTES_PER_TRIANGLE`] allows 56. While a mesh's trees are built,
+//! nodes of 256 bytes (eight children, the bottom ones not full: 3.8 to 4.6
+//! bytes a triangle more than nodes of four on docs/performance.md's
+//! meshes); [`BVH_BYTES_PER_TRIANGLE`] allows 56. While a mesh's trees are built,
 //! their input boxes, centroids, indices, bins and binary nodes are held too
 //! ([`BUILD_BYTES_PER_TRIANGLE`]), one mesh at a time, and a mesh large
 //! enough for the parallel build holds its subtrees' binary nodes twice for

@@ -85,7 +85,7 @@ pub fn probe(bytes: &[u8]) -> Result<TextureHeader, TextureError> {
     if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
         return Ok(TextureHeader {
             format: ImageFormat::Exr,
-            parts: exr_parts(bytes)?,
+            parts: exr_parts(Cursor::new(bytes))?,
             file_bytes,
         });
     }
@@ -136,6 +136,34 @@ impl TextureHeader {
     /// size of the image the decoder makes the texture of: the first part
     /// with R, G and B channels.
     pub fn check(&self, budget: u64) -> Result<(u32, u32), TextureError> {
+        self.check_blocks()?;
+        let mut total = 0u64;
+        for p in &self.parts {
+            check_size(p.width, p.height, u64::MAX)?;
+            total = total.saturating_add(p.width * p.height);
+        }
+        let Some(main) = self.parts.iter().find(|p| p.rgb) else {
+            return Err(TextureError::Decode(
+                "no part has R, G and B channels".into(),
+            ));
+        };
+        if total > budget {
+            return Err(TextureError::OverBudget {
+                width: main.width,
+                height: main.height,
+                left: budget,
+            });
+        }
+        // Both sides fit in u32: check_size bounds them by MAX_TEXTURE_SIDE.
+        Ok((main.width as u32, main.height as u32))
+    }
+
+    /// The bounds of an OpenEXR file's layout whatever its image size (the
+    /// module's documentation): the offset tables' entries within the file,
+    /// no deep part, at most [`MAX_EXR_CHANNELS`] channels and one block at
+    /// most [`MAX_EXR_BLOCK_BYTES`] in every part. The denoiser's reader
+    /// checks these too, with its own bound on the image size.
+    pub fn check_blocks(&self) -> Result<(), TextureError> {
         let chunks = self
             .parts
             .iter()
@@ -147,7 +175,6 @@ impl TextureHeader {
                 self.file_bytes
             )));
         }
-        let mut total = 0u64;
         for (i, p) in self.parts.iter().enumerate() {
             let at = |what: String| {
                 if self.parts.len() > 1 {
@@ -173,23 +200,8 @@ impl TextureHeader {
                     p.block_bytes
                 )));
             }
-            check_size(p.width, p.height, u64::MAX)?;
-            total = total.saturating_add(p.width * p.height);
         }
-        let Some(main) = self.parts.iter().find(|p| p.rgb) else {
-            return Err(TextureError::Decode(
-                "no part has R, G and B channels".into(),
-            ));
-        };
-        if total > budget {
-            return Err(TextureError::OverBudget {
-                width: main.width,
-                height: main.height,
-                left: budget,
-            });
-        }
-        // Both sides fit in u32: check_size bounds them by MAX_TEXTURE_SIDE.
-        Ok((main.width as u32, main.height as u32))
+        Ok(())
     }
 
     /// The bytes the decoded texture holds (level 0 and its MIP chain, 12
@@ -213,10 +225,21 @@ pub fn mip_chain_texels(width: u32, height: u32) -> u64 {
     sum
 }
 
+/// Reads the headers of the OpenEXR file `read` (of `file_bytes` bytes),
+/// never its pixel data nor its offset tables: what [`probe`] does for an
+/// OpenEXR file in memory, for one read from disk.
+pub fn probe_exr(read: impl std::io::Read, file_bytes: u64) -> Result<TextureHeader, TextureError> {
+    Ok(TextureHeader {
+        format: ImageFormat::Exr,
+        parts: exr_parts(read)?,
+        file_bytes,
+    })
+}
+
 /// The parts of an OpenEXR file, from its headers.
-fn exr_parts(bytes: &[u8]) -> Result<Vec<Part>, TextureError> {
+fn exr_parts(read: impl std::io::Read) -> Result<Vec<Part>, TextureError> {
     use exr::meta::BlockDescription;
-    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+    let meta = exr::meta::MetaData::read_from_buffered(read, false)
         .map_err(|e| TextureError::Decode(e.to_string()))?;
     if meta.headers.is_empty() {
         return Err(TextureError::Decode("the file has no part".into()));

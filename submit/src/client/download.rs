@@ -105,6 +105,8 @@ impl Client {
             );
         }
         self.download(id, None, &out, format).await?;
+        // A PNG's render passes, beside it.
+        self.download_aovs(&s, &out).await?;
         Ok((out, s))
     }
 

@@ -1,6 +1,6 @@
 //! A farm's jobs as they stand: one job's status, the list of them (every
-//! page, by id), cancelling, pausing, resuming or retrying one, and extending a
-//! progressive one.
+//! page, by id), cancelling, pausing, resuming or retrying one, extending a
+//! progressive one, unblocking a worker from one and reading its tile log.
 
 use anyhow::{Context, Result};
 use trevi_proto::pb;
@@ -91,6 +91,50 @@ impl Client {
             .into_inner())
     }
 
+    /// Renders part of job `id` again (frames of a sequence, the tiles a
+    /// rect touches); returns the job's status after.
+    pub async fn requeue(
+        &mut self,
+        id: u64,
+        frames: Option<(u32, u32)>,
+        rect: Option<[u32; 4]>,
+    ) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .requeue_job(pb::RequeueJobRequest {
+                id,
+                frames: frames.map(|(first, last)| pb::FrameRange { first, last }),
+                rect: rect.map(|[x, y, w, h]| pb::Rect { x, y, w, h }),
+            })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// Lets `worker` (an id or a name) take job `id`'s tiles again;
+    /// returns the job's status after.
+    pub async fn unblock(&mut self, id: u64, worker: &str) -> Result<pb::JobStatus> {
+        Ok(self
+            .jobs
+            .unblock_worker(pb::UnblockWorkerRequest {
+                id,
+                worker: worker.to_string(),
+            })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
+    /// Job `id`'s tile log as `request` filters it.
+    pub async fn tile_log(&mut self, request: pb::TileLogRequest) -> Result<pb::TileLog> {
+        Ok(self
+            .jobs
+            .get_tile_log(request)
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+
     /// Adds samples to finished progressive job `id` (see
     /// [`crate::passes::extend_request`]); returns its status after.
     pub async fn extend(&mut self, request: pb::ExtendJobRequest) -> Result<pb::JobStatus> {
@@ -101,6 +145,24 @@ impl Client {
             .await
             .map_err(status_error)
             .with_context(|| format!("the coordinator did not extend job {id}"))?
+            .into_inner())
+    }
+
+    /// The farm's usage history over the last `since` (`None`: the
+    /// coordinator's default), grouped `by`.
+    pub async fn usage(
+        &mut self,
+        since: Option<std::time::Duration>,
+        by: crate::usage::By,
+    ) -> Result<pb::UsageResponse> {
+        Ok(self
+            .jobs
+            .usage(pb::UsageRequest {
+                since_s: since.map_or(0, |d| d.as_secs()),
+                by: by.name().into(),
+            })
+            .await
+            .map_err(status_error)?
             .into_inner())
     }
 }

@@ -38,6 +38,9 @@ pub struct JobSpec {
     pub notify: Vec<String>,
     /// Farm jobs this one waits for (`--after`).
     pub after: Vec<u64>,
+    /// The render passes (`--aovs`); `None`: each camera's own
+    /// `<render aovs>`.
+    pub aovs: Option<trevi_core::Aovs>,
 }
 
 /// One camera to render and where its output goes.
@@ -47,6 +50,9 @@ pub struct Target {
     /// The format of the file, or of every frame's (from the name's
     /// extension): the coordinator writes it.
     pub format: Format,
+    /// This camera's render passes when they are not the submission's
+    /// (`--denoise` adds the albedo and normal the denoiser uses).
+    pub aovs: Option<trevi_core::Aovs>,
 }
 
 impl Target {
@@ -74,6 +80,7 @@ impl Target {
             camera,
             output,
             format,
+            aovs: None,
         })
     }
 
@@ -100,6 +107,7 @@ impl Target {
             progressive: job.progressive,
             notify: job.notify.clone(),
             after: job.after.clone(),
+            aovs: self.aovs.or(job.aovs).map(|a| a.to_string()),
         }
     }
 }
@@ -197,7 +205,11 @@ impl Client {
             ),
         }
         self.download_again(id, None, out, t.format).await?;
+        let passes = self.download_aovs(&s, out).await?;
         if progress != Progress::Quiet {
+            for p in &passes {
+                eprintln!("{}: render pass -> {}", s.camera, p.display());
+            }
             let secs = s.render_ms as f64 / 1e3;
             let waited = if s.queued_ms >= 100 {
                 format!(", after {:.1} s in the queue", s.queued_ms as f64 / 1e3)

@@ -74,6 +74,7 @@ impl FakeWorker {
             session: self.session.clone(),
             frame: lease.frame,
             render_micros: None,
+            cpu_micros: None,
         }
     }
 

@@ -1,9 +1,11 @@
 //! Helpers shared by the farm tests that start real processes: binaries,
 //! working directories with logs, children killed on drop, polling; and in
 //! their own files the coordinator's clients and jobs ([`farm`]), a worker
-//! made by hand ([`fake_worker`]) and raw HTTP to the monitor ([`http`]).
+//! made by hand ([`fake_worker`]), raw HTTP to the monitor ([`http`]) and
+//! headless Chromium for the monitor's browser tests ([`browser`]).
 #![allow(dead_code)]
 
+pub mod browser;
 pub mod fake_worker;
 pub mod farm;
 pub mod http;
@@ -32,6 +34,19 @@ pub const SLOW_SCENE: &str = r#"<scene version="1">
   <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
   <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
     <render width="96" height="64" supersample="6" shadow-samples="8" ao-samples="16" output="slow.png"/>
+  </camera>
+</scene>
+"#;
+
+/// A 64 × 48 still: 4 × 3 tiles of 16, quick (soft shadows, so that a
+/// pixel rendered with the wrong sample seed shows).
+pub const QUICK_STILL: &str = r#"<scene version="1">
+  <settings background="0.1 0.1 0.2" ambient="0.2 0.2 0.2"/>
+  <sphere id="ball" center="0 1 0" radius="1"> <surface diffuse="0.8 0.3 0.2"/> </sphere>
+  <plane id="ground" point="0 0 0" normal="0 1 0"> <surface diffuse="0.5 0.5 0.5"/> </plane>
+  <light type="point" position="2 5 3" color="1 1 1" intensity="1" radius="0.5"/>
+  <camera id="main" position="0 2 6" lookat="0 1 0" up="0 1 0" fov="50">
+    <render width="64" height="48" shadow-samples="4" output="still.png"/>
   </camera>
 </scene>
 "#;
@@ -122,6 +137,16 @@ fn build_binaries() -> Result<PathBuf, String> {
     // the worker's `test-hooks` feature, so trevi-worker is built with the
     // hooks these tests drive (TREVI_TEST_*), as in the test run.
     cmd.args(["--workspace", "--tests", "--examples"]);
+    // The features of the outer `cargo test --features …`, which a test
+    // cannot see: given again in TREVI_BUILD_FEATURES (CI's denoise run,
+    // tests/tests/denoise_cli.rs), else the nested build would rebuild the
+    // binaries without them.
+    if let Some(f) = std::env::var("TREVI_BUILD_FEATURES")
+        .ok()
+        .filter(|f| !f.trim().is_empty())
+    {
+        cmd.args(["--features", f.trim()]);
+    }
     // Cargo runs this test with the test package's own variables set
     // (CARGO_MANIFEST_DIR, CARGO_PKG_NAME, ...). Build scripts such as
     // ring's ask to run again when those change (rerun-if-env-changed), so

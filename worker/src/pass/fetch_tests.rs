@@ -83,6 +83,7 @@ fn session(addr: std::net::SocketAddr) -> Session {
                 .unwrap(),
         ),
         threads: 1,
+        clocks: crate::cpu::RenderClocks::default(),
         render: Arc::new(tokio::sync::Semaphore::new(1)),
         paused: watch::channel(None).1,
         max_memory: crate::MaxMemory::NONE,

@@ -26,6 +26,7 @@ fn the_upload_is_header_segments_preview() {
     let rendered = Rendered {
         rays: 5,
         took: std::time::Duration::from_micros(77),
+        cpu_micros: Some(1234),
     };
     let msgs = segment_messages(1, b"s", &lease, rect, rendered, enc.clone());
     use pb::tile_upload::Part;
@@ -34,6 +35,7 @@ fn the_upload_is_header_segments_preview() {
         panic!()
     };
     assert_eq!((h.lease_id, h.job_id, h.render_micros), (9, 3, Some(77)));
+    assert_eq!(h.cpu_micros, Some(1234));
     assert_eq!(h.rect, Some(rect.into()));
     for (m, s) in msgs[1..4].iter().zip(&enc.segments) {
         assert_eq!(m.part, Some(Part::Segment(s.clone())));
@@ -57,6 +59,7 @@ fn a_float_upload_is_header_then_chunks_of_pixels() {
     let rendered = Rendered {
         rays: 9,
         took: Duration::from_micros(5),
+        cpu_micros: None,
     };
     let msgs = tile_messages(1, b"s", &lease, rect, rendered, &px);
     use pb::tile_upload::Part;
@@ -118,6 +121,7 @@ fn a_pass_uploads_its_state_after_the_pixels() {
     let rendered = Rendered {
         rays: 9,
         took: Duration::from_micros(5),
+        cpu_micros: None,
     };
     let payload = Payload {
         pixels: Pixels::Floats(px.clone()),

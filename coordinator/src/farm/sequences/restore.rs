@@ -29,6 +29,7 @@ impl Farm {
                 done: j.seq.frames_done,
                 next: first,
                 running: BTreeMap::new(),
+                again: BTreeSet::new(),
                 state: j.state,
                 submitted,
                 started: finished

@@ -132,6 +132,12 @@ pub(super) const RENDER: &[Attribute] = &[
         "none (no render passes)",
         "render passes written beside the beauty",
     ),
+    extension(
+        "denoise",
+        "true or false",
+        "false",
+        "the frame denoised after it is rendered (trevi-submit --denoise)",
+    ),
 ];
 
 impl<'a> Resolver<'a> {
@@ -322,6 +328,7 @@ impl<'a> Resolver<'a> {
             frames,
             fps,
             aovs,
+            denoise: el.boolean("denoise")?.unwrap_or(false),
         })
     }
 

@@ -207,6 +207,7 @@ fn full_scene_resolves_with_defaults() {
             integrator: IntegratorKind::Whitted,
             max_bounces: DEFAULT_MAX_BOUNCES,
             aovs: crate::aov::Aovs::NONE,
+            denoise: false,
             frames: None,
             fps: 24.0,
         }
@@ -1592,6 +1593,17 @@ fn render_passes_are_named_in_any_order_and_unknown_ones_are_refused() {
         ],
     );
     check(&cam(r#"aovs="Depth""#), 3, 32, &["\"Depth\""]);
+    // `denoise=`: a flag for trevi-submit, parsed and checked here.
+    let denoise = |text: &str| parse(text).unwrap().cameras[0].render.denoise;
+    assert!(!denoise(&cam("")));
+    assert!(denoise(&cam(r#"denoise="true""#)));
+    assert!(!denoise(&cam(r#"denoise="0""#)));
+    check(
+        &cam(r#"denoise="yes""#),
+        3,
+        32,
+        &["denoise", "\"true\" or \"false\""],
+    );
     // A PNG's passes go to files beside it: another camera may not write
     // one of them.
     let two = |first: &str, second: &str| {

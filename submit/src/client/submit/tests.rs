@@ -40,8 +40,10 @@ fn the_request_carries_the_job_s_settings() {
         progressive,
         notify: vec!["https://hooks.example.com/trevi".into()],
         after: vec![4, 9],
+        aovs: Some(trevi_core::Aovs::parse("depth albedo").unwrap()),
     };
     let r = still.request("h", &job);
+    assert_eq!(r.aovs.as_deref(), Some("albedo depth"));
     assert_eq!(r.progressive, progressive);
     assert_eq!(r.notify, job.notify);
     assert_eq!((r.bundle_hash.as_str(), r.camera.as_str()), ("h", "a"));
