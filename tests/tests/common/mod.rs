@@ -93,6 +93,17 @@ pub fn bin(name: &str) -> PathBuf {
     dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX))
 }
 
+/// The test target `exe` was built from: its file name without cargo's
+/// `-<hash>` suffix (target/<profile>/deps/denoise_cli-2fd636e68d8353dd is
+/// `denoise_cli`).
+fn test_target_name(exe: &Path) -> Result<String, String> {
+    exe.file_stem()
+        .and_then(|s| s.to_str())
+        .and_then(|s| s.rsplit_once('-'))
+        .map(|(name, _hash)| name.to_string())
+        .ok_or_else(|| format!("{} is not named TEST-HASH", exe.display()))
+}
+
 static BUILT: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
 
 /// Builds [`BINARIES`] once per test process; returns the directory they
@@ -136,17 +147,25 @@ fn build_binaries() -> Result<PathBuf, String> {
     // package's tests selected, its dev-dependency on trevi-worker turns on
     // the worker's `test-hooks` feature, so trevi-worker is built with the
     // hooks these tests drive (TREVI_TEST_*), as in the test run.
-    cmd.args(["--workspace", "--tests", "--examples"]);
-    // The features of the outer `cargo test --features …`, which a test
-    // cannot see: given again in TREVI_BUILD_FEATURES (CI's denoise run,
-    // tests/tests/denoise_cli.rs), else the nested build would rebuild the
-    // binaries without them.
-    if let Some(f) = std::env::var("TREVI_BUILD_FEATURES")
+    //
+    // The features of the outer `cargo test --features … --test NAME`,
+    // which a test cannot see, are given again in TREVI_BUILD_FEATURES
+    // (CI's denoise run, tests/tests/denoise_cli.rs), else the nested build
+    // would rebuild the binaries without them. That run selects one test,
+    // so the nested build selects the same one (this executable's name
+    // without cargo's hash): the same features resolve (a test target turns
+    // the dev-dependencies on either way), and the other tests and examples
+    // are not compiled a second time with the features, which doubled the
+    // target directory and filled CI's disk.
+    let features = std::env::var("TREVI_BUILD_FEATURES")
         .ok()
-        .filter(|f| !f.trim().is_empty())
-    {
-        cmd.args(["--features", f.trim()]);
-    }
+        .filter(|f| !f.trim().is_empty());
+    match &features {
+        None => cmd.args(["--workspace", "--tests", "--examples"]),
+        Some(f) => cmd
+            .args(["--workspace", "--features", f.trim(), "--test"])
+            .arg(test_target_name(&exe)?),
+    };
     // Cargo runs this test with the test package's own variables set
     // (CARGO_MANIFEST_DIR, CARGO_PKG_NAME, ...). Build scripts such as
     // ring's ask to run again when those change (rerun-if-env-changed), so
