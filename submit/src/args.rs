@@ -68,9 +68,10 @@ pub struct Args {
     /// No progress output.
     #[arg(short, long, env = "TREVI_QUIET")]
     pub quiet: bool,
-    /// Denoise every still (Intel Open Image Denoise, with the albedo and
-    /// normal passes) after it is rendered, here, band by band: the noisy
-    /// frame is kept beside the output as NAME.noisy.exr. A camera's
+    /// Denoise every still and every frame of a sequence (Intel Open Image
+    /// Denoise, with the albedo and normal passes) after it is rendered,
+    /// here, band by band: the noisy frame is kept beside a PNG output as
+    /// NAME.noisy.exr, an EXR output holds it as its layer "noisy". A camera's
     /// denoise="true" does the same for it. Needs a build with the
     /// `denoise` feature (docs/denoise.md); refused before rendering
     /// otherwise.

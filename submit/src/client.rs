@@ -30,6 +30,9 @@ pub struct Client {
     pub announce: bool,
     /// Keep the watched job's live preview in this PNG file (`--preview`).
     pub preview: Option<PathBuf>,
+    /// With `--denoise`: a progressive job's preview is denoised after each
+    /// pass, with this many OIDN threads (0: every core).
+    pub denoise_preview: Option<u32>,
     /// The jobs submitted through this connection, in order.
     pub submitted: Vec<u64>,
     /// While a progressive still is watched: where its image goes, written

@@ -2,7 +2,10 @@
 //! rendered, locally or on a farm, to a noisy multi-layer OpenEXR beside its
 //! output (`NAME.noisy.exr`: the beauty with the albedo and normal passes the
 //! denoiser uses), then denoised band by band into the output
-//! ([`trevi_denoise::denoise_file`]: the frame is never whole in memory).
+//! ([`trevi_denoise::denoise_file`]: the frame is never whole in memory). A
+//! sequence renders its noisy frames by the pattern beside the output's
+//! (`shot_##.png` → `shot_##.noisy.exr`), then each frame is denoised the
+//! same way, one after the other, once the sequence has rendered.
 //!
 //! Where it runs: here, on the machine that runs `trevi-submit`, after the
 //! frame is stitched and downloaded. The coordinator never spends a core on
@@ -15,17 +18,25 @@
 //!
 //! Checked before anything renders: the build has the `denoise` feature and
 //! the library starts ([`check`]); `--detach` (nothing is left to denoise
-//! when the job ends) and sequences (not yet) are refused. The output
+//! when the job ends) is refused. The output
 //! carries the passes that were asked for; an EXR output also holds the
 //! beauty before denoising as its layer `noisy` (the noisy file is then
 //! removed), a PNG output keeps the noisy file beside it.
 
+mod preview;
+
+pub use preview::denoise_preview;
+
+use crate::sequence::Sequence;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
+use trevi_core::scene::animation::Frames;
 use trevi_denoise::{denoise_file, Denoised, Denoiser, DEFAULT_BAND_ROWS, DEFAULT_OVERLAP};
 
-/// The noisy frame's file beside `out`: `shot.png` → `shot.noisy.exr`.
+/// The noisy frame's file beside `out`: `shot.png` → `shot.noisy.exr` (and
+/// a sequence's pattern `shot_##.png` → `shot_##.noisy.exr`).
 pub fn noisy_path(out: &Path) -> PathBuf {
     let stem = out
         .file_stem()
@@ -50,42 +61,75 @@ pub fn check(threads: u32) -> Result<()> {
         .context("--denoise (or a camera's denoise=\"true\")")
 }
 
-/// Refuses what `--denoise` cannot do: a job left running (`--detach`), a
-/// sequence.
-pub fn check_targets(detach: bool, sequence: Option<&str>) -> Result<()> {
+/// Refuses what `--denoise` cannot do: a job left running (`--detach`).
+pub fn check_detach(detach: bool) -> Result<()> {
     if detach {
         bail!(
             "--denoise cannot --detach: the frame is denoised by trevi-submit once it has it \
              (fetch it later, then run the denoise_exr example of trevi-denoise on it)"
         );
     }
-    if let Some(camera) = sequence {
-        bail!(
-            "camera \"{camera}\" renders a sequence: --denoise (denoise=\"true\") takes stills \
-             for now"
-        );
-    }
     Ok(())
 }
 
-/// A still to denoise once rendered.
-pub struct Still {
-    /// The noisy frame the render writes.
+/// A camera's output to denoise once rendered: a still, or every frame of
+/// a sequence (its files by pattern, one at a time: a sequence of many
+/// frames costs two paths, not two a frame).
+pub struct Output {
+    /// The noisy frame the render writes (a sequence: its pattern).
     pub noisy: PathBuf,
-    /// The denoised output.
+    /// The denoised output (a sequence: its pattern).
     pub out: PathBuf,
+    /// A sequence's frames; `None` for a still.
+    pub frames: Option<Frames>,
     /// The render passes the output carries from the noisy frame (those
     /// asked for; the guides the denoiser alone wanted stay out).
     pub carry: trevi_core::Aovs,
 }
 
-/// Denoises every still, one after the other, on a thread of its own (OIDN's
-/// device stays on the thread that made it), with `threads` OIDN threads
-/// (0: every core). Says what it did unless `quiet`.
-pub fn run(stills: Vec<Still>, threads: u32, quiet: bool) -> Result<()> {
-    for s in stills {
+impl Output {
+    /// Each frame to denoise: (noisy file, denoised file).
+    fn files(&self) -> impl Iterator<Item = (PathBuf, PathBuf)> + '_ {
+        let frames = match self.frames {
+            Some(f) => f.first..=f.last,
+            // One item, the still itself.
+            None => 0..=0,
+        };
+        frames.map(move |frame| match self.frames {
+            None => (self.noisy.clone(), self.out.clone()),
+            Some(frames) => {
+                let file = |pattern: &Path| {
+                    Sequence {
+                        frames,
+                        pattern: pattern.to_path_buf(),
+                    }
+                    .output(frame)
+                };
+                (file(&self.noisy), file(&self.out))
+            }
+        })
+    }
+}
+
+/// Denoises every output's frames, one after the other, on a thread of its
+/// own (OIDN's device stays on the thread that made it), with `threads` OIDN
+/// threads (0: every core). `current` names the output being written (for
+/// [`run_interruptible`]). Says what it did unless `quiet`.
+fn run(
+    outputs: Vec<Output>,
+    threads: u32,
+    quiet: bool,
+    current: &Mutex<Option<PathBuf>>,
+) -> Result<()> {
+    let denoiser = Denoiser::new(threads).context("starting the denoiser")?;
+    for (noisy, out, carry) in outputs
+        .iter()
+        .flat_map(|o| o.files().map(move |(n, d)| (n, d, o.carry)))
+    {
+        let s = Still { noisy, out, carry };
+        *current.lock().unwrap_or_else(|e| e.into_inner()) = Some(s.out.clone());
         let started = Instant::now();
-        let d = denoise_one(&s, threads)?;
+        let d = denoise_one(&denoiser, &s)?;
         // An EXR output holds the noisy beauty (its layer `noisy`) and the
         // passes asked for: the noisy file has nothing more to give.
         let layer =
@@ -118,33 +162,41 @@ pub fn run(stills: Vec<Still>, threads: u32, quiet: bool) -> Result<()> {
 }
 
 /// [`run`] on a thread of its own while `signals` are watched: SIGINT or
-/// SIGTERM stops waiting for it, removes the denoised output's temporary
-/// file (the writer's `.NAME.trevi-tmp-PID-N`, see trevi_core::output) and
-/// is the error; the noisy frames stay. The process exits right after, with
-/// the thread.
+/// SIGTERM stops waiting for it, removes the temporary file of the output
+/// being denoised (the writer's `.NAME.trevi-tmp-PID-N`, see
+/// trevi_core::output) and is the error; the noisy frames, and the frames
+/// already denoised, stay. The process exits right after, with the thread.
 pub async fn run_interruptible(
-    stills: Vec<Still>,
+    outputs: Vec<Output>,
     threads: u32,
     quiet: bool,
     signals: &mut crate::local::Signals,
 ) -> Result<()> {
-    let outs: Vec<PathBuf> = stills.iter().map(|s| s.out.clone()).collect();
+    let current = Arc::new(Mutex::new(None::<PathBuf>));
     let (tx, rx) = tokio::sync::oneshot::channel();
+    let writing = Arc::clone(&current);
     std::thread::Builder::new()
         .name("denoise".into())
         .spawn(move || {
-            let _ = tx.send(run(stills, threads, quiet));
+            let _ = tx.send(run(outputs, threads, quiet, &writing));
         })
         .context("starting the denoise thread")?;
     tokio::select! {
         r = rx => r.context("the denoise thread ended without a word")?,
         sig = signals.next() => {
-            for out in &outs {
+            if let Some(out) = current.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
                 remove_temporary(out);
             }
             Err(anyhow::Error::new(sig))
         }
     }
+}
+
+/// One frame to denoise.
+struct Still {
+    noisy: PathBuf,
+    out: PathBuf,
+    carry: trevi_core::Aovs,
 }
 
 /// Removes this process's temporary files of the output `out`.
@@ -171,10 +223,9 @@ fn remove_temporary(out: &Path) {
     }
 }
 
-fn denoise_one(s: &Still, threads: u32) -> Result<Denoised> {
-    let denoiser = Denoiser::new(threads).context("starting the denoiser")?;
+fn denoise_one(denoiser: &Denoiser, s: &Still) -> Result<Denoised> {
     denoise_file(
-        &denoiser,
+        denoiser,
         &s.noisy,
         &s.out,
         DEFAULT_BAND_ROWS,
@@ -206,12 +257,34 @@ mod tests {
     }
 
     #[test]
-    fn detach_and_sequences_are_refused_by_name() {
-        let e = check_targets(true, None).unwrap_err().to_string();
+    fn detach_is_refused_by_name() {
+        let e = check_detach(true).unwrap_err().to_string();
         assert!(e.contains("--detach"), "{e}");
-        let e = check_targets(false, Some("cam")).unwrap_err().to_string();
-        assert!(e.contains("\"cam\"") && e.contains("stills"), "{e}");
-        assert!(check_targets(false, None).is_ok());
+        assert!(check_detach(false).is_ok());
+    }
+
+    #[test]
+    fn a_sequence_denoises_each_frame_from_its_noisy_frame() {
+        let out = PathBuf::from("f/shot_##.png");
+        let o = Output {
+            noisy: noisy_path(&out),
+            out,
+            frames: Some(Frames { first: 9, last: 11 }),
+            carry: trevi_core::Aovs::NONE,
+        };
+        let files: Vec<_> = o.files().collect();
+        let want = [9, 10, 11].map(|n| {
+            (
+                PathBuf::from(format!("f/shot_{n:02}.noisy.exr")),
+                PathBuf::from(format!("f/shot_{n:02}.png")),
+            )
+        });
+        assert_eq!(files, want);
+        let still = Output { frames: None, ..o };
+        assert_eq!(
+            still.files().collect::<Vec<_>>(),
+            [(still.noisy.clone(), still.out.clone())]
+        );
     }
 
     #[cfg(not(feature = "denoise"))]

@@ -147,7 +147,7 @@ fn run(args: Args) -> Result<()> {
         aovs: args.aovs,
     };
     let mut targets = Vec::new();
-    // Stills denoised once rendered (see denoise.rs): checked now.
+    // Outputs denoised once rendered (see denoise.rs): checked now.
     let mut to_denoise = Vec::new();
     let denoise_threads = args.threads.unwrap_or(0).min(u32::MAX as usize) as u32;
     for &cam in &cameras {
@@ -158,17 +158,19 @@ fn run(args: Args) -> Result<()> {
         };
         let frames = args.frames.or(c.render.frames);
         if args.denoise || c.render.denoise {
-            denoise::check_targets(args.detach, frames.map(|_| c.id.as_str()))?;
+            denoise::check_detach(args.detach)?;
             if to_denoise.is_empty() {
                 denoise::check(denoise_threads)?;
             }
-            // Checked as the output before it is swapped for the noisy frame.
-            client::Target::new(c.id.clone(), out.clone(), None)
+            // Checked as the output before it is swapped for the noisy frame
+            // (a sequence's pattern and every frame's file).
+            client::Target::new(c.id.clone(), out.clone(), frames)
                 .with_context(|| format!("camera \"{}\"", c.id))?;
             let noisy = denoise::noisy_path(&out);
-            to_denoise.push(denoise::Still {
+            to_denoise.push(denoise::Output {
                 noisy: noisy.clone(),
                 out,
+                frames,
                 // The passes asked for go on to the output; a progressive
                 // job renders none.
                 carry: match progressive {
@@ -198,6 +200,10 @@ fn run(args: Args) -> Result<()> {
         targets.push(target);
     }
     targets.sort_by_key(|t| t.frames().is_some());
+    // A progressive render to denoise shows each pass denoised in its
+    // --preview (denoise/preview.rs).
+    let denoise_preview =
+        (!to_denoise.is_empty() && progressive.is_some()).then_some(denoise_threads);
     // A local still with its own samples can be extended later: its job is
     // kept in the local directory. Any other local render leaves nothing.
     let keep = args.coordinator.is_none()
@@ -214,6 +220,7 @@ fn run(args: Args) -> Result<()> {
             drop(desc);
             let mut client = args.auth.connect(url).await?;
             client.preview = args.preview.clone();
+            client.denoise_preview = denoise_preview;
             let work = client.render(&bundle, &targets, &job, args.detach, progress);
             let signal = tokio::select! {
                 r = work => return r,
@@ -236,6 +243,7 @@ fn run(args: Args) -> Result<()> {
             let mut client = client::Client::connect(&farm.url, None).await?;
             client.announce = false;
             client.preview = args.preview.clone();
+            client.denoise_preview = denoise_preview;
             let r = client
                 .render(&bundle, &targets, &job, false, progress)
                 .await;

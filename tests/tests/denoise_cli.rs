@@ -124,6 +124,23 @@ fn without_a_denoiser(dir: &Dir, first: &std::process::Output, out: &Path) {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("denoise=\"true\""), "{err}");
     assert!(!dir.path().join("out.png").exists() && !dir.path().join("out.noisy.exr").exists());
+    let seq = dir.path().join("seq_#.png");
+    let o = submit(
+        dir,
+        &[
+            flagged.to_str().unwrap(),
+            "--quiet",
+            "--frames",
+            "1-2",
+            "-o",
+            seq.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "a sequence is refused too");
+    assert!(std::fs::read_dir(dir.path())
+        .unwrap()
+        .flatten()
+        .all(|e| !e.file_name().to_string_lossy().starts_with("seq_")));
 }
 
 /// Closer to the reference than the noisy frame; the noisy frame kept; the
@@ -193,6 +210,155 @@ fn with_a_denoiser(dir: &Dir, noisy_scene: &Path, out: &Path) {
         "the farm's denoised frame differs from the local one"
     );
     layers_of_a_denoised_exr(dir, noisy_scene, out);
+    a_denoised_sequence(dir, noisy_scene, &r, &c.url);
+    a_progressive_preview_denoised_after_each_pass(dir, noisy_scene, &r);
+}
+
+/// A progressive render's `--preview` with `--denoise`: the last pass's
+/// preview, denoised (the 48×32 frame is its own preview, not scaled), closer
+/// to the reference than the same render's preview without denoising; the
+/// output denoised at the end.
+fn a_progressive_preview_denoised_after_each_pass(
+    dir: &Dir,
+    noisy_scene: &Path,
+    reference: &[f64],
+) {
+    let scene = noisy_scene.to_str().unwrap();
+    let at = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let local = at("kept");
+    let common = [
+        "--quiet",
+        "--threads",
+        "1",
+        "--samples",
+        "8",
+        "--pass",
+        "4",
+        "--local-dir",
+        &local,
+    ];
+    run(
+        dir,
+        &[
+            &[
+                scene,
+                "--denoise",
+                "--preview",
+                &at("dp.png"),
+                "-o",
+                &at("dprog.png"),
+            ][..],
+            &common,
+        ]
+        .concat(),
+    );
+    run(
+        dir,
+        &[
+            &[scene, "--preview", &at("np.png"), "-o", &at("nprog.png")][..],
+            &common,
+        ]
+        .concat(),
+    );
+    let (denoised, noisy) = (
+        pixels(Path::new(&at("dp.png"))),
+        pixels(Path::new(&at("np.png"))),
+    );
+    let (noisy_err, denoised_err) = (rmse(&noisy, reference), rmse(&denoised, reference));
+    eprintln!("progressive preview, 8 spp: RMSE noisy {noisy_err:.4}, denoised {denoised_err:.4}");
+    assert!(
+        denoised_err < 0.7 * noisy_err,
+        "the preview is not denoised: {denoised_err} vs {noisy_err}"
+    );
+    let out = pixels(Path::new(&at("nprog.png")));
+    assert!(
+        out.iter()
+            .zip(&noisy)
+            .all(|(a, b)| (a - b).abs() <= 1.0 / 255.0 + 1e-9),
+        "the preview without denoising is not the output's image"
+    );
+    let out_err = rmse(&pixels(Path::new(&at("dprog.png"))), reference);
+    assert!(
+        out_err < 0.7 * noisy_err,
+        "the output is not denoised: {out_err}"
+    );
+}
+
+/// A sequence: every frame rendered noisy by the pattern beside the
+/// output's, then denoised; each denoised frame closer to the reference than
+/// its noisy frame (the scene does not move, so one reference serves every
+/// frame), each noisy frame the beauty of the same sequence rendered without
+/// denoising, the farm's frames the local ones' bytes. An EXR sequence holds
+/// its noisy beauty as a layer and leaves no noisy file.
+fn a_denoised_sequence(dir: &Dir, noisy_scene: &Path, reference: &[f64], farm: &str) {
+    use trevi_core::output::read_exr_channels;
+    let scene = noisy_scene.to_str().unwrap();
+    let common = ["--quiet", "--threads", "1", "--frames", "3-4"];
+    let at = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    run(
+        dir,
+        &[&[scene, "--denoise", "-o", &at("seq_#.png")][..], &common].concat(),
+    );
+    run(
+        dir,
+        &[&[scene, "-o", &at("plain_#.exr")][..], &common].concat(),
+    );
+    let farm_args = ["--coordinator", farm];
+    run(
+        dir,
+        &[
+            &[scene, "--denoise", "-o", &at("farm_#.png")][..],
+            &common,
+            &farm_args,
+        ]
+        .concat(),
+    );
+    run(
+        dir,
+        &[
+            &[scene, "--denoise", "-o", &at("layered_#.exr")][..],
+            &common,
+        ]
+        .concat(),
+    );
+    for f in [3, 4] {
+        let denoised = dir.path().join(format!("seq_{f}.png"));
+        let noisy = dir.path().join(format!("seq_{f}.noisy.exr"));
+        let (_, _, noisy_layers) = read_exr_channels(&noisy).unwrap();
+        let (_, _, plain) = read_exr_channels(&dir.path().join(format!("plain_{f}.exr"))).unwrap();
+        for c in ["R", "G", "B"] {
+            let get = |l: &[(String, Vec<f32>)]| l.iter().find(|(n, _)| n == c).unwrap().1.clone();
+            assert!(
+                get(&noisy_layers) == get(&plain),
+                "frame {f}: the noisy frame's {c} is not the render's without denoising"
+            );
+        }
+        let noisy_png: Vec<f64> = (0..noisy_layers[0].1.len())
+            .flat_map(|i| {
+                ["R", "G", "B"].map(|c| {
+                    let v = noisy_layers.iter().find(|(n, _)| n == c).unwrap().1[i];
+                    f64::from(trevi_core::output::linear_to_srgb8(v)) / 255.0
+                })
+            })
+            .collect();
+        let d = pixels(&denoised);
+        let (noisy_err, denoised_err) = (rmse(&noisy_png, reference), rmse(&d, reference));
+        eprintln!("frame {f}: RMSE noisy {noisy_err:.4}, denoised {denoised_err:.4}");
+        assert!(denoised_err < 0.7 * noisy_err, "frame {f} is not denoised");
+        assert!(
+            std::fs::read(&denoised).unwrap()
+                == std::fs::read(dir.path().join(format!("farm_{f}.png"))).unwrap(),
+            "frame {f}: the farm's denoised frame differs from the local one"
+        );
+        assert!(!dir.path().join(format!("layered_{f}.noisy.exr")).exists());
+        let (_, _, layered) =
+            read_exr_channels(&dir.path().join(format!("layered_{f}.exr"))).unwrap();
+        let noisy_r = &layered.iter().find(|(n, _)| n == "noisy.R").unwrap().1;
+        assert!(
+            *noisy_r == plain.iter().find(|(n, _)| n == "R").unwrap().1,
+            "frame {f}: the EXR's noisy layer is not the render without denoising"
+        );
+    }
 }
 
 /// An EXR output holds the denoised beauty, the passes asked for (and not

@@ -32,6 +32,7 @@ impl Client {
             url: url.to_string(),
             announce: true,
             preview: None,
+            denoise_preview: None,
             submitted: Vec::new(),
             pass_output: None,
             jobs: JobsClient::with_interceptor(channel.clone(), bearer.clone())

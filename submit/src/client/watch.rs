@@ -22,7 +22,7 @@ impl Client {
     pub async fn watch(&mut self, id: u64, progress: Progress) -> Result<pb::JobStatus> {
         let mut view = ProgressView::new(progress);
         let mut last: Option<pb::JobStatus> = None;
-        let mut preview = PreviewFile::new(self.preview.clone());
+        let mut preview = PreviewFile::new(self.preview.clone(), self.denoise_preview);
         let mut backoff = Duration::from_millis(100);
         let mut lost_since: Option<std::time::Instant> = None;
         let mut passes_kept = 0;
