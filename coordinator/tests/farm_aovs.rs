@@ -1,11 +1,14 @@
 //! Render passes on the farm without a network: a tile's pass values of
 //! the wrong size are refused (and the tile re-queued), the right ones are
 //! stitched by the job's `FrameWriter` into the very file core writes, and
-//! a restart in the middle keeps the stored tiles' passes.
+//! a restart in the middle keeps the stored tiles' passes. A PNG
+//! sequence's frames have their pass files filed beside them, removed
+//! with them, and asked for by frame within the range (`sequences.rs`).
 
 mod common;
 
 use std::path::Path;
+use trevi_coordinator::farm::Retention;
 use trevi_coordinator::{
     Farm, FarmConfig, FarmError, JobSpec, JobState, LeaseResult, SubmitOptions, TileOutcome,
     WorkerOptions,
@@ -169,7 +172,7 @@ fn passes_stitch_into_the_file_core_writes_across_a_restart() {
         );
         if name.ends_with(".png") {
             for pass in ["albedo", "normal", "depth"] {
-                let side = f.aov_file(job, pass).unwrap();
+                let side = f.aov_file(job, pass, None).unwrap();
                 let ext = if pass == "depth" { "exr" } else { "png" };
                 assert_eq!(
                     side.file_name().unwrap().to_string_lossy(),
@@ -183,10 +186,148 @@ fn passes_stitch_into_the_file_core_writes_across_a_restart() {
                 );
             }
         } else {
-            let e = f.aov_file(job, "albedo").unwrap_err();
+            let e = f.aov_file(job, "albedo", None).unwrap_err();
             assert!(e.to_string().contains("as layers"), "{e}");
         }
-        let e = f.aov_file(job, "specular").unwrap_err();
+        let e = f.aov_file(job, "specular", None).unwrap_err();
         assert!(e.to_string().contains("unknown render pass"), "{e}");
     }
+}
+
+/// Renders every tile leased until none is left or `stop` says so.
+fn render(f: &Farm, mut stop: impl FnMut(&Farm) -> bool) {
+    let w = f.register_worker(WorkerOptions::default()).unwrap().id;
+    while !stop(f) {
+        let Some(l) = f.lease(w).unwrap() else {
+            break;
+        };
+        assert_eq!(l.aovs, Aovs::ALL, "a frame's lease carries the passes");
+        put(f, l.job, l.id, l.rect, &aovs(l.rect)).unwrap();
+    }
+}
+
+/// The names in `dir`, sorted.
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// Frame `f`'s files in a sequence's directory: the frame, then its passes.
+fn frame_files(f: u32) -> [String; 4] {
+    [
+        format!("shot_{f:02}.png"),
+        format!("shot_{f:02}.albedo.png"),
+        format!("shot_{f:02}.normal.png"),
+        format!("shot_{f:02}.depth.exr"),
+    ]
+}
+
+#[test]
+fn a_png_sequence_files_each_frame_s_passes_beside_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = Farm::new(FarmConfig {
+        durable: true,
+        retention: Retention {
+            keep_ended: 1,
+            keep_ended_for: None,
+            ..Retention::default()
+        },
+        ..FarmConfig::new(dir.path())
+    })
+    .unwrap();
+    let seq = f
+        .submit_sequence(spec("shot_##.png"), 1, 3, SubmitOptions::default())
+        .unwrap()
+        .id;
+    render(&f, |_| false);
+    assert_eq!(f.info(seq).unwrap().state, JobState::Done);
+    // Only the sequence's directory is left, with every frame's files
+    // (each frame's own directory went once its files were moved).
+    let jobs = dir.path().join("jobs");
+    assert_eq!(names(&jobs), [seq.to_string()]);
+    let mut want: Vec<String> = (1..=3).flat_map(frame_files).collect();
+    want.sort();
+    assert_eq!(names(&jobs.join(seq.to_string())), want);
+    // Each the bytes core's writer gives (the pixels are the frame's).
+    reference(dir.path(), "o.png");
+    for frame in 1..=3 {
+        for (pass, ext) in [("albedo", "png"), ("normal", "png"), ("depth", "exr")] {
+            let side = f.aov_file(seq, pass, Some(frame)).unwrap();
+            assert_eq!(
+                side,
+                jobs.join(seq.to_string())
+                    .join(format!("shot_{frame:02}.{pass}.{ext}"))
+            );
+            assert!(
+                std::fs::read(&side).unwrap()
+                    == std::fs::read(dir.path().join("reference").join(format!("o.{pass}.{ext}")))
+                        .unwrap(),
+                "frame {frame} {pass}"
+            );
+        }
+    }
+    // No frame: the last one done, as a download of the output.
+    assert_eq!(
+        f.aov_file(seq, "normal", None).unwrap(),
+        jobs.join(seq.to_string()).join("shot_03.normal.png")
+    );
+    // A frame outside the range, refused naming it and the range.
+    for bad in [0, 4, u32::MAX] {
+        let e = f.aov_file(seq, "depth", Some(bad)).unwrap_err();
+        assert!(matches!(e, FarmError::NoOutput(..)), "{e:?}");
+        assert!(
+            e.to_string()
+                .contains(&format!("frame {bad} is not in its frames 1-3")),
+            "{e}"
+        );
+    }
+    // A still has no frames.
+    let still = f
+        .submit(spec("o.png"), SubmitOptions::default())
+        .unwrap()
+        .id;
+    f.fetched(seq, None);
+    render(&f, |_| false);
+    let e = f.aov_file(still, "albedo", Some(1)).unwrap_err();
+    assert!(e.to_string().contains("it is a still"), "{e}");
+    assert!(f.aov_file(still, "albedo", None).unwrap().is_file());
+    // Retention forgot the fetched sequence: its frames' passes went with
+    // its directory.
+    assert!(matches!(f.info(seq), Err(FarmError::UnknownJob(_))));
+    assert_eq!(names(&jobs), [still.to_string()]);
+}
+
+#[test]
+fn cancelling_a_png_sequence_keeps_finished_frames_passes_and_no_partial_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = farm(dir.path());
+    let seq = f
+        .submit_sequence(spec("shot_##.png"), 1, 3, SubmitOptions::default())
+        .unwrap()
+        .id;
+    // Frame 1 done, frame 2 (in progress beside it) begun.
+    let mut frame2 = 0;
+    render(&f, |f| {
+        let fr = f.info(seq).unwrap().frames.unwrap();
+        frame2 += u32::from(fr.done == 1);
+        frame2 > 1
+    });
+    let fr = f.info(seq).unwrap().frames.unwrap();
+    assert_eq!((fr.done, fr.in_progress), (1, 2), "{fr:?}");
+    f.cancel(seq).unwrap();
+    let jobs = dir.path().join("jobs");
+    assert_eq!(names(&jobs), [seq.to_string()], "a frame's partial files");
+    let mut want = frame_files(1).to_vec();
+    want.sort();
+    assert_eq!(names(&jobs.join(seq.to_string())), want);
+    assert!(f.aov_file(seq, "albedo", Some(1)).unwrap().is_file());
+    let e = f.aov_file(seq, "albedo", Some(2)).unwrap_err();
+    assert!(e.to_string().contains("frame 2 is not done"), "{e}");
 }

@@ -108,7 +108,8 @@ pub struct Args {
     /// comma-separated, at most 64 bytes; "" for none) instead of the
     /// camera's `<render aovs>`: an EXR output holds them as layers
     /// (albedo.R…, N.X…, Z), a PNG output gets NAME.albedo.png,
-    /// NAME.normal.png and NAME.depth.exr beside it. Stills only, not
+    /// NAME.normal.png and NAME.depth.exr beside it (each frame of a PNG
+    /// sequence: shot_01.albedo.png… beside shot_01.png). Not
     /// progressive.
     #[arg(long, env = "TREVI_AOVS", value_parser = aovs_arg)]
     pub aovs: Option<trevi_core::Aovs>,

@@ -3,8 +3,12 @@
 //! alone (`TREVI_AOVS` naming the same passes) gives the same EXR, byte for
 //! byte, as core's own render of the whole frame in one tile; its channels
 //! read back by the `exr` crate; a PNG output gets the same pass files
-//! beside it from all three. Unknown names, an over-long list and a
-//! progressive render with passes are refused before anything renders.
+//! beside it from all three. A sequence carries them in every frame: in
+//! its EXR frames' layers, or beside each of its PNG frames (on a farm, as
+//! `fetch` downloads them, and alone), core's own bytes each time; a pass
+//! file asked for by a frame outside the range is refused naming it.
+//! Unknown names, an over-long list and a progressive render with passes
+//! are refused before anything renders.
 
 mod common;
 
@@ -141,13 +145,10 @@ fn a_farm_and_trevi_submit_alone_write_the_passes_core_writes() {
 }
 
 /// A sequence's frames carry the passes as layers of their EXR files, on
-/// a farm and alone, each frame core's own; a PNG sequence with passes is
-/// refused before anything renders, naming the output.
+/// a farm and alone, each frame core's own.
 #[test]
 fn an_exr_sequence_carries_the_passes_in_every_frame() {
     let dir = Dir::new();
-    let frames =
-        |output: &str| scene(output).replace(r#"output="#, r#"frames="1-2" fps="2" output="#);
     let scene_exr = dir.write("seq.xml", &frames("shot.####.exr"));
     let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
     let _w = worker_with(&dir, &c.url, "worker0", &[], &[]);
@@ -184,20 +185,141 @@ fn an_exr_sequence_carries_the_passes_in_every_frame() {
             );
         }
     }
-    let png = dir.write("seq-png.xml", &frames("shot.####.png"));
+}
+
+/// The scene of [`scene`] as a sequence of frames 1-2.
+fn frames(output: &str) -> String {
+    scene(output).replace(r#"output="#, r#"frames="1-2" fps="2" output="#)
+}
+
+/// A PNG sequence with passes: every frame gets its pass files beside it
+/// (`shot_01.png`, `shot_01.albedo.png`, `shot_01.normal.png`,
+/// `shot_01.depth.exr`), on a farm of two workers (as the render waits,
+/// and as `fetch` downloads them again) and alone, each frame's files
+/// core's own render of that frame. On the wire, a pass file of a frame
+/// outside the range is refused naming the frame and the range; a still's
+/// by frame, naming it a still.
+#[test]
+fn a_png_sequence_gets_each_frame_s_passes_beside_it() {
+    let dir = Dir::new();
+    // The scene's passes but the depth: `--aovs` asks for all three.
+    let scene_png = dir.write(
+        "seq.xml",
+        &frames("shot_##.png").replace("albedo normal depth", "albedo normal"),
+    );
+    let c = coordinator_with(&dir, "127.0.0.1:0", "coordinator", &[], &[]);
+    let _w0 = worker_with(&dir, &c.url, "worker0", &[], &[]);
+    let _w1 = worker_with(&dir, &c.url, "worker1", &[], &[]);
+    let farm = dir.path().join("farm/shot_##.png");
+    let alone = dir.path().join("alone/shot_##.png");
+    for (out, farm_url) in [(&farm, Some(c.url.as_str())), (&alone, None)] {
+        let mut args = vec![
+            scene_png.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--tile",
+            "16",
+            "--aovs",
+            "albedo,normal,depth",
+            "--quiet",
+        ];
+        args.extend(farm_url.map(|u| ["--coordinator", u]).into_iter().flatten());
+        let o = submit(&dir, &args);
+        assert!(
+            o.status.success(),
+            "{args:?}: {}\n{}",
+            String::from_utf8_lossy(&o.stderr),
+            dir.logs()
+        );
+    }
+    // The farm's sequence (job 1) fetched again, into a directory.
+    let fetched = dir.path().join("fetched");
     let o = submit(
         &dir,
         &[
-            png.to_str().unwrap(),
-            "--quiet",
+            "fetch",
+            "1",
+            "--coordinator",
+            &c.url,
             "-o",
-            dir.path().join("p/s.####.png").to_str().unwrap(),
+            fetched.to_str().unwrap(),
         ],
     );
-    assert!(!o.status.success());
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("EXR") && err.contains(".png"), "{err}");
-    assert!(!dir.path().join("p").join("s.0001.png").exists());
+    assert!(
+        o.status.success(),
+        "fetch: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let scene_all = dir.write("seq-all.xml", &frames("shot_##.png"));
+    for f in 1..=2u32 {
+        let want = dir.path().join(format!("core_{f}.png"));
+        core_frame(&scene_all, f, &want);
+        let want = by_suffix(&want);
+        assert_eq!(want.len(), 4, "core wrote the frame and 3 pass files");
+        for d in ["farm", "alone", "fetched"] {
+            let got = by_suffix(&dir.path().join(d).join(format!("shot_{f:02}.png")));
+            for ((gn, gb), (wn, wb)) in got.iter().zip(&want) {
+                assert_eq!(gn, wn);
+                assert!(gb == wb, "{d}: frame {f}'s {gn} differs from core's");
+            }
+        }
+    }
+    // Nothing but the frames and their passes, no part file left.
+    for d in ["farm", "alone", "fetched"] {
+        let mut names: Vec<String> = std::fs::read_dir(dir.path().join(d))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(
+            names,
+            [
+                "shot_01.albedo.png",
+                "shot_01.depth.exr",
+                "shot_01.normal.png",
+                "shot_01.png",
+                "shot_02.albedo.png",
+                "shot_02.depth.exr",
+                "shot_02.normal.png",
+                "shot_02.png"
+            ],
+            "{d}"
+        );
+    }
+
+    // A still with passes on the same farm: job 2.
+    let still = dir.write("still.xml", &scene("still.png"));
+    farm_render(&dir, &c.url, &still, "still.png", 16);
+    let rt = runtime();
+    rt.block_on(async {
+        let mut j = jobs(&c, None).await;
+        let ask = |id: u64, frame: Option<u32>| pb::AovFileRequest {
+            id,
+            aov: "depth".into(),
+            frame,
+        };
+        // A frame within the range streams its file.
+        let mut s = j.download_aov(ask(1, Some(2))).await.unwrap().into_inner();
+        let mut got = Vec::new();
+        while let Some(chunk) = s.message().await.unwrap() {
+            got.extend(chunk.data);
+        }
+        let want = std::fs::read(dir.path().join("farm/shot_02.depth.exr")).unwrap();
+        assert!(got == want, "frame 2's depth pass");
+        for (req, says) in [
+            (ask(1, Some(7)), "frame 7 is not in its frames 1-2"),
+            (ask(1, Some(0)), "frame 0 is not in its frames 1-2"),
+            (
+                ask(1, Some(u32::MAX)),
+                "frame 4294967295 is not in its frames 1-2",
+            ),
+            (ask(2, Some(1)), "it is a still"),
+        ] {
+            let e = j.download_aov(req).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
+            assert!(e.message().contains(says), "{}", e.message());
+        }
+    });
 }
 
 #[test]
@@ -265,6 +387,7 @@ fn unknown_passes_and_progressive_renders_with_passes_are_refused() {
             .download_aov(pb::AovFileRequest {
                 id: 1,
                 aov: "depth".into(),
+                frame: None,
             })
             .await
             .unwrap_err();

@@ -1,7 +1,9 @@
 //! Render passes (AOVs, `trevi_core::aov`) on the farm: the set a
 //! submission asks for, checked before any work ([`aovs_from`]), the set a
 //! job gets ([`apply_aovs`]), and the file a PNG output's pass is written
-//! to beside it ([`Farm::aov_file`]). Their values travel with each tile's
+//! to beside it ([`pass_files`], [`Farm::aov_file`]): a still's, or each
+//! frame's of a PNG sequence (filed with its frame, `Farm::file_frame`).
+//! Their values travel with each tile's
 //! pixels (`TileUpload.aovs`), are checked there (`checks::validate_aovs`),
 //! stored after the pixels in the tile's bytes (`stitch.rs`, read back by
 //! `restore.rs`) and written by the job's `FrameWriter`
@@ -11,7 +13,6 @@ use super::Farm;
 use crate::error::FarmError;
 use crate::scheduler::{JobId, JobSpec};
 use std::path::{Path, PathBuf};
-use trevi_core::output::Format;
 use trevi_core::{Aov, Aovs};
 
 /// The longest `SubmitJobRequest.aovs` (and `--aovs`) taken, in bytes:
@@ -46,39 +47,41 @@ pub fn aovs_from(names: Option<&str>, progressive: bool) -> Result<Option<Aovs>,
 /// Gives `spec` (whose passes are its camera's, from [`Farm::job_spec`],
 /// and whose output name is final) the passes asked for, or its camera's
 /// when unset; a progressive job renders none of its camera's (its passes
-/// do not carry them). A sequence's frames carry them as layers of EXR
-/// files; a PNG sequence with passes is refused (its frames' pass files
-/// are not filed and fetched yet).
-pub fn apply_aovs(
-    spec: &mut JobSpec,
-    asked: Option<Aovs>,
-    sequence: bool,
-    progressive: bool,
-) -> Result<(), FarmError> {
-    let aovs = match asked {
+/// do not carry them). A still or a sequence takes them in either format:
+/// an EXR output (every frame of an EXR sequence) holds them as layers, a
+/// PNG output (every frame of a PNG sequence) gets its pass files beside
+/// it ([`pass_files`]).
+pub fn apply_aovs(spec: &mut JobSpec, asked: Option<Aovs>, progressive: bool) {
+    spec.aovs = match asked {
         Some(a) => a,
         None if progressive => Aovs::NONE,
         None => spec.aovs,
     };
-    if sequence
-        && !aovs.is_empty()
-        && Format::from_path(Path::new(&spec.output_name)) != Some(Format::Exr)
-    {
-        return Err(FarmError::Invalid(format!(
-            "render passes \"{aovs}\" of a sequence need an EXR output (its frames hold them \
-             as layers); {} is not one: use -o NAME.exr or --format exr",
-            spec.output_name
-        )));
-    }
-    spec.aovs = aovs;
-    Ok(())
+}
+
+/// The files beside frame file `output` holding its passes `aovs`, in
+/// layout order (see `trevi_core::aov::aov_path`): none for an EXR output,
+/// which holds them as layers.
+pub(super) fn pass_files(output: &Path, aovs: Aovs) -> Vec<PathBuf> {
+    aovs.iter()
+        .filter_map(|a| trevi_core::aov::aov_path(output, a))
+        .collect()
 }
 
 impl Farm {
-    /// The file finished still `job` wrote beside its PNG output for pass
-    /// `name` (see `trevi_core::aov::aov_path`). Call off the async
-    /// threads.
-    pub fn aov_file(&self, job: JobId, name: &str) -> Result<PathBuf, FarmError> {
+    /// The file finished job `job` wrote beside its PNG output for pass
+    /// `name` (see `trevi_core::aov::aov_path`): a still's (`frame`
+    /// `None`; a frame is refused, naming it), or that of frame `frame` of
+    /// a sequence (`None`: its highest frame done, as `DownloadOutput`).
+    /// The name and the frame are checked before any file is looked at:
+    /// a frame outside the sequence's range is refused naming the range.
+    /// Call off the async threads.
+    pub fn aov_file(
+        &self,
+        job: JobId,
+        name: &str,
+        frame: Option<u32>,
+    ) -> Result<PathBuf, FarmError> {
         let aov = Aov::from_name(name).ok_or_else(|| {
             FarmError::Invalid(format!(
                 "unknown render pass \"{}\" (expected albedo, normal or depth)",
@@ -92,8 +95,13 @@ impl Farm {
                 format!("it renders no {name} pass"),
             ));
         }
-        let output = self.output_file(job)?;
-        trevi_core::aov::aov_path(&output, aov).ok_or_else(|| {
+        // `frame_file` checks the frame against the range (and refuses one
+        // for a still) before it stats a file.
+        let output = match frame {
+            Some(f) => self.frame_file(job, Some(f))?,
+            None => self.output_file(job)?,
+        };
+        let path = trevi_core::aov::aov_path(&output, aov).ok_or_else(|| {
             FarmError::NoOutput(
                 job,
                 format!(
@@ -101,7 +109,15 @@ impl Farm {
                     info.spec.output_name
                 ),
             )
-        })
+        })?;
+        if !path.is_file() {
+            let which = frame.map_or(String::new(), |f| format!(" of frame {f}"));
+            return Err(FarmError::NoOutput(
+                job,
+                format!("the {name} pass file{which} is missing"),
+            ));
+        }
+        Ok(path)
     }
 }
 
@@ -131,32 +147,32 @@ mod tests {
         let mut spec = crate::scheduler::test_spec(4, 4, 4, "o.exr");
         spec.aovs = Aovs::ALL;
         let mut s = spec.clone();
-        apply_aovs(&mut s, None, false, false).unwrap();
+        apply_aovs(&mut s, None, false);
         assert_eq!(s.aovs, Aovs::ALL);
-        apply_aovs(&mut s, Some(Aovs::NONE), false, false).unwrap();
+        apply_aovs(&mut s, Some(Aovs::NONE), false);
         assert_eq!(s.aovs, Aovs::NONE);
         let mut s = spec.clone();
-        apply_aovs(&mut s, None, false, true).unwrap();
+        apply_aovs(&mut s, None, true);
         assert_eq!(s.aovs, Aovs::NONE, "progressive: none");
     }
 
     #[test]
-    fn a_sequence_carries_passes_in_exr_frames_and_refuses_them_in_png() {
-        let mut spec = crate::scheduler::test_spec(4, 4, 4, "shot.exr");
-        spec.aovs = Aovs::NONE.with(Aov::Depth);
-        let mut s = spec.clone();
-        apply_aovs(&mut s, None, true, false).unwrap();
-        assert_eq!(s.aovs, spec.aovs, "the camera's passes");
-        apply_aovs(&mut s, Some(Aovs::ALL), true, false).unwrap();
-        assert_eq!(s.aovs, Aovs::ALL, "the passes asked for");
-        let mut png = crate::scheduler::test_spec(4, 4, 4, "shot.png");
-        png.aovs = Aovs::NONE.with(Aov::Depth);
-        let e = apply_aovs(&mut png.clone(), None, true, false).unwrap_err();
-        assert!(
-            e.to_string().contains("EXR") && e.to_string().contains("shot.png"),
-            "{e}"
+    fn a_png_frame_s_passes_sit_beside_it_and_an_exr_s_in_it() {
+        let depth = Aovs::NONE.with(Aov::Depth);
+        assert_eq!(
+            pass_files(Path::new("jobs/7/shot_01.png"), Aovs::ALL),
+            [
+                "jobs/7/shot_01.albedo.png",
+                "jobs/7/shot_01.normal.png",
+                "jobs/7/shot_01.depth.exr"
+            ]
+            .map(PathBuf::from)
         );
-        apply_aovs(&mut png, Some(Aovs::NONE), true, false).unwrap();
-        assert_eq!(png.aovs, Aovs::NONE, "none asked: a PNG sequence as before");
+        assert_eq!(
+            pass_files(Path::new("jobs/7/shot_01.png"), depth),
+            [PathBuf::from("jobs/7/shot_01.depth.exr")]
+        );
+        assert!(pass_files(Path::new("jobs/7/shot_01.exr"), Aovs::ALL).is_empty());
+        assert!(pass_files(Path::new("jobs/7/shot_01.png"), Aovs::NONE).is_empty());
     }
 }

@@ -13,8 +13,10 @@
 //! frame order, so a sequence's memory is that many stills'.
 //!
 //! A frame that is done has its output moved into the sequence's directory
-//! (`jobs/<sequence>/shot.0007.png`) before its end is recorded, in one
-//! transaction with the sequence's count of frames done: a restart finds
+//! (`jobs/<sequence>/shot.0007.png`, with the pass files beside a PNG
+//! frame: `shot.0007.albedo.png`…, see `Farm::file_frame`) before its end
+//! is recorded, in one transaction with the sequence's count of frames
+//! done; retention removes them with the directory. A restart finds
 //! every finished frame where it was, and the frames in progress resume
 //! from their stored tiles. A frame that fails fails its sequence (the
 //! other frames in progress are cancelled); cancelling a sequence cancels
@@ -574,7 +576,13 @@ impl Farm {
         Ok(())
     }
 
-    /// Moves a finished frame's output into its sequence's directory.
+    /// Moves a finished frame's output into its sequence's directory, with
+    /// the pass files beside a PNG frame (`aovs::pass_files`). Each move
+    /// is a rename (a whole file or none is seen); the passes go first and
+    /// the frame last, so a frame whose file is there (what
+    /// [`Farm::frame_file`] looks for) has its passes there too. A pass that
+    /// cannot be moved leaves the frame where it was (the frame fails; a
+    /// render again rewrites them all).
     pub(super) fn file_frame(
         &self,
         seq: JobId,
@@ -586,9 +594,13 @@ impl Farm {
         let dir = to.parent().expect("jobs/<id>/name");
         std::fs::create_dir_all(dir)
             .map_err(|e| FarmError::io(format!("cannot create {}", dir.display()), e))?;
-        std::fs::rename(&from, &to).map_err(|e| {
-            FarmError::io(format!("moving {} to {}", from.display(), to.display()), e)
-        })?;
+        let passes = super::aovs::pass_files(&from, spec.aovs);
+        let filed = super::aovs::pass_files(&to, spec.aovs);
+        for (from, to) in passes.iter().zip(&filed).chain([(&from, &to)]) {
+            std::fs::rename(from, to).map_err(|e| {
+                FarmError::io(format!("moving {} to {}", from.display(), to.display()), e)
+            })?;
+        }
         let _ = std::fs::remove_dir(from.parent().expect("jobs/<id>/name"));
         Ok(())
     }

@@ -106,7 +106,7 @@ impl pb::jobs_server::Jobs for JobsService {
         let r = req.into_inner();
         // Checked before any work.
         let notify = crate::events::check_urls(&r.notify, "--notify")?;
-        let (sequence, progressive) = (r.frames.is_some(), r.progressive.is_some());
+        let progressive = r.progressive.is_some();
         let aovs = crate::farm::aovs_from(r.aovs.as_deref(), progressive)?;
         let farm = self.farm.clone();
         let info = blocking(move || {
@@ -114,7 +114,7 @@ impl pb::jobs_server::Jobs for JobsService {
             farm.check_after(&r.after)?;
             let mut spec = farm.job_spec(&r.bundle_hash, &r.camera, r.priority, r.tile_size)?;
             spec.output_name = crate::farm::output_name_as(&spec.output_name, &r.output_format)?;
-            crate::farm::apply_aovs(&mut spec, aovs, sequence, progressive)?;
+            crate::farm::apply_aovs(&mut spec, aovs, progressive);
             let opts = SubmitOptions {
                 who: &who,
                 after: r.after,
@@ -268,7 +268,7 @@ impl pb::jobs_server::Jobs for JobsService {
         let r = req.into_inner();
         let farm = self.farm.clone();
         let file = blocking(move || {
-            let path = farm.aov_file(r.id, &r.aov)?;
+            let path = farm.aov_file(r.id, &r.aov, r.frame)?;
             let file = std::fs::File::open(&path).map_err(|e| {
                 FarmError::io(format!("opening the {} pass of job {}", r.aov, r.id), e)
             })?;

@@ -1,8 +1,9 @@
 //! The files a finished still with a PNG output and render passes has
 //! beside it (`NAME.albedo.png`, `NAME.normal.png`, `NAME.depth.exr`; see
-//! `trevi_core::aov::aov_path`), downloaded beside the output as the
-//! coordinator wrote them (`DownloadAov`). An EXR output holds its passes
-//! as layers: nothing more to download.
+//! `trevi_core::aov::aov_path`), and each frame of a PNG sequence beside
+//! that frame (`shot_01.albedo.png`…), downloaded beside the output as the
+//! coordinator wrote them (`DownloadAov`, with the frame for a sequence).
+//! An EXR output holds its passes as layers: nothing more to download.
 
 use anyhow::{bail, Context, Result};
 use std::path::Path;
@@ -14,11 +15,13 @@ use super::download::PartFile;
 use super::Client;
 
 impl Client {
-    /// Downloads every pass file of finished still `s` beside `out` (its
-    /// output's path here); returns where they went.
+    /// Downloads every pass file of finished still `s` (`frame` `None`), or
+    /// of frame `frame` of sequence `s`, beside `out` (that image's path
+    /// here); returns where they went.
     pub async fn download_aovs(
         &mut self,
         s: &pb::JobStatus,
+        frame: Option<u32>,
         out: &Path,
     ) -> Result<Vec<std::path::PathBuf>> {
         let aovs = Aovs::parse(&s.aovs)
@@ -28,7 +31,7 @@ impl Client {
             let Some(path) = trevi_core::aov::aov_path(out, aov) else {
                 continue;
             };
-            self.download_aov(s.id, aov, &path)
+            self.download_aov(s.id, frame, aov, &path)
                 .await
                 .with_context(|| format!("the {} pass of job {}", aov.name(), s.id))?;
             written.push(path);
@@ -36,15 +39,23 @@ impl Client {
         Ok(written)
     }
 
-    /// Downloads pass `aov`'s file of job `id` to `path` (through a part
-    /// file renamed into place when complete).
-    async fn download_aov(&mut self, id: u64, aov: Aov, path: &Path) -> Result<u64> {
+    /// Downloads pass `aov`'s file of job `id` (of its frame `frame`, for a
+    /// sequence) to `path` (through a part file renamed into place when
+    /// complete).
+    async fn download_aov(
+        &mut self,
+        id: u64,
+        frame: Option<u32>,
+        aov: Aov,
+        path: &Path,
+    ) -> Result<u64> {
         use tokio::io::AsyncWriteExt;
         let mut stream = self
             .jobs
             .download_aov(pb::AovFileRequest {
                 id,
                 aov: aov.name().to_string(),
+                frame,
             })
             .await
             .map_err(status_error)?

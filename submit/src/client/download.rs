@@ -1,6 +1,7 @@
 //! Downloading a finished job's output: a still's image or a sequence's
-//! frames, each through a hidden part file renamed into place when
-//! complete; and `fetch`, which finds out where they go from the job.
+//! frames (each with the pass files beside a PNG, `aovs.rs`), each through
+//! a hidden part file renamed into place when complete; and `fetch`, which
+//! finds out where they go from the job.
 
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -106,7 +107,7 @@ impl Client {
         }
         self.download(id, None, &out, format).await?;
         // A PNG's render passes, beside it.
-        self.download_aovs(&s, &out).await?;
+        self.download_aovs(&s, None, &out).await?;
         Ok((out, s))
     }
 
@@ -165,9 +166,14 @@ impl Client {
             match self.download(id, Some(frame), &out, format).await {
                 Ok(_) => got += 1,
                 // A sequence that did not finish has frames without output.
-                Err(_) if s.state() != JobState::Done => {}
+                Err(_) if s.state() != JobState::Done => continue,
                 Err(e) => return Err(e.context(format!("frame {frame}"))),
             }
+            // A PNG frame's render passes, beside it (filed with the frame
+            // on the coordinator: a frame there has them).
+            self.download_aovs(&s, Some(frame), &out)
+                .await
+                .with_context(|| format!("frame {frame}"))?;
         }
         if got == 0 {
             bail!("sequence {id}: no frame could be fetched");

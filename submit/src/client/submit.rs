@@ -205,7 +205,7 @@ impl Client {
             ),
         }
         self.download_again(id, None, out, t.format).await?;
-        let passes = self.download_aovs(&s, out).await?;
+        let passes = self.download_aovs(&s, None, out).await?;
         if progress != Progress::Quiet {
             for p in &passes {
                 eprintln!("{}: render pass -> {}", s.camera, p.display());
@@ -236,8 +236,9 @@ impl Client {
     }
 
     /// Follows sequence `id` to its end (frames done, the current frame, an
-    /// ETA) and downloads every frame to `seq`'s files; of a sequence that
-    /// did not finish, the frames it finished.
+    /// ETA) and downloads every frame to `seq`'s files (a PNG frame's pass
+    /// files beside it); of a sequence that did not finish, the frames it
+    /// finished.
     async fn finish_sequence(
         &mut self,
         id: u64,
@@ -266,8 +267,15 @@ impl Client {
             self.download_again(id, Some(f), &out, t.format)
                 .await
                 .with_context(|| format!("frame {f}"))?;
+            let passes = self
+                .download_aovs(&end, Some(f), &out)
+                .await
+                .with_context(|| format!("frame {f}"))?;
             if progress != Progress::Quiet {
                 eprintln!("{}: frame {f} -> {}", t.camera, out.display());
+                for p in &passes {
+                    eprintln!("{}: frame {f} render pass -> {}", t.camera, p.display());
+                }
             }
         }
         Ok(())
