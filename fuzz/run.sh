@@ -18,7 +18,7 @@ cd "$(dirname "$0")"
 secs=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr denoise_exr state duration farm_queries requeue)
+[ ${#targets[@]} -gt 0 ] || targets=(aisxml obj mtl ply bundle png jpeg exr denoise_exr state duration farm_queries requeue aovs)
 rss_mb=${RSS_MB:-2048}
 timeout=${TIMEOUT:-10}
 
