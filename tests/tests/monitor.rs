@@ -326,12 +326,7 @@ async fn drive(c: &fantoccini::Client, farm: &Farm, job: u64) -> Result<Vec<u8>,
     let shot = c.screenshot().await.map_err(err("the screenshot"))?;
 
     // Raise the priority from the page: the coordinator takes it.
-    c.find(Locator::Css(&format!("#{card} .prio-up")))
-        .await
-        .map_err(err("the priority button"))?
-        .click()
-        .await
-        .map_err(err("clicking priority +"))?;
+    browser::click(c, &format!("#{card} .prio-up")).await?;
     poll(c, "the coordinator to raise the priority", |_| async {
         let (_, body) = http_get(farm.http(), "/api/state", Some(SUBMIT_TOKEN));
         let s: serde_json::Value = serde_json::from_str(&body).ok()?;
@@ -345,12 +340,7 @@ async fn drive(c: &fantoccini::Client, farm: &Farm, job: u64) -> Result<Vec<u8>,
     .await?;
 
     // Cancel from the page.
-    c.find(Locator::Css(&format!("#{card} .cancel")))
-        .await
-        .map_err(err("the cancel button"))?
-        .click()
-        .await
-        .map_err(err("clicking cancel"))?;
+    browser::click(c, &format!("#{card} .cancel")).await?;
     poll(c, "the page to show the job cancelled", |c| {
         let card = card.clone();
         async move {

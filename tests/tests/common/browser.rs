@@ -163,14 +163,26 @@ pub async fn open_monitor(c: &fantoccini::Client, http: &str, token: &str) -> Re
     Ok(())
 }
 
-/// Clicks the element `css` selects.
+/// Clicks the element `css` selects. The monitor redraws a job's card as
+/// the job changes, so the element found may be replaced before the click
+/// lands ("stale element reference"): then it is found again and clicked,
+/// for up to two minutes, as [`poll`] waits.
 pub async fn click(c: &fantoccini::Client, css: &str) -> Result<(), String> {
-    c.find(fantoccini::Locator::Css(css))
-        .await
-        .map_err(err(&format!("finding {css}")))?
-        .click()
-        .await
-        .map_err(err(&format!("clicking {css}")))
+    let start = Instant::now();
+    loop {
+        let clicked = match c.find(fantoccini::Locator::Css(css)).await {
+            Ok(e) => e.click().await,
+            Err(e) => return Err(err(&format!("finding {css}"))(e)),
+        };
+        match clicked {
+            Err(e)
+                if e.is_stale_element_reference() && start.elapsed() < Duration::from_secs(120) =>
+            {
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            r => return r.map_err(err(&format!("clicking {css}"))),
+        }
+    }
 }
 
 /// The text of the element `css` selects, if it is on the page.
