@@ -50,7 +50,7 @@ pub fn aovs_from(names: Option<&str>, progressive: bool) -> Result<Option<Aovs>,
 /// do not carry them). A still or a sequence takes them in either format:
 /// an EXR output (every frame of an EXR sequence) holds them as layers, a
 /// PNG output (every frame of a PNG sequence) gets its pass files beside
-/// it ([`pass_files`]).
+/// it (`pass_files` names them).
 pub fn apply_aovs(spec: &mut JobSpec, asked: Option<Aovs>, progressive: bool) {
     spec.aovs = match asked {
         Some(a) => a,
