@@ -14,17 +14,8 @@ impl Client {
     /// Writes job `id`'s live preview (a PNG) to `out`, through a temporary
     /// file renamed into place so a viewer never sees half an image.
     pub async fn save_preview(&mut self, id: u64, out: &Path) -> Result<pb::Preview> {
-        let p = self
-            .jobs
-            .get_preview(pb::JobId { id, frame: None })
-            .await
-            .map_err(status_error)?
-            .into_inner();
-        let mut tmp = PartFile::new(out).await?;
-        tokio::fs::write(&tmp.path, &p.png)
-            .await
-            .with_context(|| format!("cannot write {}", tmp.path.display()))?;
-        tmp.persist(out).await?;
+        let p = self.preview(id).await?;
+        write_in_place(out, &p.png).await?;
         Ok(p)
     }
 
@@ -32,23 +23,31 @@ impl Client {
     /// threads (on a blocking thread: a preview is at most 512 pixels a
     /// side), through a part file renamed into place.
     pub async fn save_denoised_preview(&mut self, id: u64, out: &Path, threads: u32) -> Result<()> {
-        let p = self
-            .jobs
-            .get_preview(pb::JobId { id, frame: None })
-            .await
-            .map_err(status_error)?
-            .into_inner();
+        let p = self.preview(id).await?;
         let png =
             tokio::task::spawn_blocking(move || crate::denoise::denoise_preview(&p.png, threads))
                 .await
                 .context("the preview's denoise thread")??;
-        let mut tmp = PartFile::new(out).await?;
-        tokio::fs::write(&tmp.path, &png)
-            .await
-            .with_context(|| format!("cannot write {}", tmp.path.display()))?;
-        tmp.persist(out).await?;
-        Ok(())
+        write_in_place(out, &png).await
     }
+
+    async fn preview(&mut self, id: u64) -> Result<pb::Preview> {
+        Ok(self
+            .jobs
+            .get_preview(pb::JobId { id, frame: None })
+            .await
+            .map_err(status_error)?
+            .into_inner())
+    }
+}
+
+/// Writes `bytes` to `out` through a part file renamed into place.
+async fn write_in_place(out: &Path, bytes: &[u8]) -> Result<()> {
+    let mut tmp = PartFile::new(out).await?;
+    tokio::fs::write(&tmp.path, bytes)
+        .await
+        .with_context(|| format!("cannot write {}", tmp.path.display()))?;
+    tmp.persist(out).await
 }
 
 /// The `--preview` file while a job is watched: rewritten at most once a
