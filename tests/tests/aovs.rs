@@ -154,24 +154,7 @@ fn an_exr_sequence_carries_the_passes_in_every_frame() {
     let _w = worker_with(&dir, &c.url, "worker0", &[], &[]);
     let farm = dir.path().join("farm/shot.####.exr");
     let alone = dir.path().join("alone/shot.####.exr");
-    for (out, farm_url) in [(&farm, Some(c.url.as_str())), (&alone, None)] {
-        let mut args = vec![
-            scene_exr.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--tile",
-            "16",
-            "--quiet",
-        ];
-        args.extend(farm_url.map(|u| ["--coordinator", u]).into_iter().flatten());
-        let o = submit(&dir, &args);
-        assert!(
-            o.status.success(),
-            "{args:?}: {}\n{}",
-            String::from_utf8_lossy(&o.stderr),
-            dir.logs()
-        );
-    }
+    render_on_the_farm_and_alone(&dir, &scene_exr, &c.url, &farm, &alone, &[]);
     for f in 1..=2u32 {
         let name = format!("shot.{f:04}.exr");
         let want = dir.path().join(format!("core.{f}.exr"));
@@ -184,6 +167,31 @@ fn an_exr_sequence_carries_the_passes_in_every_frame() {
                 "{what}: frame {f} is not core's frame with its passes"
             );
         }
+    }
+}
+
+/// Renders `scene` (tiles of 16, `extra` flags) into `farm` through the
+/// coordinator at `url` and into `alone` without one; both must succeed.
+fn render_on_the_farm_and_alone(
+    dir: &Dir,
+    scene: &Path,
+    url: &str,
+    farm: &Path,
+    alone: &Path,
+    extra: &[&str],
+) {
+    for (out, farm_url) in [(farm, Some(url)), (alone, None)] {
+        let mut args = vec![scene.to_str().unwrap(), "-o", out.to_str().unwrap()];
+        args.extend(["--tile", "16", "--quiet"]);
+        args.extend(extra);
+        args.extend(farm_url.map(|u| ["--coordinator", u]).into_iter().flatten());
+        let o = submit(dir, &args);
+        assert!(
+            o.status.success(),
+            "{args:?}: {}\n{}",
+            String::from_utf8_lossy(&o.stderr),
+            dir.logs()
+        );
     }
 }
 
@@ -212,26 +220,8 @@ fn a_png_sequence_gets_each_frame_s_passes_beside_it() {
     let _w1 = worker_with(&dir, &c.url, "worker1", &[], &[]);
     let farm = dir.path().join("farm/shot_##.png");
     let alone = dir.path().join("alone/shot_##.png");
-    for (out, farm_url) in [(&farm, Some(c.url.as_str())), (&alone, None)] {
-        let mut args = vec![
-            scene_png.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--tile",
-            "16",
-            "--aovs",
-            "albedo,normal,depth",
-            "--quiet",
-        ];
-        args.extend(farm_url.map(|u| ["--coordinator", u]).into_iter().flatten());
-        let o = submit(&dir, &args);
-        assert!(
-            o.status.success(),
-            "{args:?}: {}\n{}",
-            String::from_utf8_lossy(&o.stderr),
-            dir.logs()
-        );
-    }
+    let aovs = ["--aovs", "albedo,normal,depth"];
+    render_on_the_farm_and_alone(&dir, &scene_png, &c.url, &farm, &alone, &aovs);
     // The farm's sequence (job 1) fetched again, into a directory.
     let fetched = dir.path().join("fetched");
     let o = submit(
